@@ -1,0 +1,274 @@
+//! Procedural clouds with seeds (Kallweit 2017 §3.1 names the three families).
+//!
+//! - [`CloudKind::Cumulus`]: a heap of overlapping spheres on a flat base, eroded at the boundary
+//!   by fractal Perlin noise and billowy (inverted Worley) detail — fluffy heaps with sharp edges.
+//! - [`CloudKind::Stratus`]: a flat sheet whose top and bottom undulate with low-frequency noise,
+//!   with gentle interior variation — a hazy, featureless layer.
+//! - [`CloudKind::Cirrus`]: thin filaments: ridged multifractal noise stretched along a wind
+//!   direction in a thin layer — wispy strands.
+//!
+//! All grids are normalised so that their maximum is 1 (the scene's `density_scale` then sets
+//! σ_t), and the outermost voxel layer is zero so the cloud never touches its box. Generation is
+//! deterministic for a given kind, seed and resolution (on any thread count).
+
+use std::str::FromStr;
+
+use noise::{Fbm, MultiFractal, NoiseFn, Perlin, RidgedMulti, Worley};
+use rayon::prelude::*;
+
+use crate::error::FieldError;
+use crate::grid::{DensityGrid, check_resolution};
+
+/// The cloud families of the generator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum CloudKind {
+    Cumulus,
+    Stratus,
+    Cirrus,
+}
+
+impl CloudKind {
+    pub const ALL: [CloudKind; 3] = [CloudKind::Cumulus, CloudKind::Stratus, CloudKind::Cirrus];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            CloudKind::Cumulus => "cumulus",
+            CloudKind::Stratus => "stratus",
+            CloudKind::Cirrus => "cirrus",
+        }
+    }
+
+    /// A resolution with the family's usual proportions and `n` voxels along x.
+    pub fn default_resolution(self, n: usize) -> [usize; 3] {
+        match self {
+            CloudKind::Cumulus => [n, n * 3 / 4, n],
+            CloudKind::Stratus => [n, (n / 4).max(4), n],
+            CloudKind::Cirrus => [n, (n / 4).max(4), n],
+        }
+    }
+}
+
+impl FromStr for CloudKind {
+    type Err = FieldError;
+    fn from_str(s: &str) -> Result<Self, FieldError> {
+        match s.to_ascii_lowercase().as_str() {
+            "cumulus" => Ok(CloudKind::Cumulus),
+            "stratus" => Ok(CloudKind::Stratus),
+            "cirrus" | "wispy" => Ok(CloudKind::Cirrus),
+            other => Err(FieldError::new(
+                "kind",
+                format!("unknown cloud kind `{other}` (expected cumulus, stratus or cirrus)"),
+            )),
+        }
+    }
+}
+
+/// SplitMix64: seeds the layout randomness from the user's seed.
+struct SplitMix(u64);
+impl SplitMix {
+    fn next(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9e3779b97f4a7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58476d1ce4e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d049bb133111eb);
+        z ^= z >> 31;
+        (z >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn range(&mut self, a: f64, b: f64) -> f64 {
+        a + (b - a) * self.next()
+    }
+}
+
+fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
+    let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+type Field = Box<dyn Fn([f64; 3]) -> f64>;
+
+/// Builds the density function of a cloud in normalised coordinates (x in [−1, 1], y ≥ 0, z
+/// centred; cubic voxels). `noise` types are not `Sync`, so each worker builds its own.
+fn make_field(kind: CloudKind, seed: u64, res: [usize; 3]) -> Field {
+    let s32 = (seed ^ (seed >> 32)) as u32;
+    let mut rng = SplitMix(seed);
+    // Normalised coordinates: x, z in [−1, 1]; y in [0, ry/rx × 2] (voxels are cubes).
+    let scale = 2.0 / res[0] as f64;
+    let height = res[1] as f64 * scale;
+    let depth = res[2] as f64 * scale;
+    match kind {
+        CloudKind::Cumulus => {
+            let n_blobs = 6 + (rng.next() * 6.0) as usize;
+            let mut blobs = Vec::new();
+            let base = 0.12 * height;
+            for i in 0..n_blobs {
+                // Larger blobs low and central, smaller ones on top and at the sides.
+                let t = i as f64 / n_blobs as f64;
+                let r = rng.range(0.28, 0.45) * (1.0 - 0.35 * t) * height.min(depth).min(2.0) / 1.5;
+                let cx = rng.range(-0.55, 0.55) * (1.0 - 0.3 * t);
+                let cz = rng.range(-0.45, 0.45) * depth / 2.0 * (1.0 - 0.3 * t);
+                let cy = base + r * rng.range(0.6, 1.0) + t * 0.35 * height;
+                blobs.push(([cx, cy, cz], r));
+            }
+            let fbm = Fbm::<Perlin>::new(s32).set_octaves(5).set_frequency(2.5);
+            let worley = Worley::new(s32.wrapping_add(7)).set_frequency(6.0);
+            Box::new(move |p: [f64; 3]| {
+                let mut shape = f64::NEG_INFINITY;
+                for (c, r) in &blobs {
+                    let d = ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2))
+                        .sqrt();
+                    shape = shape.max(1.0 - d / r);
+                }
+                let n = fbm.get(p);
+                let billow = 1.0 - worley.get(p).abs().min(1.0);
+                let v = shape + 0.35 * n + 0.12 * (billow - 0.5);
+                // Flat base: fade out below the base plane.
+                let flat = smoothstep(base - 0.02, base + 0.04, p[1]);
+                (v * 3.0).clamp(0.0, 1.0) * flat
+            })
+        }
+        CloudKind::Stratus => {
+            let top = Fbm::<Perlin>::new(s32).set_octaves(4).set_frequency(1.5);
+            let bottom = Fbm::<Perlin>::new(s32.wrapping_add(1))
+                .set_octaves(3)
+                .set_frequency(1.2);
+            let inner = Fbm::<Perlin>::new(s32.wrapping_add(2))
+                .set_octaves(4)
+                .set_frequency(4.0);
+            let mid = 0.5 * height;
+            let thick = 0.3 * height;
+            Box::new(move |p: [f64; 3]| {
+                let t = mid + thick * (0.55 + 0.35 * top.get([p[0], 0.0, p[2]]));
+                let b = mid - thick * (0.55 + 0.25 * bottom.get([p[0], 5.0, p[2]]));
+                let edge = 0.04 * height;
+                let v = smoothstep(b - edge, b + edge, p[1])
+                    * (1.0 - smoothstep(t - edge, t + edge, p[1]));
+                let rim = 1.0 - smoothstep(0.8, 0.98, p[0].abs().max(p[2].abs() * 2.0 / depth));
+                v * rim * (0.75 + 0.25 * inner.get(p)).clamp(0.0, 1.0)
+            })
+        }
+        CloudKind::Cirrus => {
+            let angle = rng.range(0.0, std::f64::consts::PI);
+            let (ca, sa) = (angle.cos(), angle.sin());
+            let ridged = RidgedMulti::<Perlin>::new(s32)
+                .set_octaves(4)
+                .set_frequency(1.0);
+            let warp = Fbm::<Perlin>::new(s32.wrapping_add(3))
+                .set_octaves(3)
+                .set_frequency(1.5);
+            let layer = Fbm::<Perlin>::new(s32.wrapping_add(4))
+                .set_octaves(2)
+                .set_frequency(1.0);
+            let mid = 0.5 * height;
+            Box::new(move |p: [f64; 3]| {
+                // Streak frame: stretched along the wind direction (u), thin across (v) and in y.
+                let u = ca * p[0] + sa * p[2];
+                let v = -sa * p[0] + ca * p[2];
+                let w = warp.get([u, p[1], v]);
+                let q = [u * 0.8, (p[1] - mid) * 6.0, v * 6.0 + 0.8 * w];
+                let r = ridged.get(q);
+                let centre = mid + 0.25 * height * layer.get([p[0], 0.0, p[2]]);
+                let thin = 1.0 - smoothstep(0.0, 0.3 * height, (p[1] - centre).abs());
+                let rim = 1.0 - smoothstep(0.75, 0.98, p[0].abs().max(p[2].abs() * 2.0 / depth));
+                (smoothstep(0.55, 1.0, r) * thin * rim).clamp(0.0, 1.0)
+            })
+        }
+    }
+}
+
+/// Generates a cloud of `kind` with `seed` at resolution `res` (voxels along x, y, z).
+pub fn generate(kind: CloudKind, seed: u64, res: [usize; 3]) -> Result<DensityGrid, FieldError> {
+    let res = check_resolution(res.map(|r| r as i64), "resolution")?;
+    if res.iter().any(|&r| r < 4) {
+        return Err(FieldError::new(
+            "resolution",
+            format!("procedural clouds need at least 4 voxels per axis, got {res:?}"),
+        ));
+    }
+    let scale = 2.0 / res[0] as f64;
+    let depth = res[2] as f64 * scale;
+    let [nx, ny, nz] = res;
+    let mut data: Vec<f32> = (0..nx * ny * nz)
+        .into_par_iter()
+        .with_min_len(4096)
+        .map_init(
+            || make_field(kind, seed, res),
+            |field, i| {
+                let x = i % nx;
+                let y = (i / nx) % ny;
+                let z = i / (nx * ny);
+                if x == 0 || y == 0 || z == 0 || x == nx - 1 || y == ny - 1 || z == nz - 1 {
+                    return 0.0;
+                }
+                let p = [
+                    (x as f64 + 0.5) * scale - 1.0,
+                    (y as f64 + 0.5) * scale,
+                    (z as f64 + 0.5) * scale - depth / 2.0,
+                ];
+                field(p).max(0.0) as f32
+            },
+        )
+        .collect();
+    let max = data.iter().cloned().fold(0.0f32, f32::max);
+    if max <= 0.0 {
+        return Err(FieldError::new(
+            "seed",
+            format!(
+                "{} with seed {seed} at {res:?} came out empty; try another seed",
+                kind.name()
+            ),
+        ));
+    }
+    data.iter_mut().for_each(|v| *v /= max);
+    DensityGrid::new(res, data)
+}
+
+/// The world box a generated grid fills by default: centred at the origin, 2 units along x,
+/// with cubic voxels.
+pub fn default_aabb(res: [usize; 3]) -> (glam::DVec3, glam::DVec3) {
+    let s = 2.0 / res[0] as f64;
+    let half = glam::DVec3::new(1.0, res[1] as f64 * s / 2.0, res[2] as f64 * s / 2.0);
+    (-half, half)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn deterministic_and_distinct() {
+        for kind in CloudKind::ALL {
+            let res = kind.default_resolution(32);
+            let a = generate(kind, 3, res).unwrap();
+            let b = generate(kind, 3, res).unwrap();
+            let c = generate(kind, 4, res).unwrap();
+            assert_eq!(a, b);
+            assert_ne!(a, c);
+            let s = a.stats();
+            assert_eq!(s.max, 1.0);
+            // Clouds, not fog: part of the box is empty, part is filled.
+            assert!(
+                s.nonzero_fraction > 0.01 && s.nonzero_fraction < 0.9,
+                "{kind:?} {s:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn families_have_their_shapes() {
+        // Cumulus is heaped (much taller than a stratus sheet relative to its filled area);
+        // cirrus is sparse.
+        let cu = generate(CloudKind::Cumulus, 1, [32, 24, 32])
+            .unwrap()
+            .stats();
+        let ci = generate(CloudKind::Cirrus, 1, [32, 8, 32]).unwrap().stats();
+        let st = generate(CloudKind::Stratus, 1, [32, 8, 32])
+            .unwrap()
+            .stats();
+        assert!(st.nonzero_fraction > ci.nonzero_fraction);
+        assert!(st.mean > ci.mean);
+        assert!(cu.nonzero_fraction > 0.02);
+        assert!("wispy".parse::<CloudKind>().unwrap() == CloudKind::Cirrus);
+        assert!("fog".parse::<CloudKind>().is_err());
+        assert!(generate(CloudKind::Cumulus, 1, [2, 8, 8]).is_err());
+    }
+}

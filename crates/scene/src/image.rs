@@ -1,0 +1,168 @@
+//! Linear float RGB images: EXR output (RGB plus an optional per-pixel variance channel), EXR
+//! input, and tone-mapped PNG previews.
+//!
+//! PNG tone curve (the one the Mitsuba reference previews use): `sRGB(clamp(exposure × L, 0, 1))`
+//! per channel, with the standard sRGB transfer function. `exposure` defaults to the value that
+//! maps the 99th-percentile luminance of the non-black pixels to 0.9.
+
+use std::path::Path;
+
+use crate::error::{Error, Result};
+
+/// A linear RGB float image, row 0 at the top.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Image {
+    pub width: usize,
+    pub height: usize,
+    /// RGB triples, row-major.
+    pub pixels: Vec<[f32; 3]>,
+}
+
+impl Image {
+    pub fn new(width: usize, height: usize) -> Self {
+        Self {
+            width,
+            height,
+            pixels: vec![[0.0; 3]; width * height],
+        }
+    }
+
+    #[inline]
+    pub fn get(&self, x: usize, y: usize) -> [f32; 3] {
+        self.pixels[y * self.width + x]
+    }
+
+    /// Luminance used throughout Nimbus' metrics: the mean of R, G, B (as in the reference
+    /// comparison script).
+    #[inline]
+    pub fn lum(&self, x: usize, y: usize) -> f64 {
+        let p = self.get(x, y);
+        (p[0] as f64 + p[1] as f64 + p[2] as f64) / 3.0
+    }
+
+    /// Writes a float32 EXR with channels R, G, B and, when given, `variance` (the estimated
+    /// variance of each pixel's mean luminance).
+    pub fn write_exr(&self, path: impl AsRef<Path>, variance: Option<&[f32]>) -> Result<()> {
+        use exr::prelude::{
+            AnyChannel, AnyChannels, Encoding, FlatSamples, Layer, LayerAttributes, WritableImage,
+        };
+        let path = path.as_ref();
+        let (w, h) = (self.width, self.height);
+        let chan = |name: &str, f: &dyn Fn(usize) -> f32| {
+            AnyChannel::new(name, FlatSamples::F32((0..w * h).map(f).collect()))
+        };
+        let mut list = vec![
+            chan("R", &|i| self.pixels[i][0]),
+            chan("G", &|i| self.pixels[i][1]),
+            chan("B", &|i| self.pixels[i][2]),
+        ];
+        if let Some(v) = variance {
+            assert_eq!(v.len(), w * h);
+            list.push(chan("variance", &|i| v[i]));
+        }
+        let layer = Layer::new(
+            (w, h),
+            LayerAttributes::named("nimbus"),
+            Encoding::FAST_LOSSLESS,
+            AnyChannels::sort(list.into()),
+        );
+        exr::image::Image::from_layer(layer)
+            .write()
+            .to_file(path)
+            .map_err(|e| Error::parse(path, format!("cannot write EXR: {e}")))
+    }
+
+    /// Reads the RGB channels of the first layer of an EXR (Y-only images are broadcast).
+    pub fn read_exr(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let img = exr::prelude::read_first_rgba_layer_from_file(
+            path,
+            |res, _| Image::new(res.width(), res.height()),
+            |img: &mut Image, pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+                img.pixels[pos.y() * img.width + pos.x()] = [r, g, b];
+            },
+        )
+        .map_err(|e| Error::parse(path, format!("cannot read EXR: {e}")))?;
+        let img = img.layer_data.channel_data.pixels;
+        if let Some(i) = img
+            .pixels
+            .iter()
+            .position(|p| p.iter().any(|v| !v.is_finite()))
+        {
+            return Err(Error::invalid(
+                path,
+                format!("pixel[{},{}]", i % img.width, i / img.width),
+                "value is NaN or infinite",
+            ));
+        }
+        Ok(img)
+    }
+
+    /// Exposure that maps the 99th-percentile luminance of the non-black pixels to 0.9.
+    pub fn auto_exposure(&self) -> f64 {
+        let mut l: Vec<f64> = (0..self.pixels.len())
+            .map(|i| self.lum(i % self.width, i / self.width))
+            .filter(|v| *v > 0.0 && v.is_finite())
+            .collect();
+        if l.is_empty() {
+            return 1.0;
+        }
+        l.sort_by(f64::total_cmp);
+        let p = l[((l.len() - 1) as f64 * 0.99) as usize];
+        0.9 / p
+    }
+
+    /// 8-bit sRGB preview: `sRGB(clamp(exposure × L, 0, 1))`.
+    pub fn to_srgb8(&self, exposure: f64) -> Vec<u8> {
+        let mut out = Vec::with_capacity(self.pixels.len() * 3);
+        for p in &self.pixels {
+            for c in p {
+                out.push((srgb_oetf((*c as f64 * exposure).clamp(0.0, 1.0)) * 255.0).round() as u8);
+            }
+        }
+        out
+    }
+
+    pub fn write_png(&self, path: impl AsRef<Path>, exposure: f64) -> Result<()> {
+        let path = path.as_ref();
+        image::save_buffer(
+            path,
+            &self.to_srgb8(exposure),
+            self.width as u32,
+            self.height as u32,
+            image::ColorType::Rgb8,
+        )
+        .map_err(|e| Error::parse(path, format!("cannot write PNG: {e}")))
+    }
+}
+
+/// The sRGB transfer function (linear → encoded), input in [0, 1].
+pub fn srgb_oetf(v: f64) -> f64 {
+    if v <= 0.0031308 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exr_round_trip() {
+        let dir = std::env::temp_dir().join(format!("nimbus-img-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut img = Image::new(3, 2);
+        for (i, p) in img.pixels.iter_mut().enumerate() {
+            *p = [i as f32, 0.5 * i as f32, 0.25];
+        }
+        let path = dir.join("a.exr");
+        img.write_exr(&path, Some(&[1.0; 6])).unwrap();
+        assert_eq!(Image::read_exr(&path).unwrap(), img);
+        img.write_png(dir.join("a.png"), img.auto_exposure())
+            .unwrap();
+        assert!(Image::read_exr(dir.join("a.png")).is_err());
+        assert!((srgb_oetf(1.0) - 1.0).abs() < 1e-12);
+    }
+}

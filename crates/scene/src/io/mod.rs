@@ -1,0 +1,65 @@
+//! Reading and writing density grids.
+//!
+//! | format | read | write | notes |
+//! |---|---|---|---|
+//! | Mitsuba `.vol` | yes | yes | version 3, encoding 1 (float32), 1 channel |
+//! | NumPy `.npy` | yes | yes | float32 or float64 (converted), shape `[z][y][x]`, C order |
+//! | OpenVDB `.vdb` | yes | no | the float grid named `density` (or the only float grid); see [`vdb`] |
+//!
+//! Every reader checks sizes against the file length before allocating, and rejects NaN, infinite
+//! or negative voxels with an error naming the file and the voxel.
+
+pub mod npy;
+pub mod vdb;
+pub mod vol;
+
+use std::path::Path;
+
+use glam::DVec3;
+
+use crate::error::{Error, Result};
+use crate::grid::DensityGrid;
+
+/// A grid read from a file, with the bounding box its header stores, when it has one.
+#[derive(Debug, Clone)]
+pub struct GridFile {
+    pub grid: DensityGrid,
+    /// `(min, max)` from the file header (`.vol`) or the index-space bounds times the voxel size
+    /// (`.vdb`); `None` for `.npy`.
+    pub bounds: Option<(DVec3, DVec3)>,
+}
+
+/// Reads a grid, choosing the format from the extension.
+pub fn read_grid(path: impl AsRef<Path>) -> Result<GridFile> {
+    let path = path.as_ref();
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase());
+    match ext.as_deref() {
+        Some("vol") => vol::read(path),
+        Some("npy") => npy::read(path).map(|grid| GridFile { grid, bounds: None }),
+        Some("vdb") => vdb::read(path),
+        _ => Err(Error::parse(
+            path,
+            "unknown volume format: expected a .vol, .npy or .vdb file",
+        )),
+    }
+}
+
+/// Writes a grid, choosing the format from the extension (`.vol` or `.npy`).
+pub fn write_grid(
+    path: impl AsRef<Path>,
+    grid: &DensityGrid,
+    bounds: (DVec3, DVec3),
+) -> Result<()> {
+    let path = path.as_ref();
+    match path.extension().and_then(|e| e.to_str()) {
+        Some("vol") => vol::write(path, grid, bounds),
+        Some("npy") => npy::write(path, grid),
+        _ => Err(Error::parse(
+            path,
+            "can only write .vol or .npy volumes (choose one of these extensions)",
+        )),
+    }
+}

@@ -1,0 +1,138 @@
+//! NumPy `.npy` grids: float32 (or float64, converted) arrays of shape `[z][y][x]` in C order —
+//! the same voxel order as `.vol`. Parsing goes through the `npyz` crate; sizes are checked
+//! against the file length before any allocation.
+
+use std::io::Cursor;
+use std::path::Path;
+
+use npyz::{Order, WriterBuilder};
+
+use crate::error::{Error, Result};
+use crate::grid::{DensityGrid, check_resolution};
+
+/// Parses `.npy` bytes; `path` only labels errors.
+pub fn parse(bytes: &[u8], path: &Path) -> Result<DensityGrid> {
+    let mut cursor = Cursor::new(bytes);
+    let header = npyz::NpyHeader::from_reader(&mut cursor)
+        .map_err(|e| Error::invalid(path, "header", format!("not a valid .npy header: {e}")))?;
+    let data_start = cursor.position() as usize;
+    let npy = npyz::NpyFile::with_header(header, &bytes[data_start..]);
+    if npy.order() != Order::C {
+        return Err(Error::invalid(
+            path,
+            "header.fortran_order",
+            "Fortran-ordered arrays are not supported; save with C order ([z][y][x])",
+        ));
+    }
+    let shape = npy.shape().to_vec();
+    if shape.len() != 3 {
+        return Err(Error::invalid(
+            path,
+            "header.shape",
+            format!("expected 3 dimensions [z][y][x], found {shape:?}"),
+        ));
+    }
+    let as_i64 = |v: u64| i64::try_from(v).unwrap_or(i64::MAX);
+    let res = check_resolution(
+        [as_i64(shape[2]), as_i64(shape[1]), as_i64(shape[0])],
+        "header.shape",
+    )
+    .map_err(|e| e.at(path))?;
+    let n = res[0] * res[1] * res[2];
+    let descr = npy.dtype().descr();
+    let descr = descr.trim_matches('\'');
+    let elem = match descr {
+        "<f4" => 4,
+        "<f8" => 8,
+        other => {
+            return Err(Error::invalid(
+                path,
+                "header.descr",
+                format!("dtype {other} is not supported (use little-endian float32 '<f4')"),
+            ));
+        }
+    };
+    let available = bytes.len() - data_start;
+    if available != n * elem {
+        return Err(Error::invalid(
+            path,
+            "data",
+            format!(
+                "shape {shape:?} of {descr} needs {} bytes, the file has {available}",
+                n * elem
+            ),
+        ));
+    }
+    let data: Vec<f32> = if elem == 4 {
+        npy.into_vec::<f32>()
+            .map_err(|e| Error::invalid(path, "data", e.to_string()))?
+    } else {
+        npy.into_vec::<f64>()
+            .map_err(|e| Error::invalid(path, "data", e.to_string()))?
+            .into_iter()
+            .map(|v| v as f32)
+            .collect()
+    };
+    DensityGrid::new(res, data).map_err(|e| e.at(path))
+}
+
+pub fn read(path: &Path) -> Result<DensityGrid> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    parse(&bytes, path)
+}
+
+/// Serialises a grid as float32 `.npy` bytes of shape `[z][y][x]`.
+pub fn to_bytes(grid: &DensityGrid) -> Vec<u8> {
+    let r = grid.res();
+    let mut out = Vec::new();
+    {
+        let mut w = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(&[r[2] as u64, r[1] as u64, r[0] as u64])
+            .writer(&mut out)
+            .begin_nd()
+            .expect("writing to memory cannot fail");
+        w.extend(grid.data().iter().copied())
+            .expect("writing to memory cannot fail");
+        w.finish().expect("writing to memory cannot fail");
+    }
+    out
+}
+
+pub fn write(path: &Path, grid: &DensityGrid) -> Result<()> {
+    std::fs::write(path, to_bytes(grid)).map_err(|e| Error::io(path, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_and_errors() {
+        let g = DensityGrid::new([3, 2, 1], vec![0.0, 0.5, 1.0, 1.5, 2.0, 2.5]).unwrap();
+        let bytes = to_bytes(&g);
+        let p = Path::new("g.npy");
+        assert_eq!(parse(&bytes, p).unwrap(), g);
+        let m = parse(&bytes[..bytes.len() - 2], p).unwrap_err().to_string();
+        assert!(m.contains("g.npy") && m.contains("`data`"), "{m}");
+        assert!(
+            parse(b"garbage", p)
+                .unwrap_err()
+                .to_string()
+                .contains("header")
+        );
+        assert!(parse(&[], p).is_err());
+        let mut s = 3u64;
+        for len in [10usize, 64, 128, 200] {
+            let mut b = bytes.clone();
+            for _ in 0..len / 10 {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let i = (s >> 33) as usize % b.len();
+                b[i] = (s >> 20) as u8;
+            }
+            let _ = parse(&b, p); // must not panic
+        }
+    }
+}

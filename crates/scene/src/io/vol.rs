@@ -1,0 +1,173 @@
+//! Mitsuba `.vol` grids: `"VOL"`, version byte 3, int32 encoding (1 = float32), int32 xres, yres,
+//! zres, int32 channels (1), 6 × float32 bounding box, then float32 data with x fastest, then y,
+//! then z. All little-endian.
+
+use std::path::Path;
+
+use glam::DVec3;
+
+use super::GridFile;
+use crate::error::{Error, Result};
+use crate::grid::{DensityGrid, check_resolution};
+
+const HEADER_LEN: usize = 48;
+
+/// Parses `.vol` bytes; `path` only labels errors.
+pub fn parse(bytes: &[u8], path: &Path) -> Result<GridFile> {
+    if bytes.len() < HEADER_LEN {
+        return Err(Error::invalid(
+            path,
+            "header",
+            format!(
+                "file is {} bytes, a .vol header needs {HEADER_LEN}",
+                bytes.len()
+            ),
+        ));
+    }
+    if &bytes[0..3] != b"VOL" {
+        return Err(Error::invalid(
+            path,
+            "header.magic",
+            "does not start with \"VOL\"",
+        ));
+    }
+    if bytes[3] != 3 {
+        return Err(Error::invalid(
+            path,
+            "header.version",
+            format!("version {} is not supported (only 3)", bytes[3]),
+        ));
+    }
+    let i32_at = |o: usize| i32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
+    let f32_at = |o: usize| f32::from_le_bytes(bytes[o..o + 4].try_into().unwrap());
+    let encoding = i32_at(4);
+    if encoding != 1 {
+        return Err(Error::invalid(
+            path,
+            "header.encoding",
+            format!("encoding {encoding} is not supported (only 1 = float32)"),
+        ));
+    }
+    let res = check_resolution(
+        [i32_at(8) as i64, i32_at(12) as i64, i32_at(16) as i64],
+        "header.resolution",
+    )
+    .map_err(|e| e.at(path))?;
+    let channels = i32_at(20);
+    if channels != 1 {
+        return Err(Error::invalid(
+            path,
+            "header.channels",
+            format!("{channels} channels; only single-channel density grids are supported"),
+        ));
+    }
+    let bmin = DVec3::new(f32_at(24) as f64, f32_at(28) as f64, f32_at(32) as f64);
+    let bmax = DVec3::new(f32_at(36) as f64, f32_at(40) as f64, f32_at(44) as f64);
+    let n = res[0] * res[1] * res[2];
+    let expected = HEADER_LEN + 4 * n;
+    if bytes.len() != expected {
+        return Err(Error::invalid(
+            path,
+            "data",
+            format!(
+                "{}×{}×{} float32 voxels need {expected} bytes, the file has {}",
+                res[0],
+                res[1],
+                res[2],
+                bytes.len()
+            ),
+        ));
+    }
+    let data: Vec<f32> = bytes[HEADER_LEN..]
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+        .collect();
+    let grid = DensityGrid::new(res, data).map_err(|e| e.at(path))?;
+    let bounds =
+        (bmin.is_finite() && bmax.is_finite() && bmax.cmpgt(bmin).all()).then_some((bmin, bmax));
+    Ok(GridFile { grid, bounds })
+}
+
+pub fn read(path: &Path) -> Result<GridFile> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    parse(&bytes, path)
+}
+
+/// Serialises a grid as `.vol` bytes.
+pub fn to_bytes(grid: &DensityGrid, bounds: (DVec3, DVec3)) -> Vec<u8> {
+    let r = grid.res();
+    let mut out = Vec::with_capacity(HEADER_LEN + 4 * grid.data().len());
+    out.extend_from_slice(b"VOL");
+    out.push(3);
+    for v in [1i32, r[0] as i32, r[1] as i32, r[2] as i32, 1] {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    for v in [
+        bounds.0.x, bounds.0.y, bounds.0.z, bounds.1.x, bounds.1.y, bounds.1.z,
+    ] {
+        out.extend_from_slice(&(v as f32).to_le_bytes());
+    }
+    for v in grid.data() {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out
+}
+
+pub fn write(path: &Path, grid: &DensityGrid, bounds: (DVec3, DVec3)) -> Result<()> {
+    std::fs::write(path, to_bytes(grid, bounds)).map_err(|e| Error::io(path, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> DensityGrid {
+        DensityGrid::new([3, 2, 1], vec![0.0, 0.5, 1.0, 1.5, 2.0, 2.5]).unwrap()
+    }
+
+    #[test]
+    fn round_trip() {
+        let b = (DVec3::splat(-1.0), DVec3::new(1.0, 2.0, 3.0));
+        let bytes = to_bytes(&sample(), b);
+        let f = parse(&bytes, Path::new("t.vol")).unwrap();
+        assert_eq!(f.grid, sample());
+        assert_eq!(f.bounds, Some(b));
+    }
+
+    #[test]
+    fn malformed_files_name_the_field() {
+        let p = Path::new("bad.vol");
+        let good = to_bytes(&sample(), (DVec3::ZERO, DVec3::ONE));
+        let msg = |b: &[u8]| parse(b, p).unwrap_err().to_string();
+        assert!(msg(&good[..20]).contains("header"));
+        assert!(msg(&good[..good.len() - 1]).contains("field `data`"));
+        let mut b = good.clone();
+        b[0] = b'X';
+        assert!(msg(&b).contains("header.magic"));
+        let mut b = good.clone();
+        b[8..12].copy_from_slice(&(-5i32).to_le_bytes());
+        assert!(msg(&b).contains("header.resolution.x"));
+        let mut b = good.clone();
+        b[8..12].copy_from_slice(&i32::MAX.to_le_bytes());
+        b[12..16].copy_from_slice(&i32::MAX.to_le_bytes());
+        assert!(msg(&b).contains("header.resolution"));
+        let mut b = good.clone();
+        b[4..8].copy_from_slice(&2i32.to_le_bytes());
+        assert!(msg(&b).contains("header.encoding"));
+        let mut b = good.clone();
+        b[HEADER_LEN + 8..HEADER_LEN + 12].copy_from_slice(&f32::NAN.to_le_bytes());
+        let m = msg(&b);
+        assert!(m.contains("voxel[2,0,0]") && m.contains("bad.vol"), "{m}");
+        // Random garbage never panics.
+        let mut s = 7u64;
+        for len in [0usize, 3, 47, 48, 49, 100, 1000] {
+            let g: Vec<u8> = (0..len)
+                .map(|_| {
+                    s = s.wrapping_mul(6364136223846793005).wrapping_add(1);
+                    (s >> 56) as u8
+                })
+                .collect();
+            assert!(parse(&g, p).is_err());
+        }
+    }
+}

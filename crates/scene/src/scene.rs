@@ -1,0 +1,483 @@
+//! Scene files (TOML). Every key is checked: unknown keys, wrong types and invalid values are
+//! errors that name the file and the field. Relative paths are relative to the scene file.
+//!
+//! ```toml
+//! [volume]
+//! file = "cloud.vol"            # .vol, .npy or .vdb — or instead:
+//! # generator = { kind = "cumulus", seed = 7, resolution = [128, 96, 128] }
+//! aabb_min = [-1.0, -0.75, -1.0] # world box the grid fills (default: the file header's box,
+//! aabb_max = [1.0, 0.75, 1.0]    #  or for generated clouds 2 units wide, centred, cubic voxels)
+//! density_scale = 40.0           # σ_t = density_scale × grid value
+//! albedo = 1.0
+//! phase = { kind = "hg", g = 0.857 }   # or "isotropic", or
+//! # phase = { kind = "mie", effective_radius_um = 8.0, effective_variance = 0.1,
+//! #           wavelength_nm = 550.0, chop_deg = 5.0 }
+//!
+//! [sun]                          # optional
+//! direction = [1.0, 0.35, -0.1]  # towards the sun
+//! irradiance = [1.0, 1.0, 1.0]   # or one number
+//! angular_radius_deg = 0.0       # 0 = delta light
+//!
+//! [sky]                          # optional: constant radiance or a lat-long EXR
+//! radiance = [0.1, 0.2, 0.4]
+//! # envmap = "sky.exr"
+//! # scale = 1.0
+//!
+//! [camera]
+//! origin = [0.0, 0.1, 4.2]
+//! target = [0.0, 0.0, 0.0]
+//! up = [0.0, 1.0, 0.0]
+//! vfov_deg = 26.0
+//! width = 128
+//! height = 96
+//!
+//! [render]                       # optional
+//! spp = 64
+//! seed = 0
+//! max_depth = -1                 # scattering events per path; −1 = unbounded
+//! ```
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use glam::DVec3;
+use serde::Deserialize;
+
+use crate::camera::Camera;
+use crate::error::{Error, FieldError, Result};
+use crate::generate::{self, CloudKind};
+use crate::io;
+use crate::light::{EnvMap, Sky, Sun};
+use crate::medium::Medium;
+use crate::phase::{HenyeyGreenstein, MieParams, Phase, mie};
+use crate::volume::{Aabb, Volume};
+
+/// Largest accepted samples per pixel.
+pub const MAX_SPP: i64 = 1 << 24;
+
+/// Render settings of a scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RenderSettings {
+    pub spp: u32,
+    pub seed: u64,
+    /// Maximum number of scattering events per path; `None` = unbounded.
+    pub max_depth: Option<u32>,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        Self {
+            spp: 64,
+            seed: 0,
+            max_depth: None,
+        }
+    }
+}
+
+/// Where the volume came from (for reports).
+#[derive(Debug, Clone, PartialEq)]
+pub enum VolumeSource {
+    File(PathBuf),
+    Generated { kind: CloudKind, seed: u64 },
+    Memory,
+}
+
+/// A complete scene.
+#[derive(Debug, Clone)]
+pub struct Scene {
+    /// The file it was read from (labels errors and reports).
+    pub source: PathBuf,
+    pub volume: Arc<Volume>,
+    pub volume_source: VolumeSource,
+    pub medium: Medium,
+    /// Human-readable phase function description (`hg g=0.857`, `mie r_eff=8µm chop=5°`).
+    pub phase_desc: String,
+    pub sun: Option<Sun>,
+    pub sky: Option<Sky>,
+    pub camera: Camera,
+    pub render: RenderSettings,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawScene {
+    volume: RawVolume,
+    sun: Option<RawSun>,
+    sky: Option<RawSky>,
+    camera: RawCamera,
+    render: Option<RawRender>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawVolume {
+    file: Option<PathBuf>,
+    generator: Option<RawGenerator>,
+    aabb_min: Option<[f64; 3]>,
+    aabb_max: Option<[f64; 3]>,
+    #[serde(default = "one")]
+    density_scale: f64,
+    #[serde(default = "one")]
+    albedo: f64,
+    phase: Option<toml::Value>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawGenerator {
+    kind: String,
+    #[serde(default)]
+    seed: u64,
+    resolution: [i64; 3],
+}
+
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum Rgb {
+    Grey(f64),
+    Rgb([f64; 3]),
+}
+
+impl Rgb {
+    fn vec(&self) -> DVec3 {
+        match self {
+            Rgb::Grey(v) => DVec3::splat(*v),
+            Rgb::Rgb(v) => DVec3::from_array(*v),
+        }
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSun {
+    direction: [f64; 3],
+    irradiance: Rgb,
+    #[serde(default)]
+    angular_radius_deg: f64,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSky {
+    radiance: Option<Rgb>,
+    envmap: Option<PathBuf>,
+    #[serde(default = "one")]
+    scale: f64,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCamera {
+    origin: [f64; 3],
+    target: [f64; 3],
+    #[serde(default = "y_up")]
+    up: [f64; 3],
+    vfov_deg: f64,
+    width: i64,
+    height: i64,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawRender {
+    #[serde(default = "default_spp")]
+    spp: i64,
+    #[serde(default)]
+    seed: u64,
+    #[serde(default = "minus_one")]
+    max_depth: i64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+fn y_up() -> [f64; 3] {
+    [0.0, 1.0, 0.0]
+}
+fn default_spp() -> i64 {
+    64
+}
+fn minus_one() -> i64 {
+    -1
+}
+
+/// Prefixes a field error's name with a section.
+fn within(section: &str) -> impl Fn(FieldError) -> FieldError + '_ {
+    move |e| {
+        if e.field.starts_with(section) {
+            e
+        } else {
+            FieldError::new(format!("{section}.{}", e.field), e.msg)
+        }
+    }
+}
+
+/// Parses a `phase` value: `"isotropic"` or a table with `kind`.
+pub fn parse_phase(
+    v: Option<&toml::Value>,
+) -> Result<(Phase, Option<MieParams>, String), FieldError> {
+    let Some(v) = v else {
+        return Ok((Phase::Isotropic, None, "isotropic".into()));
+    };
+    let (kind, table) = match v {
+        toml::Value::String(s) => (s.clone(), toml::Table::new()),
+        toml::Value::Table(t) => {
+            let kind = t
+                .get("kind")
+                .and_then(|k| k.as_str())
+                .ok_or_else(|| FieldError::new("phase.kind", "missing (isotropic, hg or mie)"))?;
+            (kind.to_string(), t.clone())
+        }
+        _ => {
+            return Err(FieldError::new(
+                "phase",
+                "must be \"isotropic\" or a table such as { kind = \"hg\", g = 0.857 }",
+            ));
+        }
+    };
+    let num = |key: &str| -> Result<Option<f64>, FieldError> {
+        match table.get(key) {
+            None => Ok(None),
+            Some(toml::Value::Float(f)) => Ok(Some(*f)),
+            Some(toml::Value::Integer(i)) => Ok(Some(*i as f64)),
+            Some(_) => Err(FieldError::new(format!("phase.{key}"), "must be a number")),
+        }
+    };
+    let allow = |keys: &[&str]| -> Result<(), FieldError> {
+        for k in table.keys() {
+            if k != "kind" && !keys.contains(&k.as_str()) {
+                return Err(FieldError::new(
+                    format!("phase.{k}"),
+                    format!("unknown key for phase kind `{kind}` (allowed: {keys:?})"),
+                ));
+            }
+        }
+        Ok(())
+    };
+    match kind.as_str() {
+        "isotropic" => {
+            allow(&[])?;
+            Ok((Phase::Isotropic, None, "isotropic".into()))
+        }
+        "hg" => {
+            allow(&["g"])?;
+            let g = num("g")?.ok_or_else(|| FieldError::new("phase.g", "missing"))?;
+            let hg = HenyeyGreenstein::new(g).map_err(within("phase"))?;
+            Ok((Phase::HenyeyGreenstein(hg), None, format!("hg g={g}")))
+        }
+        "mie" => {
+            allow(&[
+                "effective_radius_um",
+                "effective_variance",
+                "wavelength_nm",
+                "refractive_index",
+                "chop_deg",
+            ])?;
+            let d = MieParams::default();
+            let p = MieParams {
+                effective_radius_um: num("effective_radius_um")?.unwrap_or(d.effective_radius_um),
+                effective_variance: num("effective_variance")?.unwrap_or(d.effective_variance),
+                wavelength_nm: num("wavelength_nm")?.unwrap_or(d.wavelength_nm),
+                refractive_index: num("refractive_index")?.unwrap_or(d.refractive_index),
+                chop_deg: num("chop_deg")?.unwrap_or(d.chop_deg),
+            };
+            p.validate().map_err(within("phase"))?;
+            let desc = format!(
+                "mie r_eff={}µm v_eff={} λ={}nm chop={}°",
+                p.effective_radius_um, p.effective_variance, p.wavelength_nm, p.chop_deg
+            );
+            // The phase itself is built by the caller with the albedo (chopping needs it).
+            Ok((Phase::Isotropic, Some(p), desc))
+        }
+        other => Err(FieldError::new(
+            "phase.kind",
+            format!("unknown phase function `{other}` (expected isotropic, hg or mie)"),
+        )),
+    }
+}
+
+impl Scene {
+    /// Reads a scene file.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        Self::from_toml_str(&text, base, path)
+    }
+
+    /// Parses scene text; relative paths resolve against `base_dir`; `label` names the source in
+    /// errors.
+    pub fn from_toml_str(text: &str, base_dir: &Path, label: &Path) -> Result<Self> {
+        let raw: RawScene =
+            toml::from_str(text).map_err(|e| Error::parse(label, format!("invalid scene: {e}")))?;
+        let at = |e: FieldError| e.at(label);
+        let v = &raw.volume;
+        // Volume grid.
+        let (grid, header_bounds, source) = match (&v.file, &v.generator) {
+            (Some(_), Some(_)) => {
+                return Err(Error::invalid(
+                    label,
+                    "volume",
+                    "give either `file` or `generator`, not both",
+                ));
+            }
+            (None, None) => {
+                return Err(Error::invalid(
+                    label,
+                    "volume",
+                    "needs `file = \"...\"` or `generator = { kind, seed, resolution }`",
+                ));
+            }
+            (Some(f), None) => {
+                let p = base_dir.join(f);
+                let gf = io::read_grid(&p)?;
+                (gf.grid, gf.bounds, VolumeSource::File(p))
+            }
+            (None, Some(g)) => {
+                let kind: CloudKind = g
+                    .kind
+                    .parse()
+                    .map_err(|e| at(within("volume.generator")(e)))?;
+                let res =
+                    crate::grid::check_resolution(g.resolution, "volume.generator.resolution")
+                        .map_err(at)?;
+                let grid = generate::generate(kind, g.seed, res)
+                    .map_err(|e| at(within("volume.generator")(e)))?;
+                let b = generate::default_aabb(res);
+                (
+                    grid,
+                    Some(b),
+                    VolumeSource::Generated { kind, seed: g.seed },
+                )
+            }
+        };
+        let (bmin, bmax) = match (v.aabb_min, v.aabb_max, header_bounds) {
+            (Some(a), Some(b), _) => (DVec3::from_array(a), DVec3::from_array(b)),
+            (None, None, Some(h)) => h,
+            (None, None, None) => {
+                return Err(Error::invalid(
+                    label,
+                    "volume.aabb_min",
+                    "required: this volume file stores no bounding box (give aabb_min and aabb_max)",
+                ));
+            }
+            _ => {
+                return Err(Error::invalid(
+                    label,
+                    "volume.aabb_max",
+                    "give both aabb_min and aabb_max, or neither",
+                ));
+            }
+        };
+        let aabb = Aabb::new(bmin, bmax).map_err(|e| at(within("volume")(e)))?;
+        let volume =
+            Volume::new(grid, aabb, v.density_scale).map_err(|e| at(within("volume")(e)))?;
+        // Medium.
+        let (phase, mie_params, phase_desc) =
+            parse_phase(v.phase.as_ref()).map_err(|e| at(within("volume")(e)))?;
+        let medium = match mie_params {
+            Some(p) => {
+                let m = mie::cached(&p).map_err(|e| at(within("volume.phase")(e)))?;
+                Medium::mie(v.albedo, &m).map_err(at)?
+            }
+            None => Medium::new(v.albedo, phase).map_err(at)?,
+        };
+        // Lights.
+        let sun = match &raw.sun {
+            Some(s) => Some(
+                Sun::new(
+                    DVec3::from_array(s.direction),
+                    s.irradiance.vec(),
+                    s.angular_radius_deg,
+                )
+                .map_err(at)?,
+            ),
+            None => None,
+        };
+        let sky = match &raw.sky {
+            None => None,
+            Some(s) => match (&s.radiance, &s.envmap) {
+                (Some(_), Some(_)) => {
+                    return Err(Error::invalid(
+                        label,
+                        "sky",
+                        "give either `radiance` or `envmap`, not both",
+                    ));
+                }
+                (None, None) => {
+                    return Err(Error::invalid(label, "sky", "needs `radiance` or `envmap`"));
+                }
+                (Some(r), None) => {
+                    let c = r.vec() * s.scale;
+                    if !c.is_finite() || c.min_element() < 0.0 {
+                        return Err(Error::invalid(
+                            label,
+                            "sky.radiance",
+                            "must be finite and ≥ 0",
+                        ));
+                    }
+                    Some(Sky::Constant(c))
+                }
+                (None, Some(e)) => Some(Sky::Env(EnvMap::load(&base_dir.join(e), s.scale)?)),
+            },
+        };
+        // A black sky costs work and adds nothing: leave it out.
+        let sky = sky.filter(|s| !s.is_black());
+        let c = &raw.camera;
+        let dim = |v: i64, name: &str| -> Result<usize> {
+            if v < 1 || v > crate::camera::MAX_IMAGE_SIDE as i64 {
+                Err(Error::invalid(
+                    label,
+                    name,
+                    format!("must lie in 1..={}, got {v}", crate::camera::MAX_IMAGE_SIDE),
+                ))
+            } else {
+                Ok(v as usize)
+            }
+        };
+        let camera = Camera::new(
+            DVec3::from_array(c.origin),
+            DVec3::from_array(c.target),
+            DVec3::from_array(c.up),
+            c.vfov_deg,
+            dim(c.width, "camera.width")?,
+            dim(c.height, "camera.height")?,
+        )
+        .map_err(at)?;
+        let render = match &raw.render {
+            None => RenderSettings::default(),
+            Some(r) => {
+                if r.spp < 1 || r.spp > MAX_SPP {
+                    return Err(Error::invalid(
+                        label,
+                        "render.spp",
+                        format!("must lie in 1..={MAX_SPP}, got {}", r.spp),
+                    ));
+                }
+                if r.max_depth < -1 || r.max_depth > u32::MAX as i64 {
+                    return Err(Error::invalid(
+                        label,
+                        "render.max_depth",
+                        format!("must be −1 (unbounded) or ≥ 0, got {}", r.max_depth),
+                    ));
+                }
+                RenderSettings {
+                    spp: r.spp as u32,
+                    seed: r.seed,
+                    max_depth: (r.max_depth >= 0).then_some(r.max_depth as u32),
+                }
+            }
+        };
+        Ok(Scene {
+            source: label.to_path_buf(),
+            volume: Arc::new(volume),
+            volume_source: source,
+            medium,
+            phase_desc,
+            sun,
+            sky,
+            camera,
+            render,
+        })
+    }
+}

@@ -1,0 +1,205 @@
+//! Volume readers and the scene parser on real files, including malformed ones.
+
+use std::path::{Path, PathBuf};
+
+use nimbus_scene::io;
+use nimbus_scene::{Scene, phase::Phase};
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("nimbus-scene-tests-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d.join(name)
+}
+
+#[test]
+fn vdb_float_grid_is_densified() {
+    // Written by pyopenvdb 10: voxels (2+x, −1+y, z) = 1 + x + 10y + 100z for a 4×3×2 block,
+    // voxel (3, 0, 1) switched off, voxel size 0.25; plus a vec3 grid that must be ignored.
+    let f = io::read_grid(data("small_density.vdb")).unwrap();
+    assert_eq!(f.grid.res(), [4, 3, 2]);
+    for z in 0..2 {
+        for y in 0..3 {
+            for x in 0..4 {
+                let expected = if (x, y, z) == (1, 1, 1) {
+                    0.0
+                } else {
+                    (1 + x + 10 * y + 100 * z) as f32
+                };
+                assert_eq!(f.grid.get(x, y, z), expected, "voxel {x},{y},{z}");
+            }
+        }
+    }
+    let (lo, hi) = f.bounds.unwrap();
+    let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+    assert!(close(lo.x, 1.5 * 0.25) && close(lo.y, -1.5 * 0.25) && close(lo.z, -0.5 * 0.25));
+    assert!(close(hi.x, 5.5 * 0.25) && close(hi.y, 1.5 * 0.25) && close(hi.z, 1.5 * 0.25));
+    // Half-float storage is refused by name.
+    let e = io::read_grid(data("half_density.vdb"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("half_density.vdb") && e.contains("is_saved_as_half_float"),
+        "{e}"
+    );
+}
+
+#[test]
+fn vdb_errors_are_clear() {
+    let e = io::read_grid(data("no_density.vdb"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("no_density.vdb") && e.contains("no grid named `density`"),
+        "{e}"
+    );
+    // Truncated and corrupted copies: an error, never a panic escaping or a hang.
+    let bytes = std::fs::read(data("small_density.vdb")).unwrap();
+    for cut in [0usize, 4, 8, 100, 400, bytes.len() / 2] {
+        let p = tmp(&format!("cut{cut}.vdb"));
+        std::fs::write(&p, &bytes[..cut]).unwrap();
+        let e = io::read_grid(&p).unwrap_err().to_string();
+        assert!(e.contains(&format!("cut{cut}.vdb")), "{e}");
+    }
+    let p = tmp("garbage.vdb");
+    std::fs::write(&p, b"this is not a vdb file at all").unwrap();
+    assert!(io::read_grid(&p).unwrap_err().to_string().contains("magic"));
+}
+
+#[test]
+fn shared_reference_volumes_load() {
+    // ../shared/refs holds the Mitsuba cases; .vol and .npy hold the same data.
+    let refs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/refs/volumes");
+    let a =
+        io::read_grid(refs.join("cumulus.vol")).expect("shared/refs must sit beside the checkout");
+    let b = io::read_grid(refs.join("cumulus.npy")).unwrap();
+    assert_eq!(a.grid, b.grid);
+    assert_eq!(a.grid.res(), [128, 96, 128]);
+    let s = a.grid.stats();
+    // Values from shared/refs/volumes/cumulus.json.
+    assert!((s.mean - 0.09821947664022446).abs() < 1e-6);
+    assert!((s.nonzero_fraction - 0.1356525421142578).abs() < 1e-9);
+    let cols = a.grid.max_column_sums();
+    let cell = 0.015625;
+    assert!((cols[0] * cell - 1.2433457374572754).abs() < 1e-5);
+}
+
+const GOOD: &str = r#"
+[volume]
+generator = { kind = "cumulus", seed = 1, resolution = [16, 12, 16] }
+density_scale = 10.0
+albedo = 0.9
+phase = { kind = "hg", g = 0.857 }
+[sun]
+direction = [1.0, 1.0, 0.0]
+irradiance = 2.0
+[sky]
+radiance = [0.1, 0.2, 0.3]
+[camera]
+origin = [0.0, 0.0, 4.0]
+target = [0.0, 0.0, 0.0]
+vfov_deg = 30.0
+width = 16
+height = 12
+[render]
+spp = 4
+"#;
+
+fn parse(text: &str) -> Result<Scene, String> {
+    Scene::from_toml_str(text, Path::new("."), Path::new("test.toml")).map_err(|e| e.to_string())
+}
+
+#[test]
+fn scene_parses() {
+    let s = parse(GOOD).unwrap();
+    assert_eq!(s.volume.grid().res(), [16, 12, 16]);
+    assert!(matches!(s.medium.phase, Phase::HenyeyGreenstein(_)));
+    assert_eq!(s.render.spp, 4);
+    assert_eq!(s.render.max_depth, None);
+    assert!((s.sun.as_ref().unwrap().irradiance.x - 2.0).abs() < 1e-12);
+    // Mie with a chopped peak: full function first, reduced density after.
+    let mie = GOOD.replace(
+        r#"phase = { kind = "hg", g = 0.857 }"#,
+        r#"phase = { kind = "mie", effective_radius_um = 8.0, chop_deg = 5.0 }"#,
+    );
+    let s = parse(&mie).unwrap();
+    let c = s.medium.chopped.as_ref().unwrap();
+    assert!(c.density_factor < 1.0 && c.density_factor > 0.4);
+    assert_eq!(s.medium.density_factor(0), 1.0);
+    assert_eq!(s.medium.density_factor(1), c.density_factor);
+}
+
+#[test]
+fn scene_errors_name_file_and_field() {
+    let cases: &[(&str, &str, &str)] = &[
+        ("g = 0.857", "g = 1.0", "volume.phase.g"),
+        ("g = 0.857", "g = -1.5", "volume.phase.g"),
+        ("albedo = 0.9", "albedo = 1.5", "volume.albedo"),
+        ("albedo = 0.9", "albdo = 0.9", "unknown field `albdo`"),
+        ("spp = 4", "spp = 0", "render.spp"),
+        ("spp = 4", "spp = -3", "render.spp"),
+        ("width = 16", "width = -16", "camera.width"),
+        ("width = 16", "width = 100000000", "camera.width"),
+        ("vfov_deg = 30.0", "vfov_deg = nan", "camera.vfov_deg"),
+        (
+            "density_scale = 10.0",
+            "density_scale = -1.0",
+            "volume.density_scale",
+        ),
+        ("[16, 12, 16]", "[0, 12, 16]", "volume.generator.resolution"),
+        (
+            "[16, 12, 16]",
+            "[100000, 100000, 100000]",
+            "volume.generator.resolution",
+        ),
+        (
+            "kind = \"cumulus\"",
+            "kind = \"fog\"",
+            "volume.generator.kind",
+        ),
+        ("irradiance = 2.0", "irradiance = -2.0", "sun.irradiance"),
+        ("[1.0, 1.0, 0.0]", "[0.0, 0.0, 0.0]", "sun.direction"),
+        (
+            "kind = \"hg\", g = 0.857",
+            "kind = \"hg\", g = 0.857, h = 1",
+            "volume.phase.h",
+        ),
+        ("kind = \"hg\"", "kind = \"rayleigh\"", "volume.phase.kind"),
+    ];
+    for (from, to, field) in cases {
+        assert!(GOOD.contains(from), "{from}");
+        let e = parse(&GOOD.replacen(from, to, 1)).unwrap_err();
+        assert!(e.contains("test.toml") && e.contains(field), "{to}: {e}");
+    }
+    // Missing volume file: names the file.
+    let e = parse(&GOOD.replace(
+        r#"generator = { kind = "cumulus", seed = 1, resolution = [16, 12, 16] }"#,
+        r#"file = "missing.vol""#,
+    ))
+    .unwrap_err();
+    assert!(e.contains("missing.vol"), "{e}");
+    assert!(parse("not [ toml").unwrap_err().contains("test.toml"));
+}
+
+#[test]
+fn npy_volume_needs_bounds() {
+    let g = nimbus_scene::DensityGrid::constant([2, 2, 2], 1.0).unwrap();
+    let p = tmp("cube.npy");
+    io::npy::write(&p, &g).unwrap();
+    let text = GOOD.replace(
+        r#"generator = { kind = "cumulus", seed = 1, resolution = [16, 12, 16] }"#,
+        &format!("file = {:?}", p.display().to_string()),
+    );
+    let e = parse(&text).unwrap_err();
+    assert!(e.contains("volume.aabb_min"), "{e}");
+    let with_box = text.replace(
+        "density_scale",
+        "aabb_min = [0,0,0]\naabb_max = [1,1,1]\ndensity_scale",
+    );
+    assert!(parse(&with_box).is_ok());
+}
