@@ -1,1 +1,18 @@
+//! # nimbus-trace
+//!
+//! The reference estimator of Nimbus: a CPU volumetric path tracer for heterogeneous,
+//! high-albedo, strongly forward-scattering media — delta tracking for free flights, ratio
+//! tracking for shadow rays, next-event estimation to the sun and sky with multiple importance
+//! sampling, empty-space skipping through a majorant grid. See [`integrator`] for the estimator,
+//! [`tracking`] for the free-flight machinery and [`render`] for image rendering, and
+//! [`compare`] for the error metrics used against the Mitsuba 3 references.
 
+pub mod compare;
+pub mod integrator;
+pub mod render;
+pub mod rng;
+pub mod tracking;
+
+pub use integrator::PathTracer;
+pub use render::{RenderOptions, RenderOutput, RenderStats, render, render_with};
+pub use rng::Pcg32;

@@ -76,6 +76,49 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<DensityGrid> {
     DensityGrid::new(res, data).map_err(|e| e.at(path))
 }
 
+/// Reads any little-endian float32/float64 C-order array as (shape, f32 values) — used for
+/// auxiliary arrays such as the references' optical-depth masks.
+pub fn read_array(path: &Path) -> Result<(Vec<usize>, Vec<f32>)> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let mut cursor = Cursor::new(&bytes[..]);
+    let header = npyz::NpyHeader::from_reader(&mut cursor)
+        .map_err(|e| Error::invalid(path, "header", format!("not a valid .npy header: {e}")))?;
+    let start = cursor.position() as usize;
+    let npy = npyz::NpyFile::with_header(header, &bytes[start..]);
+    let shape: Vec<usize> = npy.shape().iter().map(|&v| v as usize).collect();
+    let n = shape.iter().try_fold(1usize, |a, &b| a.checked_mul(b));
+    let descr = npy.dtype().descr();
+    let elem = match descr.trim_matches('\'') {
+        "<f4" => 4,
+        "<f8" => 8,
+        other => {
+            return Err(Error::invalid(
+                path,
+                "header.descr",
+                format!("dtype {other} is not supported"),
+            ));
+        }
+    };
+    if npy.order() != Order::C || n.map(|n| n * elem) != Some(bytes.len() - start) {
+        return Err(Error::invalid(
+            path,
+            "data",
+            "size does not match the header shape (or Fortran order)",
+        ));
+    }
+    let data = if elem == 4 {
+        npy.into_vec::<f32>()
+            .map_err(|e| Error::invalid(path, "data", e.to_string()))?
+    } else {
+        npy.into_vec::<f64>()
+            .map_err(|e| Error::invalid(path, "data", e.to_string()))?
+            .into_iter()
+            .map(|v| v as f32)
+            .collect()
+    };
+    Ok((shape, data))
+}
+
 pub fn read(path: &Path) -> Result<DensityGrid> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     parse(&bytes, path)

@@ -1,0 +1,140 @@
+//! Image rendering: 16×16 tiles in parallel (rayon), each pixel's samples from their own random
+//! stream ([`Pcg32::for_sample`]) so the image depends only on the seed, never on the thread
+//! count; a progress bar; mean RGB and the variance of each pixel's mean luminance.
+
+use std::time::Instant;
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use nimbus_scene::{Image, Scene};
+use rayon::prelude::*;
+
+use crate::integrator::{PathStats, PathTracer};
+use crate::rng::Pcg32;
+
+const TILE: usize = 16;
+
+/// What to render.
+#[derive(Debug, Clone)]
+pub struct RenderOptions {
+    pub spp: u32,
+    pub seed: u64,
+    /// Show a progress bar on stderr.
+    pub progress: bool,
+}
+
+impl RenderOptions {
+    /// The scene's own settings, no progress bar.
+    pub fn from_scene(scene: &Scene) -> Self {
+        Self {
+            spp: scene.render.spp,
+            seed: scene.render.seed,
+            progress: false,
+        }
+    }
+}
+
+/// Work counters of a render.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct RenderStats {
+    pub paths: u64,
+    pub scatterings: u64,
+    pub seconds: f64,
+}
+
+impl RenderStats {
+    pub fn paths_per_second(&self) -> f64 {
+        self.paths as f64 / self.seconds.max(1e-9)
+    }
+}
+
+/// A rendered image with per-pixel variance of the mean luminance.
+#[derive(Debug, Clone)]
+pub struct RenderOutput {
+    pub image: Image,
+    pub variance: Vec<f32>,
+    pub stats: RenderStats,
+}
+
+/// Renders `scene` with the path tracer.
+pub fn render(scene: &Scene, opts: &RenderOptions) -> RenderOutput {
+    render_with(&PathTracer::new(scene), opts)
+}
+
+/// Renders with a given tracer (for example one without empty-space skipping).
+pub fn render_with(tracer: &PathTracer, opts: &RenderOptions) -> RenderOutput {
+    let cam = &tracer.scene.camera;
+    let (w, h) = (cam.width, cam.height);
+    let tiles: Vec<(usize, usize)> = (0..h.div_ceil(TILE))
+        .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
+        .collect();
+    let bar = if opts.progress {
+        ProgressBar::with_draw_target(Some(tiles.len() as u64), ProgressDrawTarget::stderr())
+    } else {
+        ProgressBar::hidden()
+    };
+    bar.set_style(
+        ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} tiles, eta {eta}")
+            .unwrap()
+            .progress_chars("=> "),
+    );
+    let start = Instant::now();
+    let spp = opts.spp.max(1);
+    let results: Vec<(Vec<(usize, [f64; 3], f64)>, u64)> = tiles
+        .par_iter()
+        .map(|&(x0, y0)| {
+            let mut out = Vec::with_capacity(TILE * TILE);
+            let mut scat = 0u64;
+            for y in y0..(y0 + TILE).min(h) {
+                for x in x0..(x0 + TILE).min(w) {
+                    let pixel = (y * w + x) as u64;
+                    let mut sum = [0.0f64; 3];
+                    let (mut ls, mut ls2) = (0.0f64, 0.0f64);
+                    for s in 0..spp {
+                        let mut rng = Pcg32::for_sample(opts.seed, pixel, s as u64);
+                        let [jx, jy] = rng.next2();
+                        let d = cam.ray_dir(x as f64 + jx, y as f64 + jy);
+                        let mut st = PathStats::default();
+                        let l = tracer.radiance(cam.origin, d, &mut rng, &mut st);
+                        scat += st.scatterings;
+                        sum[0] += l.x;
+                        sum[1] += l.y;
+                        sum[2] += l.z;
+                        let lum = (l.x + l.y + l.z) / 3.0;
+                        ls += lum;
+                        ls2 += lum * lum;
+                    }
+                    let n = spp as f64;
+                    let mean = ls / n;
+                    let var = if spp > 1 {
+                        ((ls2 / n - mean * mean).max(0.0)) / (n - 1.0)
+                    } else {
+                        0.0
+                    };
+                    out.push((pixel as usize, sum.map(|v| v / n), var));
+                }
+            }
+            bar.inc(1);
+            (out, scat)
+        })
+        .collect();
+    bar.finish_and_clear();
+    let mut image = Image::new(w, h);
+    let mut variance = vec![0.0f32; w * h];
+    let mut stats = RenderStats {
+        paths: (w * h) as u64 * spp as u64,
+        ..Default::default()
+    };
+    for (tile, scat) in results {
+        stats.scatterings += scat;
+        for (i, c, v) in tile {
+            image.pixels[i] = c.map(|v| v as f32);
+            variance[i] = v as f32;
+        }
+    }
+    stats.seconds = start.elapsed().as_secs_f64();
+    RenderOutput {
+        image,
+        variance,
+        stats,
+    }
+}
