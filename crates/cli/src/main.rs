@@ -62,7 +62,7 @@ enum Command {
         #[arg(long, default_value_t = 0)]
         seed: u64,
         /// Resolution X,Y,Z (default: the kind's proportions at 128 along x).
-        #[arg(long, value_delimiter = ',', num_args = 3)]
+        #[arg(long, value_delimiter = ',')]
         res: Option<Vec<i64>>,
         #[arg(long, short)]
         out: PathBuf,
@@ -74,9 +74,9 @@ enum Command {
         #[arg(long, default_value_t = 1.0)]
         density_scale: f64,
         /// World box min corner X,Y,Z (default: the file's header box, or [0,1]³).
-        #[arg(long, value_delimiter = ',', num_args = 3)]
+        #[arg(long, value_delimiter = ',')]
         aabb_min: Option<Vec<f64>>,
-        #[arg(long, value_delimiter = ',', num_args = 3)]
+        #[arg(long, value_delimiter = ',')]
         aabb_max: Option<Vec<f64>>,
     },
     /// Compare a rendered EXR with a reference EXR (metrics of shared/refs/compare.py).
@@ -168,6 +168,7 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             let kind: CloudKind = kind.parse().map_err(|e| anyhow::anyhow!("{e}"))?;
             let res = match res {
+                Some(r) if r.len() != 3 => bail!("--res needs three values X,Y,Z, got {r:?}"),
                 Some(r) => nimbus_scene::grid::check_resolution([r[0], r[1], r[2]], "--res")
                     .map_err(|e| anyhow::anyhow!("{e}"))?,
                 None => kind.default_resolution(128),
@@ -194,6 +195,9 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             let f = io::read_grid(&file)?;
             let (lo, hi) = match (aabb_min, aabb_max) {
+                (Some(a), Some(b)) if a.len() != 3 || b.len() != 3 => {
+                    bail!("--aabb-min and --aabb-max need three values X,Y,Z")
+                }
                 (Some(a), Some(b)) => (DVec3::new(a[0], a[1], a[2]), DVec3::new(b[0], b[1], b[2])),
                 (None, None) => f.bounds.unwrap_or((DVec3::ZERO, DVec3::ONE)),
                 _ => bail!("give both --aabb-min and --aabb-max, or neither"),

@@ -13,6 +13,9 @@ use crate::rng::Pcg32;
 
 const TILE: usize = 16;
 
+/// One rendered pixel: (index, mean RGB, variance of the mean luminance).
+type PixelResult = (usize, [f64; 3], f64);
+
 /// What to render.
 #[derive(Debug, Clone)]
 pub struct RenderOptions {
@@ -79,7 +82,7 @@ pub fn render_with(tracer: &PathTracer, opts: &RenderOptions) -> RenderOutput {
     );
     let start = Instant::now();
     let spp = opts.spp.max(1);
-    let results: Vec<(Vec<(usize, [f64; 3], f64)>, u64)> = tiles
+    let results: Vec<(Vec<PixelResult>, u64)> = tiles
         .par_iter()
         .map(|&(x0, y0)| {
             let mut out = Vec::with_capacity(TILE * TILE);

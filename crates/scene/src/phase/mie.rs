@@ -114,6 +114,7 @@ pub fn angle_grid() -> Vec<f64> {
 /// `m`, writes i(μ) = (|S1(μ)|² + |S2(μ)|²)/2 for each μ in `mus` into `out` and returns
 /// (Q_sca, g) — g from the series of Bohren & Huffman Eq. 4.62, independent of the angle grid.
 /// With this normalisation ∫ i dω = π x² Q_sca.
+#[allow(clippy::needless_range_loop)] // n is the series index, not just a position
 pub fn bhmie(x: f64, m: Complex64, mus: &[f64], out: &mut [f64]) -> (f64, f64) {
     assert_eq!(mus.len(), out.len());
     let nstop = (x + 4.0 * x.cbrt() + 2.0).floor() as usize;
@@ -307,9 +308,9 @@ mod tests {
 
     #[test]
     fn bohren_huffman_example_and_optical_theorem() {
-        // Bohren & Huffman, Appendix A example: x = 3.14159·2·0.525/0.6328, m = 1.55:
+        // Bohren & Huffman, Appendix A example: x = 2π·0.525/0.6328, m = 1.55:
         // Q_sca = Q_ext = 3.10543 (non-absorbing sphere).
-        let x = 2.0 * 3.14159 * 0.525 / 0.6328;
+        let x = 2.0 * PI * 0.525 / 0.6328;
         let m = Complex64::new(1.55, 0.0);
         let theta = angle_grid();
         let mus: Vec<f64> = theta.iter().map(|t| t.cos()).collect();
