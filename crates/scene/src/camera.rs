@@ -93,6 +93,11 @@ impl Camera {
         (self.forward + self.right * x + self.up * y).normalize()
     }
 
+    /// (forward, right, up, tan(vfov/2)) — the pinhole basis, for GPU ray generation.
+    pub fn basis(&self) -> (DVec3, DVec3, DVec3, f64) {
+        (self.forward, self.right, self.up, self.tan_half)
+    }
+
     pub fn forward(&self) -> DVec3 {
         self.forward
     }

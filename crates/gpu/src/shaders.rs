@@ -1,0 +1,66 @@
+//! Registry of every WGSL file in `shaders/`. Shaders are plain WGSL; the ones that share code
+//! are prefixed with `common.wgsl` (random numbers, grid lookups, phase functions) by
+//! [`source`]. A unit test parses and validates each with naga.
+
+/// Shared helpers, prepended to the other shaders.
+pub const COMMON: &str = include_str!("../../../shaders/common.wgsl");
+
+/// (file name, source) of every shader except `common.wgsl`.
+pub const SHADERS: &[(&str, &str)] = &[
+    (
+        "photon_trace.wgsl",
+        include_str!("../../../shaders/photon_trace.wgsl"),
+    ),
+    (
+        "photon_update.wgsl",
+        include_str!("../../../shaders/photon_update.wgsl"),
+    ),
+    (
+        "photon_upsample.wgsl",
+        include_str!("../../../shaders/photon_upsample.wgsl"),
+    ),
+    (
+        "photon_raymarch.wgsl",
+        include_str!("../../../shaders/photon_raymarch.wgsl"),
+    ),
+];
+
+/// Full source of a shader: `common.wgsl` followed by the file.
+pub fn source(name: &str) -> String {
+    let body = SHADERS
+        .iter()
+        .find(|(n, _)| *n == name)
+        .unwrap_or_else(|| panic!("unknown shader {name}"))
+        .1;
+    format!("{COMMON}\n{body}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_shader_file_is_registered_and_valid() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shaders");
+        let mut files: Vec<String> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| n.ends_with(".wgsl") && n != "common.wgsl")
+            .collect();
+        files.sort();
+        let mut registered: Vec<String> = SHADERS.iter().map(|(n, _)| n.to_string()).collect();
+        registered.sort();
+        assert_eq!(files, registered, "every shaders/*.wgsl must be in SHADERS");
+        for (name, _) in SHADERS {
+            let src = source(name);
+            let module = naga::front::wgsl::parse_str(&src)
+                .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&src)));
+            naga::valid::Validator::new(
+                naga::valid::ValidationFlags::all(),
+                naga::valid::Capabilities::all(),
+            )
+            .validate(&module)
+            .unwrap_or_else(|e| panic!("{name}: {e:?}"));
+        }
+    }
+}

@@ -1,0 +1,16 @@
+//! # nimbus-photon
+//!
+//! GPU temporally-coherent photon mapping for clouds (Elek et al. 2012): photon beams traced with
+//! Woodcock tracking deposit into a coarse grid (§4.1), a ring of m partial caches amortises the
+//! illumination over frames (§3.2, §4.2), a Henyey–Greenstein lobe per cell stores the angular
+//! distribution (§4.1.2, Appendix C), a physically based filter upsamples the cache to the density
+//! resolution (§4.3), and ray marching makes the image (§4.4).
+//!
+//! The deterministic GPU stages have CPU twins in [`reference`] that the tests compare against.
+
+pub mod mapper;
+pub mod params;
+pub mod reference;
+
+pub use mapper::{PhotonMapper, PmError, PmSettings};
+pub use params::PmParams;

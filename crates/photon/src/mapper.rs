@@ -1,0 +1,585 @@
+//! The GPU pipeline of temporally-coherent photon mapping (Elek 2012 §3.2): per frame, trace n_g
+//! beams into H_new, update the ring I = I − H_old + H_new; per image, upsample I → J and ray
+//! march. Compute pipelines are data: one entry per stage, each with its shader and bindings.
+
+use std::f64::consts::PI;
+
+use glam::DVec3;
+use nimbus_gpu::timing::StageTimer;
+use nimbus_gpu::{Gpu, GpuError, shaders};
+use nimbus_scene::{Camera, Image, Phase, Scene, Sky};
+
+use crate::params::PmParams;
+
+/// Fixed-point scale of one unit of beam weight in the caches (`W_SCALE` in the shader).
+pub const W_SCALE: f64 = 4096.0;
+/// Workgroup-shared cache capacity (cells) of the default shader; 2400 on adapters with 48 KiB
+/// of workgroup memory.
+pub const SHARED_CELLS: u32 = 1600;
+const SHARED_CELLS_LARGE: u32 = 2400;
+
+/// Errors of the photon mapper.
+#[derive(Debug, thiserror::Error)]
+pub enum PmError {
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    #[error("{0}")]
+    Unsupported(String),
+    #[error("setting `{field}`: {msg}")]
+    Setting { field: &'static str, msg: String },
+}
+
+/// Settings of the photon mapper (defaults follow Elek 2012 §5).
+#[derive(Debug, Clone)]
+pub struct PmSettings {
+    /// Beams traced per frame, n_g (the paper: 819 k / 100 = 8 192).
+    pub beams_per_frame: u32,
+    /// Number of partial caches in the ring, m.
+    pub ring: u32,
+    /// Resolution of the caches H and I; default: the largest grid of ≤ 2 400 cells with the
+    /// density grid's proportions (the paper's shared-memory budget).
+    pub cache_res: Option<[u32; 3]>,
+    /// A beam stops when its weight (albedo^scatterings) falls below this.
+    pub beam_threshold: f32,
+    /// A beam stops after this many scatterings.
+    pub max_order: u32,
+    /// Similarity threshold t: switch to σ' = σ√(1−g) and isotropic scattering after
+    /// log(t)/log|g| bounces.
+    pub similarity_t: f64,
+    /// Ray-marching step as a fraction of the box diagonal (the paper: 1/300).
+    pub step_fraction: f64,
+    /// Early exit below this transmittance (the paper: 2 %).
+    pub early_exit: f32,
+    pub seed: u32,
+}
+
+impl Default for PmSettings {
+    fn default() -> Self {
+        Self {
+            beams_per_frame: 8192,
+            ring: 100,
+            cache_res: None,
+            beam_threshold: 0.01,
+            max_order: 1024,
+            similarity_t: 0.05,
+            step_fraction: 1.0 / 300.0,
+            early_exit: 0.02,
+            seed: 0,
+        }
+    }
+}
+
+/// Default cache resolution: ≤ `max_cells` cells with the proportions of `d_res`, never finer
+/// than `d_res`.
+pub fn default_cache_res(d_res: [usize; 3], max_cells: u32) -> [u32; 3] {
+    let n = (d_res[0] * d_res[1] * d_res[2]) as f64;
+    let s = (max_cells as f64 / n).cbrt().min(1.0);
+    let mut r = d_res.map(|v| ((v as f64 * s).floor() as u32).clamp(1, v as u32));
+    while r.iter().map(|&v| v as u64).product::<u64>() > max_cells as u64 {
+        let i = (0..3).max_by_key(|&i| r[i]).unwrap();
+        r[i] -= 1;
+    }
+    r
+}
+
+/// Similarity switch order i = log t / log|g| (Elek §4.1.1); `u32::MAX` when it never applies.
+pub fn similarity_order(g: f64, t: f64) -> u32 {
+    let a = g.abs();
+    if a < 1e-6 {
+        return u32::MAX; // isotropic already: σ' = σ, nothing to switch
+    }
+    let i = t.ln() / a.ln();
+    if !i.is_finite() || i > 1e9 {
+        u32::MAX
+    } else {
+        i.floor().max(0.0) as u32
+    }
+}
+
+struct Stage {
+    pipeline: wgpu::ComputePipeline,
+    bind: wgpu::BindGroup,
+}
+
+/// Per-stage GPU time of the last frame/image, milliseconds (when timestamps are available).
+pub type StageTimes = Vec<(&'static str, f64)>;
+
+/// The photon mapper for one scene on one device.
+pub struct PhotonMapper<'g> {
+    gpu: &'g Gpu,
+    pub params: PmParams,
+    pub settings: PmSettings,
+    cells: u32,
+    voxels: u32,
+    trace: Stage,
+    update: Stage,
+    upsample: Stage,
+    raymarch: Option<(Stage, usize, usize)>,
+    params_buf: wgpu::Buffer,
+    slot_buf: wgpu::Buffer,
+    h_new: wgpu::Buffer,
+    density: wgpu::Buffer,
+    j: wgpu::Buffer,
+    total: wgpu::Buffer,
+    /// Beams (sun, sky) held by each ring slot.
+    slot_beams: Vec<(u64, u64)>,
+    frame: u32,
+    sun_fraction: f64,
+    cell_volume: f64,
+    timer: StageTimer,
+    pub last_times: StageTimes,
+    raymarch_pipeline: wgpu::ComputePipeline,
+    image_buf: Option<wgpu::Buffer>,
+}
+
+fn f3(v: DVec3) -> [f32; 3] {
+    v.as_vec3().to_array()
+}
+
+impl<'g> PhotonMapper<'g> {
+    pub fn new(gpu: &'g Gpu, scene: &Scene, settings: PmSettings) -> Result<Self, PmError> {
+        let g = match &scene.medium.phase {
+            Phase::HenyeyGreenstein(hg) => hg.g(),
+            Phase::Isotropic => 0.0,
+            Phase::Tabulated(_) => {
+                return Err(PmError::Unsupported(format!(
+                    "{}: photon mapping represents light with Henyey–Greenstein lobes (Elek 2012 §4.1.2); use phase = {{ kind = \"hg\", g = … }} (a Mie cloud is close to g = 0.86)",
+                    scene.source.display()
+                )));
+            }
+        };
+        if matches!(scene.sky, Some(Sky::Env(_))) {
+            return Err(PmError::Unsupported(format!(
+                "{}: photon mapping supports a constant sky radiance, not an environment map",
+                scene.source.display()
+            )));
+        }
+        if settings.ring == 0 || settings.ring > 4096 {
+            return Err(PmError::Setting {
+                field: "ring",
+                msg: format!("must lie in 1..=4096, got {}", settings.ring),
+            });
+        }
+        if settings.beams_per_frame > 1 << 26 {
+            return Err(PmError::Setting {
+                field: "beams_per_frame",
+                msg: format!(
+                    "at most {} per frame, got {}",
+                    1u32 << 26,
+                    settings.beams_per_frame
+                ),
+            });
+        }
+        let vol = &scene.volume;
+        let d_res = vol.grid().res();
+        let i_res = match settings.cache_res {
+            Some(r) => {
+                if r.iter().any(|&v| v == 0) || r.iter().zip(d_res).any(|(&a, b)| a as usize > b) {
+                    return Err(PmError::Setting {
+                        field: "cache_res",
+                        msg: format!(
+                            "each axis must lie in 1..=density resolution {d_res:?}, got {r:?}"
+                        ),
+                    });
+                }
+                r
+            }
+            None => default_cache_res(d_res, 2400),
+        };
+        let cells = i_res.iter().product::<u32>();
+        let voxels = (d_res[0] * d_res[1] * d_res[2]) as u32;
+        let aabb = vol.aabb();
+        let d_max = vol.grid().stats().max as f64;
+        let sigma_max = (vol.density_scale() * d_max).max(1e-30);
+        let centre = aabb.center();
+        let radius = 0.5 * aabb.extent().length();
+        let cell = aabb.extent() / DVec3::new(i_res[0] as f64, i_res[1] as f64, i_res[2] as f64);
+        // Beam budget split by incident power (per unit area of the bounding sphere).
+        let lum = |v: DVec3| (v.x + v.y + v.z) / 3.0;
+        let p_sun = scene
+            .sun
+            .as_ref()
+            .map_or(0.0, |s| lum(s.irradiance) * PI * radius * radius);
+        let p_sky = match &scene.sky {
+            Some(Sky::Constant(c)) => lum(*c) * 4.0 * PI * PI * radius * radius,
+            _ => 0.0,
+        };
+        let sun_fraction = if p_sun + p_sky > 0.0 {
+            p_sun / (p_sun + p_sky)
+        } else {
+            0.0
+        };
+        let shared_cap = if gpu.limits.max_compute_workgroup_storage_size >= SHARED_CELLS_LARGE * 20
+        {
+            SHARED_CELLS_LARGE
+        } else {
+            SHARED_CELLS
+        };
+        let use_shared =
+            cells <= shared_cap && gpu.limits.max_compute_workgroup_storage_size >= shared_cap * 20;
+        let (forward, right, up, tan_half) = scene.camera.basis();
+        let sun = scene.sun.as_ref();
+        let params = PmParams {
+            aabb_min: f3(aabb.min),
+            density_scale: vol.density_scale() as f32,
+            aabb_max: f3(aabb.max),
+            albedo: scene.medium.albedo as f32,
+            d_res: d_res.map(|v| v as u32),
+            g: g as f32,
+            i_res,
+            sigma_max: sigma_max as f32,
+            sun_dir: f3(sun.map_or(DVec3::Y, |s| s.dir)),
+            sun_cos_max: sun.map_or(1.0, |s| s.angular_radius.cos() as f32),
+            sun_irradiance: f3(sun.map_or(DVec3::ZERO, |s| s.irradiance)),
+            bound_radius: radius as f32,
+            sky_radiance: match &scene.sky {
+                Some(Sky::Constant(c)) => f3(*c),
+                _ => [0.0; 3],
+            },
+            d_max: d_max.max(1e-30) as f32,
+            bound_center: f3(centre),
+            sun_disc_radiance: sun.filter(|s| !s.is_delta()).map_or(0.0, |s| {
+                (1.0 / (PI * s.angular_radius.sin().powi(2))) as f32
+            }),
+            cam_origin: f3(scene.camera.origin),
+            tan_half: tan_half as f32,
+            cam_forward: f3(forward),
+            aspect: (scene.camera.width as f64 / scene.camera.height as f64) as f32,
+            cam_right: f3(right),
+            step: (aabb.extent().length() * settings.step_fraction) as f32,
+            cam_up: f3(up),
+            early_exit: settings.early_exit,
+            n_sun: 0,
+            n_sky: 0,
+            seed: settings.seed,
+            frame: 0,
+            similarity_order: similarity_order(g, settings.similarity_t),
+            max_order: settings.max_order,
+            use_shared: use_shared as u32,
+            filtered: (i_res != d_res.map(|v| v as u32)) as u32,
+            width: scene.camera.width as u32,
+            height: scene.camera.height as u32,
+            beam_threshold: settings.beam_threshold,
+            reduced_factor: (1.0 - g).max(0.0).sqrt() as f32,
+            sun_norm: 0.0,
+            sky_norm: 0.0,
+            _pad0: 0.0,
+            _pad1: 0.0,
+        };
+        gpu.check_storage("the density grid", voxels as u64 * 4)?;
+        gpu.check_storage("the upsampled cache J", voxels as u64 * 16)?;
+        gpu.check_storage(
+            "the photon-cache ring",
+            settings.ring as u64 * cells as u64 * 20,
+        )?;
+        gpu.check_storage(
+            "the image",
+            scene.camera.width as u64 * scene.camera.height as u64 * 16,
+        )?;
+        let params_buf = gpu.uniform("pm params", &params);
+        let density = gpu.storage("density D", vol.grid().data());
+        let h_new = gpu.zeroed("H_new", cells as u64 * 20);
+        let ring = gpu.zeroed("ring H_0..H_m-1", settings.ring as u64 * cells as u64 * 20);
+        let total = gpu.zeroed("I", cells as u64 * 20);
+        let j = gpu.zeroed("J", voxels as u64 * 16);
+        let slot_buf = gpu.uniform("ring slot", &[0u32; 4]);
+        let mut trace_src = shaders::source("photon_trace.wgsl");
+        if shared_cap != SHARED_CELLS {
+            trace_src = trace_src.replace(
+                &format!("const SHARED_CELLS: u32 = {SHARED_CELLS}u;"),
+                &format!("const SHARED_CELLS: u32 = {shared_cap}u;"),
+            );
+        }
+        let trace_p = gpu.pipeline("photon trace", &trace_src, "trace");
+        let trace = Stage {
+            bind: gpu.bind(&trace_p, &[(0, &params_buf), (1, &density), (2, &h_new)]),
+            pipeline: trace_p,
+        };
+        let update_p = gpu.pipeline(
+            "photon update",
+            &shaders::source("photon_update.wgsl"),
+            "update",
+        );
+        let update = Stage {
+            bind: gpu.bind(
+                &update_p,
+                &[(2, &h_new), (3, &ring), (4, &total), (5, &slot_buf)],
+            ),
+            pipeline: update_p,
+        };
+        let up_p = gpu.pipeline(
+            "photon upsample",
+            &shaders::source("photon_upsample.wgsl"),
+            "upsample",
+        );
+        let upsample = Stage {
+            bind: gpu.bind(
+                &up_p,
+                &[(0, &params_buf), (1, &density), (2, &total), (3, &j)],
+            ),
+            pipeline: up_p,
+        };
+        let raymarch_pipeline = gpu.pipeline(
+            "photon raymarch",
+            &shaders::source("photon_raymarch.wgsl"),
+            "raymarch",
+        );
+        Ok(Self {
+            gpu,
+            params,
+            cells,
+            voxels,
+            trace,
+            update,
+            upsample,
+            raymarch: None,
+            params_buf,
+            slot_buf,
+            h_new,
+            density,
+            j,
+            total,
+            slot_beams: vec![(0, 0); settings.ring as usize],
+            frame: 0,
+            sun_fraction,
+            cell_volume: cell.x * cell.y * cell.z,
+            timer: StageTimer::new(gpu, 8),
+            last_times: Vec::new(),
+            raymarch_pipeline,
+            image_buf: None,
+            settings,
+        })
+    }
+
+    /// Whether any light reaches the cloud (no light → no photons are traced at all).
+    pub fn has_light(&self) -> bool {
+        self.sun_fraction > 0.0 || self.params.sky_radiance.iter().any(|&v| v > 0.0)
+    }
+
+    pub fn uses_shared_memory(&self) -> bool {
+        self.params.use_shared != 0
+    }
+
+    pub fn cache_res(&self) -> [u32; 3] {
+        self.params.i_res
+    }
+
+    /// Frames traced so far.
+    pub fn frames(&self) -> u32 {
+        self.frame
+    }
+
+    /// Whether every ring slot holds a traced generation.
+    pub fn ring_full(&self) -> bool {
+        self.frame >= self.settings.ring
+    }
+
+    fn dispatch_1d(n: u32) -> (u32, u32) {
+        let wg = n.div_ceil(64).max(1);
+        if wg <= 65535 {
+            (wg, 1)
+        } else {
+            (65535, wg.div_ceil(65535))
+        }
+    }
+
+    /// Changes the sun direction (unit vector towards the sun) for the following frames.
+    pub fn set_sun_dir(&mut self, dir: DVec3) {
+        self.params.sun_dir = f3(dir.normalize());
+    }
+
+    /// One frame of illumination: traces `beams` (default n_g) beams into H_new and replaces the
+    /// oldest partial cache. The per-beam flux stays constant whatever the budget (Elek §4.1.1):
+    /// each cache remembers its beam count and the normalisation uses the ring's total.
+    pub fn trace_frame(&mut self, beams: Option<u32>) {
+        let n = beams.unwrap_or(self.settings.beams_per_frame);
+        let (n_sun, n_sky) = if self.has_light() {
+            let s = (n as f64 * self.sun_fraction).round() as u32;
+            (s, n - s)
+        } else {
+            (0, 0)
+        };
+        self.params.n_sun = n_sun;
+        self.params.n_sky = n_sky;
+        self.params.frame = self.frame;
+        let slot = (self.frame % self.settings.ring) as usize;
+        self.slot_beams[slot] = (n_sun as u64, n_sky as u64);
+        self.gpu
+            .queue
+            .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
+        let count = self.cells * 5;
+        self.gpu.queue.write_buffer(
+            &self.slot_buf,
+            0,
+            bytemuck::cast_slice(&[slot as u32 * count, count, 0, 0]),
+        );
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        enc.clear_buffer(&self.h_new, 0, None);
+        if n_sun + n_sky > 0 {
+            let (x, y) = Self::dispatch_1d(n_sun + n_sky);
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("trace"),
+                timestamp_writes: self.timer.pass("tracing"),
+            });
+            pass.set_pipeline(&self.trace.pipeline);
+            pass.set_bind_group(0, &self.trace.bind, &[]);
+            pass.dispatch_workgroups(x, y, 1);
+        }
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("update"),
+                timestamp_writes: self.timer.pass("update"),
+            });
+            pass.set_pipeline(&self.update.pipeline);
+            pass.set_bind_group(0, &self.update.bind, &[]);
+            pass.dispatch_workgroups(count.div_ceil(64), 1, 1);
+        }
+        self.timer.resolve(&mut enc);
+        self.gpu.queue.submit([enc.finish()]);
+        self.last_times = self.timer.read(self.gpu);
+        self.frame += 1;
+    }
+
+    /// Traces until every ring slot holds a generation (m frames).
+    pub fn converge(&mut self) {
+        while !self.ring_full() {
+            self.trace_frame(None);
+        }
+    }
+
+    fn update_norms(&mut self) {
+        let (s, k) = self
+            .slot_beams
+            .iter()
+            .fold((0u64, 0u64), |a, b| (a.0 + b.0, a.1 + b.1));
+        let r = self.params.bound_radius as f64;
+        let denom = W_SCALE * self.params.sigma_max as f64 * self.cell_volume;
+        self.params.sun_norm = if s > 0 {
+            (PI * r * r / (s as f64 * denom)) as f32
+        } else {
+            0.0
+        };
+        self.params.sky_norm = if k > 0 {
+            (4.0 * PI * PI * r * r / (k as f64 * denom)) as f32
+        } else {
+            0.0
+        };
+    }
+
+    /// Upsamples I → J (Elek §4.3).
+    pub fn upsample(&mut self) {
+        self.update_norms();
+        self.gpu
+            .queue
+            .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        {
+            let (x, y) = Self::dispatch_1d(self.voxels);
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("upsample"),
+                timestamp_writes: self.timer.pass(if self.params.filtered != 0 {
+                    "upsampling"
+                } else {
+                    "conversion"
+                }),
+            });
+            pass.set_pipeline(&self.upsample.pipeline);
+            pass.set_bind_group(0, &self.upsample.bind, &[]);
+            pass.dispatch_workgroups(x, y, 1);
+        }
+        self.timer.resolve(&mut enc);
+        self.gpu.queue.submit([enc.finish()]);
+        let t = self.timer.read(self.gpu);
+        self.last_times.extend(t);
+    }
+
+    /// Ray marches the current J for `camera` (Elek §4.4).
+    pub fn raymarch(&mut self, camera: &Camera) -> Result<Image, PmError> {
+        let (w, h) = (camera.width, camera.height);
+        let (forward, right, up, tan_half) = camera.basis();
+        self.params.cam_origin = f3(camera.origin);
+        self.params.cam_forward = f3(forward);
+        self.params.cam_right = f3(right);
+        self.params.cam_up = f3(up);
+        self.params.tan_half = tan_half as f32;
+        self.params.aspect = (w as f64 / h as f64) as f32;
+        self.params.width = w as u32;
+        self.params.height = h as u32;
+        self.gpu
+            .queue
+            .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
+        if !matches!(&self.raymarch, Some((_, rw, rh)) if *rw == w && *rh == h) {
+            self.gpu
+                .check_storage("the image", w as u64 * h as u64 * 16)?;
+            let img = self.gpu.zeroed("image", w as u64 * h as u64 * 16);
+            let bind = self.gpu.bind(
+                &self.raymarch_pipeline,
+                &[
+                    (0, &self.params_buf),
+                    (1, &self.density),
+                    (2, &self.j),
+                    (3, &img),
+                ],
+            );
+            self.raymarch = Some((
+                Stage {
+                    pipeline: self.raymarch_pipeline.clone(),
+                    bind,
+                },
+                w,
+                h,
+            ));
+            self.image_buf = Some(img);
+        }
+        let (stage, _, _) = self.raymarch.as_ref().unwrap();
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("raymarch"),
+                timestamp_writes: self.timer.pass("ray-marching"),
+            });
+            pass.set_pipeline(&stage.pipeline);
+            pass.set_bind_group(0, &stage.bind, &[]);
+            pass.dispatch_workgroups((w as u32).div_ceil(8), (h as u32).div_ceil(8), 1);
+        }
+        self.timer.resolve(&mut enc);
+        self.gpu.queue.submit([enc.finish()]);
+        let t = self.timer.read(self.gpu);
+        self.last_times.extend(t);
+        let px: Vec<[f32; 4]> = self.gpu.read(self.image_buf.as_ref().unwrap())?;
+        let mut img = Image::new(w, h);
+        for (o, p) in img.pixels.iter_mut().zip(px) {
+            *o = [p[0], p[1], p[2]];
+        }
+        Ok(img)
+    }
+
+    /// Reads the total cache I (5 u32 per cell) back.
+    pub fn read_total(&self) -> Result<Vec<u32>, PmError> {
+        Ok(self.gpu.read(&self.total)?)
+    }
+
+    /// Reads J (4 floats per voxel) back.
+    pub fn read_j(&self) -> Result<Vec<[f32; 4]>, PmError> {
+        Ok(self.gpu.read(&self.j)?)
+    }
+
+    /// Density values as uploaded.
+    pub fn read_density(&self) -> Result<Vec<f32>, PmError> {
+        Ok(self.gpu.read(&self.density)?)
+    }
+
+    /// Total number of (sun, sky) beams in the ring.
+    pub fn ring_beams(&self) -> (u64, u64) {
+        self.slot_beams
+            .iter()
+            .fold((0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+    }
+
+    /// Converged render: fills the ring, upsamples, ray marches.
+    pub fn render(&mut self, camera: &Camera) -> Result<Image, PmError> {
+        self.converge();
+        self.upsample();
+        self.raymarch(camera)
+    }
+}

@@ -1,0 +1,131 @@
+//! The uniform block shared by all photon-mapping shaders (`struct Params` in
+//! `shaders/common.wgsl`). `#[repr(C)]` + bytemuck; a test checks every field offset against the
+//! layout naga computes for the WGSL struct.
+
+use bytemuck::{Pod, Zeroable};
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, Default, PartialEq)]
+pub struct PmParams {
+    pub aabb_min: [f32; 3],
+    pub density_scale: f32,
+    pub aabb_max: [f32; 3],
+    pub albedo: f32,
+    pub d_res: [u32; 3],
+    pub g: f32,
+    pub i_res: [u32; 3],
+    /// Global majorant σ̄ = density_scale × max D.
+    pub sigma_max: f32,
+    /// Unit vector towards the sun.
+    pub sun_dir: [f32; 3],
+    pub sun_cos_max: f32,
+    pub sun_irradiance: [f32; 3],
+    pub bound_radius: f32,
+    pub sky_radiance: [f32; 3],
+    /// Largest grid value (normalises the range filter of the upsampling).
+    pub d_max: f32,
+    pub bound_center: [f32; 3],
+    /// Disc radiance per unit irradiance, 1/(π sin² r); 0 for a delta sun.
+    pub sun_disc_radiance: f32,
+    pub cam_origin: [f32; 3],
+    pub tan_half: f32,
+    pub cam_forward: [f32; 3],
+    pub aspect: f32,
+    pub cam_right: [f32; 3],
+    pub step: f32,
+    pub cam_up: [f32; 3],
+    pub early_exit: f32,
+    pub n_sun: u32,
+    pub n_sky: u32,
+    pub seed: u32,
+    pub frame: u32,
+    pub similarity_order: u32,
+    pub max_order: u32,
+    pub use_shared: u32,
+    pub filtered: u32,
+    pub width: u32,
+    pub height: u32,
+    pub beam_threshold: f32,
+    /// √(1 − g): σ' = σ √(1 − g) after the similarity switch.
+    pub reduced_factor: f32,
+    /// Cache sums → sun fluence per unit irradiance.
+    pub sun_norm: f32,
+    /// Cache sums → sky fluence per unit radiance.
+    pub sky_norm: f32,
+    pub _pad0: f32,
+    pub _pad1: f32,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::mem::offset_of;
+
+    #[test]
+    fn layout_matches_wgsl() {
+        let src = nimbus_gpu::shaders::source("photon_update.wgsl");
+        let module = naga::front::wgsl::parse_str(&src).unwrap();
+        let mut layouter = naga::proc::Layouter::default();
+        layouter.update(module.to_ctx()).unwrap();
+        let (handle, ty) = module
+            .types
+            .iter()
+            .find(|(_, t)| t.name.as_deref() == Some("Params"))
+            .expect("struct Params in common.wgsl");
+        let naga::TypeInner::Struct { members, span } = &ty.inner else {
+            panic!("Params is not a struct")
+        };
+        assert_eq!(*span as usize, std::mem::size_of::<PmParams>());
+        assert_eq!(
+            layouter[handle].size as usize,
+            std::mem::size_of::<PmParams>()
+        );
+        let rust: Vec<(&str, usize)> = vec![
+            ("aabb_min", offset_of!(PmParams, aabb_min)),
+            ("density_scale", offset_of!(PmParams, density_scale)),
+            ("aabb_max", offset_of!(PmParams, aabb_max)),
+            ("albedo", offset_of!(PmParams, albedo)),
+            ("d_res", offset_of!(PmParams, d_res)),
+            ("g", offset_of!(PmParams, g)),
+            ("i_res", offset_of!(PmParams, i_res)),
+            ("sigma_max", offset_of!(PmParams, sigma_max)),
+            ("sun_dir", offset_of!(PmParams, sun_dir)),
+            ("sun_cos_max", offset_of!(PmParams, sun_cos_max)),
+            ("sun_irradiance", offset_of!(PmParams, sun_irradiance)),
+            ("bound_radius", offset_of!(PmParams, bound_radius)),
+            ("sky_radiance", offset_of!(PmParams, sky_radiance)),
+            ("d_max", offset_of!(PmParams, d_max)),
+            ("bound_center", offset_of!(PmParams, bound_center)),
+            ("sun_disc_radiance", offset_of!(PmParams, sun_disc_radiance)),
+            ("cam_origin", offset_of!(PmParams, cam_origin)),
+            ("tan_half", offset_of!(PmParams, tan_half)),
+            ("cam_forward", offset_of!(PmParams, cam_forward)),
+            ("aspect", offset_of!(PmParams, aspect)),
+            ("cam_right", offset_of!(PmParams, cam_right)),
+            ("step", offset_of!(PmParams, step)),
+            ("cam_up", offset_of!(PmParams, cam_up)),
+            ("early_exit", offset_of!(PmParams, early_exit)),
+            ("n_sun", offset_of!(PmParams, n_sun)),
+            ("n_sky", offset_of!(PmParams, n_sky)),
+            ("seed", offset_of!(PmParams, seed)),
+            ("frame", offset_of!(PmParams, frame)),
+            ("similarity_order", offset_of!(PmParams, similarity_order)),
+            ("max_order", offset_of!(PmParams, max_order)),
+            ("use_shared", offset_of!(PmParams, use_shared)),
+            ("filtered", offset_of!(PmParams, filtered)),
+            ("width", offset_of!(PmParams, width)),
+            ("height", offset_of!(PmParams, height)),
+            ("beam_threshold", offset_of!(PmParams, beam_threshold)),
+            ("reduced_factor", offset_of!(PmParams, reduced_factor)),
+            ("sun_norm", offset_of!(PmParams, sun_norm)),
+            ("sky_norm", offset_of!(PmParams, sky_norm)),
+            ("_pad0", offset_of!(PmParams, _pad0)),
+            ("_pad1", offset_of!(PmParams, _pad1)),
+        ];
+        assert_eq!(members.len(), rust.len());
+        for (m, (name, off)) in members.iter().zip(rust) {
+            assert_eq!(m.name.as_deref(), Some(name));
+            assert_eq!(m.offset as usize, off, "field {name}");
+        }
+    }
+}

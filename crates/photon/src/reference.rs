@@ -1,0 +1,399 @@
+//! CPU reference implementations of the deterministic GPU stages — the upsampling filter
+//! (`shaders/photon_upsample.wgsl`) and ray marching with HG reconstruction
+//! (`shaders/photon_raymarch.wgsl`) — in the same f32 arithmetic, so tests can check GPU = CPU.
+//!
+//! ## The stable truncated exponential (Elek 2012 §4.3)
+//! The paper's f_exp(d | λ, r) = max((f'(d) − f'(r)) / (1 − r f'(r)), 0) with
+//! f'(d) = λ e^{−λd} / (1 − e^{−λr}) is 0/0 when λ → 0 or λr → 0, and λ = σ_s (D(p) − D(q))/2 is
+//! negative whenever D(p) < D(q). With y = λr, u = d/r, v = 1 − u it simplifies exactly to
+//!
+//!   f_exp = (y / r) · expm1(y v) / (expm1(y) − y),
+//!
+//! which is positive for every y ≠ 0 and u < 1 (numerator and denominator share the sign of y)
+//! and tends to the triangle filter 2(1 − u)/r as y → 0. Evaluation:
+//! - |y| < 0.05: series (2/r) v (1 + yv/2 + y²v²/6) / (1 + y/3 + y²/12), error O(y³) < 10⁻⁴;
+//! - y > 0: multiplied through by e^{−y} — (y/r) e^{−yu}(1 − e^{−yv}) / (1 − (1 + y) e^{−y}) —
+//!   so large y cannot overflow;
+//! - y < 0: the expm1 form directly (both exponentials are < 1);
+//! - d ≥ r: 0.
+//!
+//! Each form integrates to one over [0, r] (tested numerically).
+
+use glam::Vec3;
+
+use crate::params::PmParams;
+
+/// Stable truncated exponential filter (see the module docs).
+pub fn f_exp(d: f32, lambda: f32, r: f32) -> f32 {
+    if d >= r {
+        return 0.0;
+    }
+    let y = lambda * r;
+    let u = d / r;
+    let v = 1.0 - u;
+    if y.abs() < 0.05 {
+        return 2.0 / r * v * (1.0 + y * v / 2.0 + y * y * v * v / 6.0)
+            / (1.0 + y / 3.0 + y * y / 12.0);
+    }
+    if y > 0.0 {
+        let num = (-y * u).exp() * (1.0 - (-y * v).exp());
+        let den = 1.0 - (1.0 + y) * (-y).exp();
+        return (y / r * num / den).max(0.0);
+    }
+    let num = (y * v).exp() - 1.0;
+    let den = y.exp() - 1.0 - y;
+    (y / r * num / den).max(0.0)
+}
+
+/// The paper's formula, written as printed (for tests away from its singularities).
+pub fn f_exp_paper(d: f64, lambda: f64, r: f64) -> f64 {
+    let fp = |x: f64| lambda * (-lambda * x).exp() / (1.0 - (-lambda * r).exp());
+    (((fp(d) - fp(r)) / (1.0 - r * fp(r))).max(0.0)) * if d < r { 1.0 } else { 0.0 }
+}
+
+/// Cache quantities of one cell in physical units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CellValue {
+    pub sun: f32,
+    pub sky: f32,
+    pub g: f32,
+    pub gamma: f32,
+    pub has_sun: bool,
+}
+
+pub fn cell_value(p: &PmParams, total: &[u32], i: usize) -> CellValue {
+    let b = i * 5;
+    let w_sun = total[b] as f32;
+    let w_sky = total[b + 1] as f32;
+    let cw = total[b + 2] as f32;
+    let ord = total[b + 3] as f32;
+    let n = total[b + 4] as f32;
+    let g = if w_sun > 0.0 {
+        (2.0 * cw / w_sun - 1.0).clamp(-0.999, 0.999)
+    } else {
+        0.0
+    };
+    let gamma = if n > 0.0 { ord / n } else { 0.0 };
+    CellValue {
+        sun: w_sun * p.sun_norm,
+        sky: w_sky * p.sky_norm,
+        g,
+        gamma,
+        has_sun: w_sun > 0.0,
+    }
+}
+
+fn v3(a: [f32; 3]) -> Vec3 {
+    Vec3::from_array(a)
+}
+
+fn index(x: u32, y: u32, z: u32, res: [u32; 3]) -> usize {
+    ((z * res[1] + y) * res[0] + x) as usize
+}
+
+/// (i0, i1, fraction) of the cell-centred trilinear lookup at p in a grid of `res`.
+fn trilinear(p: &PmParams, pos: Vec3, res: [u32; 3]) -> ([u32; 3], [u32; 3], Vec3) {
+    let resf = Vec3::new(res[0] as f32, res[1] as f32, res[2] as f32);
+    let u = (pos - v3(p.aabb_min)) / (v3(p.aabb_max) - v3(p.aabb_min)) * resf - Vec3::splat(0.5);
+    let b = u.floor();
+    let hi = resf - Vec3::ONE;
+    let i0 = b.clamp(Vec3::ZERO, hi);
+    let i1 = (b + Vec3::ONE).clamp(Vec3::ZERO, hi);
+    (
+        [i0.x as u32, i0.y as u32, i0.z as u32],
+        [i1.x as u32, i1.y as u32, i1.z as u32],
+        u - b,
+    )
+}
+
+fn inside(p: &PmParams, x: Vec3) -> bool {
+    x.cmpge(v3(p.aabb_min)).all() && x.cmple(v3(p.aabb_max)).all()
+}
+
+fn lerp<T>(a: T, b: T, t: f32) -> T
+where
+    T: std::ops::Mul<f32, Output = T>
+        + std::ops::Add<Output = T>
+        + std::ops::Sub<Output = T>
+        + Copy,
+{
+    // mix(a, b, t) = a * (1 − t) + b * t, as WGSL computes it.
+    a * (1.0 - t) + b * t
+}
+
+/// Trilinear interpolation of `f(index)` over a grid (same arithmetic order as the shaders).
+fn interp<T>(p: &PmParams, pos: Vec3, res: [u32; 3], f: impl Fn(usize) -> T) -> T
+where
+    T: std::ops::Mul<f32, Output = T>
+        + std::ops::Add<Output = T>
+        + std::ops::Sub<Output = T>
+        + Copy,
+{
+    let (i0, i1, t) = trilinear(p, pos, res);
+    let c00 = lerp(
+        f(index(i0[0], i0[1], i0[2], res)),
+        f(index(i1[0], i0[1], i0[2], res)),
+        t.x,
+    );
+    let c10 = lerp(
+        f(index(i0[0], i1[1], i0[2], res)),
+        f(index(i1[0], i1[1], i0[2], res)),
+        t.x,
+    );
+    let c01 = lerp(
+        f(index(i0[0], i0[1], i1[2], res)),
+        f(index(i1[0], i0[1], i1[2], res)),
+        t.x,
+    );
+    let c11 = lerp(
+        f(index(i0[0], i1[1], i1[2], res)),
+        f(index(i1[0], i1[1], i1[2], res)),
+        t.x,
+    );
+    lerp(lerp(c00, c10, t.y), lerp(c01, c11, t.y), t.z)
+}
+
+/// Unscaled density at x (0 outside the box).
+pub fn density_at(p: &PmParams, density: &[f32], x: Vec3) -> f32 {
+    if !inside(p, x) {
+        return 0.0;
+    }
+    interp(p, x, p.d_res, |i| density[i])
+}
+
+/// J at fine voxel `idx` (the upsampling of `photon_upsample.wgsl`).
+pub fn upsample_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usize) -> [f32; 4] {
+    let res = p.d_res;
+    let (x, y, z) = (
+        idx as u32 % res[0],
+        (idx as u32 / res[0]) % res[1],
+        idx as u32 / (res[0] * res[1]),
+    );
+    if p.filtered == 0 {
+        let cv = cell_value(p, total, idx);
+        return [cv.sun, cv.sky, cv.g, cv.gamma];
+    }
+    let ext = v3(p.aabb_max) - v3(p.aabb_min);
+    let resf = Vec3::new(res[0] as f32, res[1] as f32, res[2] as f32);
+    let ires = Vec3::new(p.i_res[0] as f32, p.i_res[1] as f32, p.i_res[2] as f32);
+    let pos =
+        v3(p.aabb_min) + (Vec3::new(x as f32, y as f32, z as f32) + Vec3::splat(0.5)) / resf * ext;
+    let dp = density[idx];
+    let cell = ext / ires;
+    let radius = 1.5 * cell.x.min(cell.y.min(cell.z));
+    let uc = (pos - v3(p.aabb_min)) / ext * ires;
+    let c = uc.floor().clamp(Vec3::ZERO, ires - Vec3::ONE);
+    let c = [c.x as i32, c.y as i32, c.z as i32];
+    let sigma_s = p.albedo * p.density_scale;
+    let gp = interp(p, pos, p.i_res, |i| cell_value(p, total, i).gamma);
+    let lng = p.g.abs().max(1e-30).ln();
+    let (mut sw, mut s_sun, mut s_sky, mut swg, mut s_g) = (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
+    for dz in -1..=1 {
+        for dy in -1..=1 {
+            for dx in -1..=1 {
+                let q = [c[0] + dx, c[1] + dy, c[2] + dz];
+                if (0..3).any(|a| q[a] < 0 || q[a] >= p.i_res[a] as i32) {
+                    continue;
+                }
+                let qu = [q[0] as u32, q[1] as u32, q[2] as u32];
+                let qc = v3(p.aabb_min)
+                    + (Vec3::new(qu[0] as f32, qu[1] as f32, qu[2] as f32) + Vec3::splat(0.5))
+                        / ires
+                        * ext;
+                let dq = density_at(p, density, qc);
+                let lambda = sigma_s * (dp - dq) * 0.5;
+                let wl = f_exp((pos - qc).length(), lambda, radius)
+                    * (1.0 - (dp - dq).abs() / p.d_max).max(0.0);
+                if wl <= 0.0 {
+                    continue;
+                }
+                let cv = cell_value(p, total, index(qu[0], qu[1], qu[2], p.i_res));
+                sw += wl;
+                s_sun += wl * cv.sun;
+                s_sky += wl * cv.sky;
+                if cv.has_sun {
+                    let wg = if p.g.abs() >= 1e-6 {
+                        ((gp - cv.gamma) * lng).clamp(-60.0, 60.0).exp()
+                    } else {
+                        1.0
+                    };
+                    swg += wg * wl;
+                    s_g += wg * wl * cv.g;
+                }
+            }
+        }
+    }
+    let mut out = if sw > 0.0 {
+        [s_sun / sw, s_sky / sw, 0.0, gp]
+    } else {
+        let f = interp(p, pos, p.i_res, |i| {
+            let cv = cell_value(p, total, i);
+            glam::Vec2::new(cv.sun, cv.sky)
+        });
+        [f.x, f.y, 0.0, gp]
+    };
+    if swg > 0.0 {
+        out[2] = s_g / swg;
+    }
+    out
+}
+
+/// Henyey–Greenstein reconstruction of the in-scattered radiance (Elek Appendix C): the
+/// incident lobe HG(g') convolved with the medium's HG(g) is HG(g g').
+pub fn in_scattered(p: &PmParams, dens: f32, j: [f32; 4], mu: f32) -> Vec3 {
+    let hg = |g: f32, mu: f32| {
+        let denom = (1.0 - g) * (1.0 - g) + 2.0 * g * (1.0 - mu);
+        (1.0 - g * g) / (4.0 * std::f32::consts::PI * denom * denom.sqrt())
+    };
+    p.albedo
+        * p.density_scale
+        * dens
+        * (v3(p.sun_irradiance) * (j[0] * hg(p.g * j[2], mu))
+            + v3(p.sky_radiance) * (j[1] / (4.0 * std::f32::consts::PI)))
+}
+
+fn pcg_hash(v: u32) -> u32 {
+    let state = v.wrapping_mul(747796405).wrapping_add(2891336453);
+    let word = ((state >> ((state >> 28) + 4)) ^ state).wrapping_mul(277803737);
+    (word >> 22) ^ word
+}
+
+fn box_intersect(p: &PmParams, o: Vec3, d: Vec3) -> (f32, f32) {
+    let (mut t0, mut t1) = (0.0f32, 3.0e38f32);
+    for a in 0..3 {
+        if d[a] == 0.0 {
+            if o[a] < p.aabb_min[a] || o[a] > p.aabb_max[a] {
+                return (1.0, 0.0);
+            }
+        } else {
+            let inv = 1.0 / d[a];
+            let ta = (p.aabb_min[a] - o[a]) * inv;
+            let tb = (p.aabb_max[a] - o[a]) * inv;
+            t0 = t0.max(ta.min(tb));
+            t1 = t1.min(ta.max(tb));
+        }
+    }
+    (t0, t1)
+}
+
+/// One pixel of `photon_raymarch.wgsl`.
+pub fn raymarch_pixel(p: &PmParams, density: &[f32], j: &[[f32; 4]], x: u32, y: u32) -> Vec3 {
+    let px = (x as f32 + 0.5) / p.width as f32 * 2.0 - 1.0;
+    let py = 1.0 - (y as f32 + 0.5) / p.height as f32 * 2.0;
+    let d = (v3(p.cam_forward)
+        + v3(p.cam_right) * (px * p.tan_half * p.aspect)
+        + v3(p.cam_up) * (py * p.tan_half))
+        .normalize();
+    let mut l = Vec3::ZERO;
+    let mut tr = 1.0f32;
+    let o = v3(p.cam_origin);
+    let (t0, t1) = box_intersect(p, o, d);
+    if t0 <= t1 {
+        let offset = (pcg_hash(y * p.width + x) >> 8) as f32 * (1.0 / 16777216.0);
+        let mut t = t0 + offset * p.step;
+        let mu = d.dot(v3(p.sun_dir));
+        while t < t1 && tr >= p.early_exit {
+            let dt = p.step.min(t1 - t);
+            let xp = o + d * (t + 0.5 * dt);
+            let dens = density_at(p, density, xp);
+            let sigma_t = p.density_scale * dens;
+            if sigma_t > 0.0 {
+                let jv = interp(p, xp, p.d_res, |i| glam::Vec4::from_array(j[i]));
+                let ls = in_scattered(p, dens, jv.to_array(), mu);
+                let ts = (-sigma_t * dt).exp();
+                l += tr * ls * (1.0 - ts) / sigma_t;
+                tr *= ts;
+            }
+            t += dt;
+        }
+    }
+    if tr >= p.early_exit {
+        let mut bg = v3(p.sky_radiance);
+        if p.sun_disc_radiance > 0.0 && d.dot(v3(p.sun_dir)) >= p.sun_cos_max {
+            bg += v3(p.sun_irradiance) * p.sun_disc_radiance;
+        }
+        l += tr * bg;
+    }
+    l
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn f_exp_is_stable_and_normalised() {
+        let r = 0.3f32;
+        for lambda in [
+            -400.0f32, -50.0, -3.0, -0.1, -1e-6, 0.0, 1e-7, 0.1, 3.0, 50.0, 400.0,
+        ] {
+            // ∫₀ʳ f dd = 1 (midpoint rule, 20 000 panels).
+            let n = 20_000;
+            let h = r / n as f32;
+            let integral: f32 = (0..n)
+                .map(|i| f_exp((i as f32 + 0.5) * h, lambda, r) * h)
+                .sum();
+            assert!((integral - 1.0).abs() < 2e-3, "λ={lambda}: ∫ = {integral}");
+            for k in 0..=10 {
+                let v = f_exp(k as f32 * r / 10.0, lambda, r);
+                assert!(v.is_finite() && v >= 0.0, "λ={lambda} d={k}: {v}");
+            }
+        }
+        // Agrees with the paper's formula where that is well conditioned.
+        for lambda in [-5.0f64, -1.0, 0.5, 2.0, 10.0] {
+            for k in 0..10 {
+                let d = k as f64 * 0.03;
+                let a = f_exp(d as f32, lambda as f32, 0.3) as f64;
+                let b = f_exp_paper(d, lambda, 0.3);
+                assert!(
+                    (a - b).abs() < 1e-4 * b.abs().max(1.0),
+                    "λ={lambda} d={d}: {a} vs {b}"
+                );
+            }
+        }
+        // The λ → 0 limit is the triangle filter; both sides of the series switch match.
+        assert!((f_exp(0.0, 0.0, 1.0) - 2.0).abs() < 1e-6);
+        assert!((f_exp(0.1, 0.0499, 1.0) - f_exp(0.1, 0.0501, 1.0)).abs() < 1e-4);
+        assert!((f_exp(0.1, -0.0499, 1.0) - f_exp(0.1, -0.0501, 1.0)).abs() < 1e-4);
+        assert_eq!(f_exp(0.3, 1.0, 0.3), 0.0);
+    }
+
+    #[test]
+    fn hg_reconstruction_is_the_convolution() {
+        // ∫ p_HG(ω·ω'|g) p_HG(ω'·ω_s|g') dω' = p_HG(ω·ω_s | g g'): numerical convolution on a
+        // 400 × 800 (θ, φ) grid against the closed form used by the ray marcher.
+        let p = PmParams {
+            albedo: 1.0,
+            density_scale: 1.0,
+            g: 0.7,
+            sun_irradiance: [1.0; 3],
+            ..Default::default()
+        };
+        let gp = 0.5f32;
+        let hg = |g: f64, mu: f64| {
+            let denom = (1.0 - g) * (1.0 - g) + 2.0 * g * (1.0 - mu);
+            (1.0 - g * g) / (4.0 * std::f64::consts::PI * denom * denom.sqrt())
+        };
+        for view_mu in [-0.8f64, 0.0, 0.6, 0.95] {
+            // ω_s = z; ω at angle acos(view_mu) in the x-z plane.
+            let w = glam::DVec3::new((1.0 - view_mu * view_mu).sqrt(), 0.0, view_mu);
+            let (nt, np) = (400, 800);
+            let mut acc = 0.0;
+            for i in 0..nt {
+                let t = (i as f64 + 0.5) / nt as f64 * std::f64::consts::PI;
+                for k in 0..np {
+                    let ph = (k as f64 + 0.5) / np as f64 * std::f64::consts::TAU;
+                    let wp = glam::DVec3::new(t.sin() * ph.cos(), t.sin() * ph.sin(), t.cos());
+                    acc += hg(0.7, w.dot(wp)) * hg(gp as f64, t.cos()) * t.sin();
+                }
+            }
+            let numeric =
+                acc * (std::f64::consts::PI / nt as f64) * (std::f64::consts::TAU / np as f64);
+            let closed = in_scattered(&p, 1.0, [1.0, 0.0, gp, 0.0], view_mu as f32).x as f64;
+            assert!(
+                (numeric / closed - 1.0).abs() < 2e-3,
+                "μ={view_mu}: {numeric} vs {closed}"
+            );
+        }
+    }
+}

@@ -1,0 +1,126 @@
+// Photon-beam tracing into the partial cache H_new (Elek 2012 §4.1, Appendix A).
+//
+// One invocation traces one beam: sun beams start on a disc of the bounding-sphere radius facing
+// the sun, sky beams on the bounding sphere with cosine-distributed inward directions. Woodcock
+// tracking with the global majorant σ̄ (σ_max) deposits at every tentative collision; since all
+// deposits share the weight 1/σ̄, H holds integer sums (exact and order-independent: the same
+// seed gives the same cache on every run). A real collision (probability σ_t/σ̄) multiplies the
+// beam weight by the albedo (the beam stops below `beam_threshold`) and scatters with HG(g);
+// after `similarity_order` scatterings the beam switches to σ' = σ √(1 − g) and isotropic
+// scattering (Elek §4.1.1). Beams end when they leave the box or after `max_order` scatterings.
+//
+// Per cache cell, 5 u32 (fixed point, scale W = 4096 per unit weight, stochastic rounding):
+//   0: Σ w (sun)   1: Σ w (sky)   2: Σ w (cos θ + 1)/2 (sun; θ to the sun's propagation)
+//   3: Σ min(order, 1023)   4: number of deposits
+// Workgroup-shared accumulation when the grid fits (SHARED_CELLS), else global atomics.
+
+@group(0) @binding(2) var<storage, read_write> h_new: array<atomic<u32>>;
+
+const SHARED_CELLS: u32 = 1600u;
+const WG: u32 = 64u;
+const W_SCALE: f32 = 4096.0;
+var<workgroup> sh: array<atomic<u32>, SHARED_CELLS * 5u>;
+
+fn deposit(slot: u32, v: u32) {
+    if (v == 0u) { return; }
+    if (P.use_shared != 0u) {
+        atomicAdd(&sh[slot], v);
+    } else {
+        atomicAdd(&h_new[slot], v);
+    }
+}
+
+fn cell_of(p: vec3<f32>) -> u32 {
+    let u = (p - P.aabb_min) / (P.aabb_max - P.aabb_min) * vec3<f32>(P.i_res);
+    let c = vec3<u32>(clamp(floor(u), vec3<f32>(0.0), vec3<f32>(P.i_res) - vec3<f32>(1.0)));
+    return grid_index(c.x, c.y, c.z, P.i_res);
+}
+
+fn trace_beam(index: u32) {
+    var rng = rng_new(P.seed, P.frame, index);
+    let is_sun = index < P.n_sun;
+    let c = P.bound_center;
+    let r = P.bound_radius;
+    var o: vec3<f32>;
+    var d: vec3<f32>;
+    if (is_sun) {
+        // Uniform point on the disc of radius r perpendicular to the sun, outside the sphere.
+        let rad = r * sqrt(rand(&rng));
+        let phi = 2.0 * PI * rand(&rng);
+        let q = around(P.sun_dir, 0.0, phi) * rad;
+        o = c + q + P.sun_dir * (2.0 * r);
+        d = -P.sun_dir;
+    } else {
+        let z = 1.0 - 2.0 * rand(&rng);
+        let phi = 2.0 * PI * rand(&rng);
+        let s = sqrt(max(0.0, 1.0 - z * z));
+        let n = vec3<f32>(s * cos(phi), s * sin(phi), z);
+        o = c + n * r;
+        // Cosine-weighted direction into the sphere.
+        let mu = sqrt(rand(&rng));
+        d = around(-n, mu, 2.0 * PI * rand(&rng));
+    }
+    let hit = box_intersect(o, d);
+    if (hit.x > hit.y) { return; }
+    var x = o + d * hit.x;
+    var w = 1.0;
+    var order = 0u;
+    var steps = 0u;
+    let sun_prop = -P.sun_dir;
+    loop {
+        steps++;
+        if (steps > 1000000u) { break; }
+        let exit = box_intersect(x, d);
+        let t = -log(1.0 - rand(&rng)) / P.sigma_max;
+        if (exit.x > exit.y || t >= exit.y) { break; }
+        x = x + d * t;
+        let cell = cell_of(x) * 5u;
+        let wu = u32(floor(w * W_SCALE + rand(&rng)));
+        if (is_sun) {
+            deposit(cell, wu);
+            let cu = u32(floor(f32(wu) * 0.5 * (dot(d, sun_prop) + 1.0) + rand(&rng)));
+            deposit(cell + 2u, cu);
+        } else {
+            deposit(cell + 1u, wu);
+        }
+        deposit(cell + 3u, min(order, 1023u));
+        deposit(cell + 4u, 1u);
+        let reduced = order >= P.similarity_order;
+        var sigma = P.density_scale * density_at(x);
+        if (reduced) { sigma = sigma * P.reduced_factor; }
+        if (rand(&rng) * P.sigma_max < sigma) {
+            w = w * P.albedo;
+            order++;
+            if (w < P.beam_threshold || order > P.max_order) { break; }
+            let u1 = rand(&rng);
+            let phi = 2.0 * PI * rand(&rng);
+            if (order > P.similarity_order) {
+                d = around(d, 1.0 - 2.0 * u1, phi);
+            } else {
+                d = around(d, hg_sample_cos(P.g, u1), phi);
+            }
+        }
+    }
+}
+
+@compute @workgroup_size(64)
+fn trace(@builtin(global_invocation_id) gid: vec3<u32>,
+         @builtin(local_invocation_index) lid: u32,
+         @builtin(num_workgroups) nwg: vec3<u32>) {
+    let cells = P.i_res.x * P.i_res.y * P.i_res.z;
+    if (P.use_shared != 0u) {
+        for (var i = lid; i < cells * 5u; i += WG) { atomicStore(&sh[i], 0u); }
+    }
+    workgroupBarrier();
+    let index = gid.x + gid.y * nwg.x * WG;
+    if (index < P.n_sun + P.n_sky) {
+        trace_beam(index);
+    }
+    workgroupBarrier();
+    if (P.use_shared != 0u) {
+        for (var i = lid; i < cells * 5u; i += WG) {
+            let v = atomicLoad(&sh[i]);
+            if (v != 0u) { atomicAdd(&h_new[i], v); }
+        }
+    }
+}

@@ -1,0 +1,19 @@
+// Ring update (Elek 2012 §4.2): I = I − H_old + H_new, and H_new replaces H_old in the ring.
+// Integer (wrapping) arithmetic: exact, so I never drifts however many frames run.
+
+@group(0) @binding(2) var<storage, read> h_new: array<u32>;
+@group(0) @binding(3) var<storage, read_write> ring: array<u32>;
+@group(0) @binding(4) var<storage, read_write> total: array<u32>;
+
+struct Slot { offset: u32, count: u32, _a: u32, _b: u32 };
+@group(0) @binding(5) var<uniform> slot: Slot;
+
+@compute @workgroup_size(64)
+fn update(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if (i >= slot.count) { return; }
+    let h_old = ring[slot.offset + i];
+    let h_nw = h_new[i];
+    total[i] = total[i] - h_old + h_nw;
+    ring[slot.offset + i] = h_nw;
+}

@@ -1,0 +1,151 @@
+// Physically based upsampling of the cache I to J at the density resolution (Elek 2012 §4.3).
+// Mirrors `reference::upsample_voxel` in crates/photon/src/reference.rs (GPU = CPU test).
+//
+// For each fine voxel p and each of the 3×3×3 coarse cells q around p's coarse cell:
+//   w_L = f_exp(|p − q| | λ, r) · max(1 − |D(p) − D(q)| / D_max, 0),
+//   λ = σ_s (D(p) − D(q)) / 2, r = 1.5 × smallest coarse cell side,
+//   w_g = |g|^δ, δ = γ(p) − γ(q) (γ = penetration depth, trilinear in I),
+//   J_L = Σ I_L w_L / Σ w_L,   J_g' = Σ g'(q) w_g w_L / Σ w_g w_L (cells with sun flux only).
+// f_exp is evaluated in the stable form of `reference::f_exp` (series for |λ r| < 0.05, no
+// overflow for large |λ r|, λ < 0 allowed). If every weight vanishes, trilinear interpolation
+// of I is used. With `filtered == 0` (I and J of equal resolution) J is I converted to
+// physical units, without filtering.
+// J layout: 4 floats per voxel: sun fluence per unit irradiance, sky fluence per unit radiance,
+// g', γ.
+
+@group(0) @binding(2) var<storage, read> total: array<u32>;
+@group(0) @binding(3) var<storage, read_write> j_out: array<vec4<f32>>;
+
+struct CellValue { sun: f32, sky: f32, g: f32, gamma: f32, has_sun: bool };
+
+fn cell_value(i: u32) -> CellValue {
+    let b = i * 5u;
+    let w_sun = f32(total[b]);
+    let w_sky = f32(total[b + 1u]);
+    let cw = f32(total[b + 2u]);
+    let ord = f32(total[b + 3u]);
+    let n = f32(total[b + 4u]);
+    var g = 0.0;
+    if (w_sun > 0.0) { g = clamp(2.0 * cw / w_sun - 1.0, -0.999, 0.999); }
+    var gamma = 0.0;
+    if (n > 0.0) { gamma = ord / n; }
+    return CellValue(w_sun * P.sun_norm, w_sky * P.sky_norm, g, gamma, w_sun > 0.0);
+}
+
+fn coarse_centre(c: vec3<u32>) -> vec3<f32> {
+    return P.aabb_min + (vec3<f32>(c) + vec3<f32>(0.5)) / vec3<f32>(P.i_res) * (P.aabb_max - P.aabb_min);
+}
+
+fn f_exp(d: f32, lambda: f32, r: f32) -> f32 {
+    if (d >= r) { return 0.0; }
+    let y = lambda * r;
+    let u = d / r;
+    let v = 1.0 - u;
+    if (abs(y) < 0.05) {
+        return 2.0 / r * v * (1.0 + y * v / 2.0 + y * y * v * v / 6.0) / (1.0 + y / 3.0 + y * y / 12.0);
+    }
+    if (y > 0.0) {
+        let num = exp(-y * u) * (1.0 - exp(-y * v));
+        let den = 1.0 - (1.0 + y) * exp(-y);
+        return max(y / r * num / den, 0.0);
+    }
+    // y < 0: expm1 form, no overflow.
+    let num = exp(y * v) - 1.0;
+    let den = exp(y) - 1.0 - y;
+    return max(y / r * num / den, 0.0);
+}
+
+fn gamma_at(p: vec3<f32>) -> f32 {
+    let t = trilinear(p, P.i_res);
+    let r = P.i_res;
+    let f = t.f;
+    let c00 = mix(cell_value(grid_index(t.i0.x, t.i0.y, t.i0.z, r)).gamma, cell_value(grid_index(t.i1.x, t.i0.y, t.i0.z, r)).gamma, f.x);
+    let c10 = mix(cell_value(grid_index(t.i0.x, t.i1.y, t.i0.z, r)).gamma, cell_value(grid_index(t.i1.x, t.i1.y, t.i0.z, r)).gamma, f.x);
+    let c01 = mix(cell_value(grid_index(t.i0.x, t.i0.y, t.i1.z, r)).gamma, cell_value(grid_index(t.i1.x, t.i0.y, t.i1.z, r)).gamma, f.x);
+    let c11 = mix(cell_value(grid_index(t.i0.x, t.i1.y, t.i1.z, r)).gamma, cell_value(grid_index(t.i1.x, t.i1.y, t.i1.z, r)).gamma, f.x);
+    return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
+}
+
+fn trilinear_fluence(p: vec3<f32>) -> vec2<f32> {
+    let t = trilinear(p, P.i_res);
+    let r = P.i_res;
+    var acc = vec2<f32>(0.0);
+    for (var k = 0u; k < 8u; k++) {
+        let sx = (k & 1u) != 0u;
+        let sy = (k & 2u) != 0u;
+        let sz = (k & 4u) != 0u;
+        let ix = select(t.i0.x, t.i1.x, sx);
+        let iy = select(t.i0.y, t.i1.y, sy);
+        let iz = select(t.i0.z, t.i1.z, sz);
+        let wx = select(1.0 - t.f.x, t.f.x, sx);
+        let wy = select(1.0 - t.f.y, t.f.y, sy);
+        let wz = select(1.0 - t.f.z, t.f.z, sz);
+        let cv = cell_value(grid_index(ix, iy, iz, r));
+        acc += vec2<f32>(cv.sun, cv.sky) * (wx * wy * wz);
+    }
+    return acc;
+}
+
+@compute @workgroup_size(64)
+fn upsample(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let idx = gid.x + gid.y * nwg.x * 64u;
+    let res = P.d_res;
+    let n = res.x * res.y * res.z;
+    if (idx >= n) { return; }
+    let x = idx % res.x;
+    let y = (idx / res.x) % res.y;
+    let z = idx / (res.x * res.y);
+    if (P.filtered == 0u) {
+        let cv = cell_value(idx);
+        j_out[idx] = vec4<f32>(cv.sun, cv.sky, cv.g, cv.gamma);
+        return;
+    }
+    let ext = P.aabb_max - P.aabb_min;
+    let p = P.aabb_min + (vec3<f32>(f32(x), f32(y), f32(z)) + vec3<f32>(0.5)) / vec3<f32>(res) * ext;
+    let dp = density[idx];
+    let cell = ext / vec3<f32>(P.i_res);
+    let radius = 1.5 * min(cell.x, min(cell.y, cell.z));
+    let uc = (p - P.aabb_min) / ext * vec3<f32>(P.i_res);
+    let c = vec3<i32>(clamp(floor(uc), vec3<f32>(0.0), vec3<f32>(P.i_res) - vec3<f32>(1.0)));
+    let sigma_s = P.albedo * P.density_scale;
+    let gp = gamma_at(p);
+    let lng = log(max(abs(P.g), 1.0e-30));
+    var sw = 0.0;
+    var s_sun = 0.0;
+    var s_sky = 0.0;
+    var swg = 0.0;
+    var s_g = 0.0;
+    for (var dz = -1; dz <= 1; dz++) {
+        for (var dy = -1; dy <= 1; dy++) {
+            for (var dx = -1; dx <= 1; dx++) {
+                let q = c + vec3<i32>(dx, dy, dz);
+                if (any(q < vec3<i32>(0)) || any(q >= vec3<i32>(P.i_res))) { continue; }
+                let qu = vec3<u32>(q);
+                let qc = coarse_centre(qu);
+                let dq = density_at(qc);
+                let lambda = sigma_s * (dp - dq) * 0.5;
+                let wl = f_exp(length(p - qc), lambda, radius) * max(1.0 - abs(dp - dq) / P.d_max, 0.0);
+                if (wl <= 0.0) { continue; }
+                let cv = cell_value(grid_index(qu.x, qu.y, qu.z, P.i_res));
+                sw += wl;
+                s_sun += wl * cv.sun;
+                s_sky += wl * cv.sky;
+                if (cv.has_sun) {
+                    var wg = 1.0;
+                    if (abs(P.g) >= 1.0e-6) { wg = exp(clamp((gp - cv.gamma) * lng, -60.0, 60.0)); }
+                    swg += wg * wl;
+                    s_g += wg * wl * cv.g;
+                }
+            }
+        }
+    }
+    var out: vec4<f32>;
+    if (sw > 0.0) {
+        out = vec4<f32>(s_sun / sw, s_sky / sw, 0.0, gp);
+    } else {
+        let f = trilinear_fluence(p);
+        out = vec4<f32>(f.x, f.y, 0.0, gp);
+    }
+    if (swg > 0.0) { out.z = s_g / swg; }
+    j_out[idx] = out;
+}
