@@ -24,6 +24,8 @@ struct Cli {
 enum Method {
     /// Reference volumetric path tracer (CPU).
     Pt,
+    /// Temporally-coherent photon mapping on the GPU (Elek et al. 2012), converged ring.
+    Pm,
 }
 
 #[derive(Subcommand)]
@@ -54,6 +56,46 @@ enum Command {
         /// No progress bar.
         #[arg(long, short)]
         quiet: bool,
+        /// Photon mapping: beams traced per frame (n_g).
+        #[arg(long, default_value_t = 8192)]
+        beams: u32,
+        /// Photon mapping: partial caches in the ring (m).
+        #[arg(long, default_value_t = 100)]
+        ring: u32,
+        /// Photon mapping: cache resolution X,Y,Z (default: ≤ 2400 cells, the grid's proportions).
+        #[arg(long, value_delimiter = ',')]
+        cache_res: Option<Vec<u32>>,
+        /// Print GPU time per stage (photon mapping).
+        #[arg(long)]
+        timings: bool,
+    },
+    /// Render an animation with photon mapping: moving sun and/or evolving density; numbered
+    /// PNG frames and per-frame timings (CSV).
+    Animate {
+        scene: PathBuf,
+        #[arg(long, default_value_t = 100)]
+        frames: u32,
+        /// Sun angular speed about +y, degrees per simulated second.
+        #[arg(long, default_value_t = 0.0)]
+        sun_speed: f64,
+        /// Simulated frames per second (the sun moves sun_speed / fps degrees per frame).
+        #[arg(long, default_value_t = 30.0)]
+        fps: f64,
+        /// Folder of volume files, one per frame (same resolution as the scene's volume).
+        #[arg(long)]
+        density_seq: Option<PathBuf>,
+        /// Morph the scene's generated cloud into the next seed and back over N frames.
+        #[arg(long)]
+        evolve: Option<u32>,
+        #[arg(long, default_value_t = 8192)]
+        beams: u32,
+        #[arg(long, default_value_t = 100)]
+        ring: u32,
+        /// Output folder (frames frame_00000.png …, timings.csv).
+        #[arg(long, short, default_value = "out/animation")]
+        out: PathBuf,
+        #[arg(long)]
+        exposure: Option<f64>,
     },
     /// Generate a procedural cloud and write it as .vol or .npy.
     Generate {
@@ -108,6 +150,10 @@ fn run(cli: Cli) -> Result<()> {
             threads,
             reference,
             quiet,
+            beams,
+            ring,
+            cache_res,
+            timings,
         } => {
             if let Some(n) = threads {
                 rayon::ThreadPoolBuilder::new()
@@ -137,28 +183,160 @@ fn run(cli: Cli) -> Result<()> {
                 std::fs::create_dir_all(dir)
                     .with_context(|| format!("cannot create {}", dir.display()))?;
             }
-            let result = match method {
-                Method::Pt => nimbus_trace::render(&s, &opts),
+            let image = match method {
+                Method::Pt => {
+                    let result = nimbus_trace::render(&s, &opts);
+                    result.image.write_exr(&exr, Some(&result.variance))?;
+                    let st = result.stats;
+                    println!(
+                        "{}: path tracing {}x{} at {} spp in {:.2} s ({:.3e} camera paths/s, {:.1} scatterings/path)",
+                        scene.display(),
+                        s.camera.width,
+                        s.camera.height,
+                        opts.spp,
+                        st.seconds,
+                        st.paths_per_second(),
+                        st.scatterings as f64 / st.paths.max(1) as f64,
+                    );
+                    result.image
+                }
+                Method::Pm => {
+                    let cache_res = match cache_res {
+                        Some(r) if r.len() != 3 => bail!("--cache-res needs three values X,Y,Z"),
+                        Some(r) => Some([r[0], r[1], r[2]]),
+                        None => None,
+                    };
+                    let settings = nimbus_photon::PmSettings {
+                        beams_per_frame: beams,
+                        ring,
+                        cache_res,
+                        seed: opts.seed as u32,
+                        ..Default::default()
+                    };
+                    let gpu = nimbus_gpu::Gpu::new()?;
+                    let t0 = std::time::Instant::now();
+                    let mut pm = nimbus_photon::PhotonMapper::new(&gpu, &s, settings)?;
+                    let image = pm.render(&s.camera)?;
+                    image.write_exr(&exr, None)?;
+                    println!(
+                        "{}: photon mapping on {} — {} frames × {} beams, cache {:?} ({}), {}x{} in {:.2} s",
+                        scene.display(),
+                        gpu.describe(),
+                        pm.frames(),
+                        beams,
+                        pm.cache_res(),
+                        if pm.uses_shared_memory() {
+                            "workgroup memory"
+                        } else {
+                            "global atomics"
+                        },
+                        s.camera.width,
+                        s.camera.height,
+                        t0.elapsed().as_secs_f64()
+                    );
+                    if timings {
+                        if pm.last_times.is_empty() {
+                            println!("GPU timestamps are not available on this adapter");
+                        }
+                        for (stage, ms) in &pm.last_times {
+                            println!("  {stage:14} {ms:9.3} ms (last frame)");
+                        }
+                    }
+                    image
+                }
             };
-            result.image.write_exr(&exr, Some(&result.variance))?;
-            let e = exposure.unwrap_or_else(|| result.image.auto_exposure());
-            result.image.write_png(&png, e)?;
-            let st = result.stats;
-            println!(
-                "{}: {}x{} at {} spp in {:.2} s ({:.3e} camera paths/s, {:.1} scatterings/path) -> {}, {}",
-                scene.display(),
-                s.camera.width,
-                s.camera.height,
-                opts.spp,
-                st.seconds,
-                st.paths_per_second(),
-                st.scatterings as f64 / st.paths.max(1) as f64,
-                exr.display(),
-                png.display()
-            );
+            let e = exposure.unwrap_or_else(|| image.auto_exposure());
+            image.write_png(&png, e)?;
+            println!("wrote {} and {}", exr.display(), png.display());
             if let Some(r) = reference {
                 print_metrics(&exr, &r, None)?;
             }
+        }
+        Command::Animate {
+            scene,
+            frames,
+            sun_speed,
+            fps,
+            density_seq,
+            evolve,
+            beams,
+            ring,
+            out,
+            exposure,
+        } => {
+            use nimbus_photon::animate::{AnimateOptions, DensitySequence, animate};
+            let s = Scene::load(&scene)?;
+            if !(fps.is_finite() && fps > 0.0 && sun_speed.is_finite()) {
+                bail!("--fps must be > 0 and --sun-speed finite");
+            }
+            let density = match (density_seq, evolve) {
+                (Some(_), Some(_)) => bail!("give --density-seq or --evolve, not both"),
+                (Some(d), None) => DensitySequence::from_dir(&d)?,
+                (None, Some(n)) => match &s.volume_source {
+                    nimbus_scene::VolumeSource::Generated { kind, seed } => {
+                        DensitySequence::morph(*kind, *seed, s.volume.grid().res(), n)?
+                    }
+                    _ => bail!("--evolve needs a scene whose volume uses `generator`"),
+                },
+                (None, None) => DensitySequence::Static,
+            };
+            std::fs::create_dir_all(&out)
+                .with_context(|| format!("cannot create {}", out.display()))?;
+            let gpu = nimbus_gpu::Gpu::new()?;
+            let settings = nimbus_photon::PmSettings {
+                beams_per_frame: beams,
+                ring,
+                seed: s.render.seed as u32,
+                ..Default::default()
+            };
+            let mut pm = nimbus_photon::PhotonMapper::new(&gpu, &s, settings)?;
+            let opts = AnimateOptions {
+                frames,
+                sun_speed_deg_s: sun_speed,
+                fps,
+                density,
+            };
+            let mut csv = String::from(
+                "frame,sun_azimuth_deg,traced,upsampled,tracing_ms,update_ms,upsampling_ms,raymarching_ms,gpu_total_ms,wall_ms\n",
+            );
+            let mut fixed_exposure = exposure;
+            animate(&mut pm, &s, &opts, |img, r| {
+                let e = *fixed_exposure.get_or_insert_with(|| img.auto_exposure());
+                img.write_png(out.join(format!("frame_{:05}.png", r.frame)), e)
+                    .map_err(|e| nimbus_photon::PmError::Unsupported(e.to_string()))?;
+                let ms = |n: &str| {
+                    r.stages
+                        .iter()
+                        .filter(|(s, _)| s.starts_with(n))
+                        .map(|(_, v)| v)
+                        .sum::<f64>()
+                };
+                let (t, u, up, rm) = (
+                    ms("tracing"),
+                    ms("update"),
+                    ms("upsampl") + ms("conversion"),
+                    ms("ray"),
+                );
+                csv += &format!(
+                    "{},{:.4},{},{},{t:.4},{u:.4},{up:.4},{rm:.4},{:.4},{:.3}\n",
+                    r.frame,
+                    r.sun_azimuth_deg,
+                    r.traced as u8,
+                    r.upsampled as u8,
+                    t + u + up + rm,
+                    r.wall_ms
+                );
+                Ok(())
+            })?;
+            let csv_path = out.join("timings.csv");
+            std::fs::write(&csv_path, csv)
+                .with_context(|| format!("cannot write {}", csv_path.display()))?;
+            println!(
+                "{} frames on {} -> {}",
+                frames,
+                gpu.describe(),
+                out.display()
+            );
         }
         Command::Generate {
             kind,

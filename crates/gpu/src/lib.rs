@@ -97,8 +97,10 @@ impl Gpu {
 
     /// Checks that one storage binding of `bytes` fits this adapter.
     pub fn check_storage(&self, what: &str, bytes: u64) -> Result<(), GpuError> {
-        let limit =
-            (self.limits.max_storage_buffer_binding_size as u64).min(self.limits.max_buffer_size);
+        let limit = self
+            .limits
+            .max_storage_buffer_binding_size
+            .min(self.limits.max_buffer_size);
         if bytes > limit {
             return Err(GpuError::TooLarge {
                 what: what.to_string(),

@@ -121,6 +121,7 @@ pub struct PhotonMapper<'g> {
     density: wgpu::Buffer,
     j: wgpu::Buffer,
     total: wgpu::Buffer,
+    ring: wgpu::Buffer,
     /// Beams (sun, sky) held by each ring slot.
     slot_beams: Vec<(u64, u64)>,
     frame: u32,
@@ -174,7 +175,7 @@ impl<'g> PhotonMapper<'g> {
         let d_res = vol.grid().res();
         let i_res = match settings.cache_res {
             Some(r) => {
-                if r.iter().any(|&v| v == 0) || r.iter().zip(d_res).any(|(&a, b)| a as usize > b) {
+                if r.contains(&0) || r.iter().zip(d_res).any(|(&a, b)| a as usize > b) {
                     return Err(PmError::Setting {
                         field: "cache_res",
                         msg: format!(
@@ -339,6 +340,7 @@ impl<'g> PhotonMapper<'g> {
             density,
             j,
             total,
+            ring,
             slot_beams: vec![(0, 0); settings.ring as usize],
             frame: 0,
             sun_fraction,
@@ -349,6 +351,16 @@ impl<'g> PhotonMapper<'g> {
             image_buf: None,
             settings,
         })
+    }
+
+    /// Empties the ring and the total cache.
+    pub fn reset(&mut self) {
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        enc.clear_buffer(&self.ring, 0, None);
+        enc.clear_buffer(&self.total, 0, None);
+        self.gpu.queue.submit([enc.finish()]);
+        self.slot_beams.iter_mut().for_each(|s| *s = (0, 0));
+        self.frame = 0;
     }
 
     /// Whether any light reaches the cloud (no light → no photons are traced at all).
@@ -381,6 +393,37 @@ impl<'g> PhotonMapper<'g> {
         } else {
             (65535, wg.div_ceil(65535))
         }
+    }
+
+    /// Replaces the density field (same resolution) for the following frames.
+    pub fn set_density(&mut self, data: &[f32]) -> Result<(), PmError> {
+        if data.len() != self.voxels as usize {
+            return Err(PmError::Setting {
+                field: "density",
+                msg: format!("expected {} voxels, got {}", self.voxels, data.len()),
+            });
+        }
+        if let Some(i) = data.iter().position(|v| !v.is_finite() || *v < 0.0) {
+            return Err(PmError::Setting {
+                field: "density",
+                msg: format!("voxel {i} is {}; densities must be finite and ≥ 0", data[i]),
+            });
+        }
+        self.gpu
+            .queue
+            .write_buffer(&self.density, 0, bytemuck::cast_slice(data));
+        Ok(())
+    }
+
+    /// Sets the grid value the majorant is computed from (σ̄ = density_scale × value); used by
+    /// density sequences, which need one majorant for all frames.
+    /// Changing it invalidates the cached generations, so the ring is emptied if it held any.
+    pub fn set_majorant_value(&mut self, max_value: f32) {
+        if self.frame > 0 {
+            self.reset();
+        }
+        self.params.d_max = max_value.max(1e-30);
+        self.params.sigma_max = (self.params.density_scale * max_value).max(1e-30);
     }
 
     /// Changes the sun direction (unit vector towards the sun) for the following frames.
