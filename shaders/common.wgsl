@@ -18,7 +18,7 @@ struct Params {
     n_sun: u32, n_sky: u32, seed: u32, frame: u32,
     similarity_order: u32, max_order: u32, use_shared: u32, filtered: u32,
     width: u32, height: u32, beam_threshold: f32, reduced_factor: f32,
-    sun_norm: f32, sky_norm: f32, _pad0: f32, _pad1: f32,
+    sun_norm: f32, sky_norm: f32, noise_amplitude: f32, noise_frequency: f32,
 };
 
 const PI: f32 = 3.14159265358979;

@@ -68,6 +68,12 @@ enum Command {
         /// Print GPU time per stage (photon mapping).
         #[arg(long)]
         timings: bool,
+        /// Photon mapping: ray march at half resolution and upscale.
+        #[arg(long)]
+        half_res: bool,
+        /// Photon mapping: detail noise amplitude in density voxels (0 = off).
+        #[arg(long, default_value_t = 0.0)]
+        detail_noise: f32,
     },
     /// Render an animation with photon mapping: moving sun and/or evolving density; numbered
     /// PNG frames and per-frame timings (CSV).
@@ -91,6 +97,18 @@ enum Command {
         beams: u32,
         #[arg(long, default_value_t = 100)]
         ring: u32,
+        /// Cache resolution X,Y,Z (default: ≤ 2400 cells, the grid's proportions).
+        #[arg(long, value_delimiter = ',')]
+        cache_res: Option<Vec<u32>>,
+        /// Reuse the last image while Elek's four impostor criteria allow.
+        #[arg(long)]
+        impostors: bool,
+        /// Ray march at half resolution and upscale.
+        #[arg(long)]
+        half_res: bool,
+        /// Detail noise amplitude in density voxels (0 = off).
+        #[arg(long, default_value_t = 0.0)]
+        detail_noise: f32,
         /// Output folder (frames frame_00000.png …, timings.csv).
         #[arg(long, short, default_value = "out/animation")]
         out: PathBuf,
@@ -154,6 +172,8 @@ fn run(cli: Cli) -> Result<()> {
             ring,
             cache_res,
             timings,
+            half_res,
+            detail_noise,
         } => {
             if let Some(n) = threads {
                 rayon::ThreadPoolBuilder::new()
@@ -201,22 +221,25 @@ fn run(cli: Cli) -> Result<()> {
                     result.image
                 }
                 Method::Pm => {
-                    let cache_res = match cache_res {
-                        Some(r) if r.len() != 3 => bail!("--cache-res needs three values X,Y,Z"),
-                        Some(r) => Some([r[0], r[1], r[2]]),
-                        None => None,
-                    };
+                    let cache_res = triple(cache_res, "--cache-res")?;
                     let settings = nimbus_photon::PmSettings {
                         beams_per_frame: beams,
                         ring,
                         cache_res,
                         seed: opts.seed as u32,
+                        detail_noise,
                         ..Default::default()
                     };
                     let gpu = nimbus_gpu::Gpu::new()?;
                     let t0 = std::time::Instant::now();
                     let mut pm = nimbus_photon::PhotonMapper::new(&gpu, &s, settings)?;
-                    let image = pm.render(&s.camera)?;
+                    pm.converge();
+                    pm.upsample();
+                    let image = if half_res {
+                        pm.raymarch_half(&s.camera)?
+                    } else {
+                        pm.raymarch(&s.camera)?
+                    };
                     image.write_exr(&exr, None)?;
                     println!(
                         "{}: photon mapping on {} — {} frames × {} beams, cache {:?} ({}), {}x{} in {:.2} s",
@@ -261,6 +284,10 @@ fn run(cli: Cli) -> Result<()> {
             evolve,
             beams,
             ring,
+            cache_res,
+            impostors,
+            half_res,
+            detail_noise,
             out,
             exposure,
         } => {
@@ -286,7 +313,9 @@ fn run(cli: Cli) -> Result<()> {
             let settings = nimbus_photon::PmSettings {
                 beams_per_frame: beams,
                 ring,
+                cache_res: triple(cache_res, "--cache-res")?,
                 seed: s.render.seed as u32,
+                detail_noise,
                 ..Default::default()
             };
             let mut pm = nimbus_photon::PhotonMapper::new(&gpu, &s, settings)?;
@@ -295,6 +324,8 @@ fn run(cli: Cli) -> Result<()> {
                 sun_speed_deg_s: sun_speed,
                 fps,
                 density,
+                impostors: impostors.then(Default::default),
+                half_res,
             };
             let mut csv = String::from(
                 "frame,sun_azimuth_deg,traced,upsampled,tracing_ms,update_ms,upsampling_ms,raymarching_ms,gpu_total_ms,wall_ms\n",
@@ -418,6 +449,15 @@ fn run(cli: Cli) -> Result<()> {
         } => print_metrics(&test, &reference, mask)?,
     }
     Ok(())
+}
+
+/// Three comma-separated values, or none.
+fn triple(v: Option<Vec<u32>>, name: &str) -> Result<Option<[u32; 3]>> {
+    match v {
+        Some(r) if r.len() != 3 => bail!("{name} needs three values X,Y,Z, got {r:?}"),
+        Some(r) => Ok(Some([r[0], r[1], r[2]])),
+        None => Ok(None),
+    }
 }
 
 fn print_metrics(test: &Path, reference: &Path, mask: Option<PathBuf>) -> Result<()> {

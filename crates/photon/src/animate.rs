@@ -134,6 +134,10 @@ pub struct AnimateOptions {
     /// Simulated frames per second.
     pub fps: f64,
     pub density: DensitySequence,
+    /// Reuse the last image while the impostor criteria allow (Elek §4.4).
+    pub impostors: Option<crate::impostor::ImpostorCriteria>,
+    /// Ray march at half resolution and upscale.
+    pub half_res: bool,
 }
 
 /// Timings and work of one animation frame.
@@ -143,6 +147,8 @@ pub struct FrameReport {
     pub sun_azimuth_deg: f64,
     pub traced: bool,
     pub upsampled: bool,
+    /// Why the image was ray marched (`None`: the impostor was reused).
+    pub refresh: Option<crate::impostor::Refresh>,
     /// GPU milliseconds per stage (empty without timestamp support).
     pub stages: Vec<(&'static str, f64)>,
     pub wall_ms: f64,
@@ -161,6 +167,9 @@ pub fn animate(
         pm.set_majorant_value(seq_max);
     }
     let mut j_valid = false;
+    let mut impostor = opts.impostors.map(crate::impostor::ImpostorState::new);
+    let mut last_image: Option<nimbus_scene::Image> = None;
+    let mut prev_density: Option<Vec<f32>> = None;
     for f in 0..opts.frames {
         let t0 = std::time::Instant::now();
         let angle = opts.sun_speed_deg_s * f as f64 / opts.fps;
@@ -172,13 +181,22 @@ pub fn animate(
             changed = true;
         }
         if let Some(d) = opts.density.frame(f)? {
+            if let (Some(state), Some(prev)) = (impostor.as_mut(), prev_density.as_ref()) {
+                let diff: f64 = d.iter().zip(prev).map(|(a, b)| (a - b).abs() as f64).sum();
+                let base: f64 = prev.iter().map(|v| *v as f64).sum::<f64>().max(1e-30);
+                state.density_changed(diff / base);
+            }
             pm.set_density(&d)?;
+            prev_density = Some(d);
             changed = true;
         }
         pm.last_times.clear();
         let trace = changed || !pm.ring_full();
         if trace {
             pm.trace_frame(None);
+            if let Some(s) = impostor.as_mut() {
+                s.traced();
+            }
         }
         let mut stages = std::mem::take(&mut pm.last_times);
         let upsample = trace || !j_valid;
@@ -186,13 +204,27 @@ pub fn animate(
             pm.upsample();
             j_valid = true;
         }
-        let img = pm.raymarch(&scene.camera)?;
+        let refresh = match impostor.as_mut() {
+            Some(s) => s.check(scene.camera.origin, pm.cloud_center(), pm.settings.ring),
+            None => Some(crate::impostor::Refresh::First),
+        };
+        let img = match (&refresh, &last_image) {
+            (None, Some(img)) => img.clone(),
+            _ if opts.half_res => pm.raymarch_half(&scene.camera)?,
+            _ => pm.raymarch(&scene.camera)?,
+        };
+        last_image = Some(img.clone());
         stages.extend(std::mem::take(&mut pm.last_times));
         let report = FrameReport {
             frame: f,
             sun_azimuth_deg: angle,
             traced: trace,
             upsampled: upsample,
+            refresh: if impostor.is_some() {
+                refresh
+            } else {
+                Some(crate::impostor::Refresh::First)
+            },
             stages,
             wall_ms: t0.elapsed().as_secs_f64() * 1e3,
         };

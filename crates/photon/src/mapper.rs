@@ -51,6 +51,10 @@ pub struct PmSettings {
     /// Early exit below this transmittance (the paper: 2 %).
     pub early_exit: f32,
     pub seed: u32,
+    /// Detail noise amplitude in density voxels (0 = off, the default for comparisons; the
+    /// paper uses it to break the smoothness of coarse grids). Frequency: one period per 4
+    /// voxels at the lowest octave.
+    pub detail_noise: f32,
 }
 
 impl Default for PmSettings {
@@ -65,6 +69,7 @@ impl Default for PmSettings {
             step_fraction: 1.0 / 300.0,
             early_exit: 0.02,
             seed: 0,
+            detail_noise: 0.0,
         }
     }
 }
@@ -159,6 +164,12 @@ impl<'g> PhotonMapper<'g> {
             return Err(PmError::Setting {
                 field: "ring",
                 msg: format!("must lie in 1..=4096, got {}", settings.ring),
+            });
+        }
+        if !(settings.detail_noise.is_finite() && (0.0..=16.0).contains(&settings.detail_noise)) {
+            return Err(PmError::Setting {
+                field: "detail_noise",
+                msg: format!("must lie in [0, 16] voxels, got {}", settings.detail_noise),
             });
         }
         if settings.beams_per_frame > 1 << 26 {
@@ -264,8 +275,11 @@ impl<'g> PhotonMapper<'g> {
             reduced_factor: (1.0 - g).max(0.0).sqrt() as f32,
             sun_norm: 0.0,
             sky_norm: 0.0,
-            _pad0: 0.0,
-            _pad1: 0.0,
+            noise_amplitude: {
+                let voxel = vol.cell_size().min_element();
+                (settings.detail_noise as f64 * voxel) as f32
+            },
+            noise_frequency: (1.0 / (4.0 * vol.cell_size().min_element())) as f32,
         };
         gpu.check_storage("the density grid", voxels as u64 * 4)?;
         gpu.check_storage("the upsampled cache J", voxels as u64 * 16)?;
@@ -595,6 +609,29 @@ impl<'g> PhotonMapper<'g> {
             *o = [p[0], p[1], p[2]];
         }
         Ok(img)
+    }
+
+    /// Ray marches at half the resolution in both dimensions and upscales bilinearly
+    /// (Elek §4.4: the detail noise is of lower frequency than the screen sampling).
+    pub fn raymarch_half(&mut self, camera: &Camera) -> Result<Image, PmError> {
+        let (w, h) = (camera.width, camera.height);
+        let half = Camera::new(
+            camera.origin,
+            camera.target(),
+            camera.up_hint(),
+            camera.vfov_deg(),
+            w.div_ceil(2),
+            h.div_ceil(2),
+        )
+        .map_err(|e| PmError::Unsupported(e.to_string()))?;
+        Ok(self.raymarch(&half)?.resize_bilinear(w, h))
+    }
+
+    /// Volume centre (for impostor criteria).
+    pub fn cloud_center(&self) -> DVec3 {
+        (DVec3::from_array(self.params.aabb_min.map(|v| v as f64))
+            + DVec3::from_array(self.params.aabb_max.map(|v| v as f64)))
+            * 0.5
     }
 
     /// Reads the total cache I (5 u32 per cell) back.

@@ -52,8 +52,10 @@ pub struct PmParams {
     pub sun_norm: f32,
     /// Cache sums → sky fluence per unit radiance.
     pub sky_norm: f32,
-    pub _pad0: f32,
-    pub _pad1: f32,
+    /// Detail noise: displacement amplitude of lookups (world units; 0 = off).
+    pub noise_amplitude: f32,
+    /// Detail noise: base frequency (1 / world units).
+    pub noise_frequency: f32,
 }
 
 #[cfg(test)]
@@ -119,8 +121,8 @@ mod tests {
             ("reduced_factor", offset_of!(PmParams, reduced_factor)),
             ("sun_norm", offset_of!(PmParams, sun_norm)),
             ("sky_norm", offset_of!(PmParams, sky_norm)),
-            ("_pad0", offset_of!(PmParams, _pad0)),
-            ("_pad1", offset_of!(PmParams, _pad1)),
+            ("noise_amplitude", offset_of!(PmParams, noise_amplitude)),
+            ("noise_frequency", offset_of!(PmParams, noise_frequency)),
         ];
         assert_eq!(members.len(), rust.len());
         for (m, (name, off)) in members.iter().zip(rust) {

@@ -276,6 +276,36 @@ fn box_intersect(p: &PmParams, o: Vec3, d: Vec3) -> (f32, f32) {
     (t0, t1)
 }
 
+fn lattice(c: [i32; 3]) -> Vec3 {
+    let h = pcg_hash(c[0] as u32 ^ pcg_hash(c[1] as u32 ^ pcg_hash(c[2] as u32)));
+    let h2 = pcg_hash(h);
+    let h3 = pcg_hash(h2);
+    Vec3::new((h >> 8) as f32, (h2 >> 8) as f32, (h3 >> 8) as f32) * (2.0 / 16777216.0) - Vec3::ONE
+}
+
+fn value_noise(q: Vec3) -> Vec3 {
+    let b = q.floor();
+    let f = q - b;
+    let s = f * f * (Vec3::splat(3.0) - 2.0 * f);
+    let c = [b.x as i32, b.y as i32, b.z as i32];
+    let l = |dx: i32, dy: i32, dz: i32| lattice([c[0] + dx, c[1] + dy, c[2] + dz]);
+    let x00 = lerp(l(0, 0, 0), l(1, 0, 0), s.x);
+    let x10 = lerp(l(0, 1, 0), l(1, 1, 0), s.x);
+    let x01 = lerp(l(0, 0, 1), l(1, 0, 1), s.x);
+    let x11 = lerp(l(0, 1, 1), l(1, 1, 1), s.x);
+    lerp(lerp(x00, x10, s.y), lerp(x01, x11, s.y), s.z)
+}
+
+/// Three-octave vector-noise displacement of a lookup position (Elek §4.4).
+pub fn perturb(p: &PmParams, x: Vec3) -> Vec3 {
+    if p.noise_amplitude <= 0.0 {
+        return x;
+    }
+    let q = x * p.noise_frequency;
+    let n = value_noise(q) + 0.5 * value_noise(2.0 * q) + 0.25 * value_noise(4.0 * q);
+    x + p.noise_amplitude * n
+}
+
 /// One pixel of `photon_raymarch.wgsl`.
 pub fn raymarch_pixel(p: &PmParams, density: &[f32], j: &[[f32; 4]], x: u32, y: u32) -> Vec3 {
     let px = (x as f32 + 0.5) / p.width as f32 * 2.0 - 1.0;
@@ -294,7 +324,7 @@ pub fn raymarch_pixel(p: &PmParams, density: &[f32], j: &[[f32; 4]], x: u32, y: 
         let mu = d.dot(v3(p.sun_dir));
         while t < t1 && tr >= p.early_exit {
             let dt = p.step.min(t1 - t);
-            let xp = o + d * (t + 0.5 * dt);
+            let xp = perturb(p, o + d * (t + 0.5 * dt));
             let dens = density_at(p, density, xp);
             let sigma_t = p.density_scale * dens;
             if sigma_t > 0.0 {

@@ -104,6 +104,8 @@ fn static_scene_is_stable_once_converged() {
         sun_speed_deg_s: 0.0,
         fps: 30.0,
         density: DensitySequence::Static,
+        impostors: None,
+        half_res: false,
     };
     animate(&mut pm, &s, &opts, |img, r| {
         if r.frame >= 32 {
@@ -114,6 +116,46 @@ fn static_scene_is_stable_once_converged() {
     })
     .unwrap();
     assert_eq!(images[0], images[1]);
+}
+
+/// Impostors (Elek §4.4): with a static camera the image is reused until the illumination
+/// criterion (more than 4 % of the ring re-traced) or the end of tracing; reused frames are the
+/// previous image exactly.
+#[test]
+fn impostors_are_reused_until_a_criterion_fires() {
+    let gpu = Gpu::new().unwrap();
+    let s = scene(DVec3::new(1.0, 0.6, 0.3));
+    let mut pm = PhotonMapper::new(
+        &gpu,
+        &s,
+        PmSettings {
+            ring: 50,
+            ..settings()
+        },
+    )
+    .unwrap();
+    let opts = AnimateOptions {
+        frames: 12,
+        sun_speed_deg_s: 0.0,
+        fps: 30.0,
+        density: DensitySequence::Static,
+        impostors: Some(Default::default()),
+        half_res: false,
+    };
+    let mut prev: Option<Image> = None;
+    let mut reasons = Vec::new();
+    animate(&mut pm, &s, &opts, |img, r| {
+        if r.refresh.is_none() {
+            assert_eq!(Some(img), prev.as_ref());
+        }
+        reasons.push(r.refresh.map(|x| x.name()));
+        prev = Some(img.clone());
+        Ok(())
+    })
+    .unwrap();
+    // m = 50: 4 % is 2 generations, so every third traced frame refreshes.
+    assert_eq!(reasons[0], Some("first"));
+    assert_eq!(&reasons[1..4], &[None, None, Some("illumination")]);
 }
 
 #[test]
@@ -131,6 +173,8 @@ fn moving_sun_lags_little_behind_the_converged_solution() {
         sun_speed_deg_s: 0.5,
         fps: 30.0,
         density: DensitySequence::Static,
+        impostors: None,
+        half_res: false,
     };
     animate(&mut pm, &s, &opts, |img, _| {
         last = Some(img.clone());

@@ -17,6 +17,7 @@
 //!   [`camera`].
 //! - **Images**: linear radiance RGB, row 0 at the top. See [`image`].
 
+pub mod atmosphere;
 pub mod camera;
 pub mod error;
 pub mod frame;

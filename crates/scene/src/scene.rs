@@ -17,6 +17,7 @@
 //! direction = [1.0, 0.35, -0.1]  # towards the sun
 //! irradiance = [1.0, 1.0, 1.0]   # or one number
 //! angular_radius_deg = 0.0       # 0 = delta light
+//! atmosphere = false             # true: sun and sky colour by elevation (crate::atmosphere)
 //!
 //! [sky]                          # optional: constant radiance or a lat-long EXR
 //! radiance = [0.1, 0.2, 0.4]
@@ -154,6 +155,10 @@ struct RawSun {
     irradiance: Rgb,
     #[serde(default)]
     angular_radius_deg: f64,
+    /// Attenuate sun (and sky) colour by a clear atmosphere for the sun's elevation
+    /// (see [`crate::atmosphere`]); `irradiance` is then taken above the atmosphere.
+    #[serde(default)]
+    atmosphere: bool,
 }
 
 #[derive(Deserialize)]
@@ -383,11 +388,19 @@ impl Scene {
             None => Medium::new(v.albedo, phase).map_err(at)?,
         };
         // Lights.
+        // Atmospheric attenuation by sun elevation (applies to the sun and a constant sky).
+        let atmosphere = raw.sun.as_ref().filter(|s| s.atmosphere).map(|s| {
+            let h = crate::atmosphere::elevation_deg(DVec3::from_array(s.direction));
+            (
+                crate::atmosphere::sun_transmittance(h),
+                crate::atmosphere::sky_factor(h),
+            )
+        });
         let sun = match &raw.sun {
             Some(s) => Some(
                 Sun::new(
                     DVec3::from_array(s.direction),
-                    s.irradiance.vec(),
+                    s.irradiance.vec() * atmosphere.map_or(DVec3::ONE, |a| a.0),
                     s.angular_radius_deg,
                 )
                 .map_err(at)?,
@@ -408,7 +421,7 @@ impl Scene {
                     return Err(Error::invalid(label, "sky", "needs `radiance` or `envmap`"));
                 }
                 (Some(r), None) => {
-                    let c = r.vec() * s.scale;
+                    let c = r.vec() * s.scale * atmosphere.map_or(DVec3::ONE, |a| a.1);
                     if !c.is_finite() || c.min_element() < 0.0 {
                         return Err(Error::invalid(
                             label,

@@ -203,3 +203,28 @@ fn npy_volume_needs_bounds() {
     );
     assert!(parse(&with_box).is_ok());
 }
+
+#[test]
+fn atmosphere_reddens_a_low_sun() {
+    let high =
+        parse(&GOOD.replace("irradiance = 2.0", "irradiance = 2.0\natmosphere = true")).unwrap();
+    let low = parse(
+        &GOOD
+            .replace("irradiance = 2.0", "irradiance = 2.0\natmosphere = true")
+            .replace(
+                "direction = [1.0, 1.0, 0.0]",
+                "direction = [1.0, 0.05, 0.0]",
+            ),
+    )
+    .unwrap();
+    let (h, l) = (high.sun.unwrap().irradiance, low.sun.unwrap().irradiance);
+    // 45° sun: air mass √2, 550 nm transmittance exp(−0.197 √2) ≈ 0.757.
+    assert!(
+        (h.y / 2.0
+            - (-(nimbus_scene::atmosphere::rayleigh_tau(0.55) + 0.1) * std::f64::consts::SQRT_2)
+                .exp())
+        .abs()
+            < 0.01
+    );
+    assert!(l.x / l.z > h.x / h.z && l.y < h.y);
+}
