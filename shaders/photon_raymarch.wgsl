@@ -43,8 +43,11 @@ fn value_noise(q: vec3<f32>) -> vec3<f32> {
     return mix(mix(x00, x10, s.y), mix(x01, x11, s.y), s.z);
 }
 
+// Pipeline constant: the noise code is compiled in only when detail noise is on.
+override DETAIL_NOISE: bool = false;
+
 fn perturb(x: vec3<f32>) -> vec3<f32> {
-    if (P.noise_amplitude <= 0.0) { return x; }
+    if (!DETAIL_NOISE || P.noise_amplitude <= 0.0) { return x; }
     let q = x * P.noise_frequency;
     let n = value_noise(q) + 0.5 * value_noise(2.0 * q) + 0.25 * value_noise(4.0 * q);
     return x + P.noise_amplitude * n;

@@ -154,6 +154,17 @@ impl Gpu {
 
     /// A compute pipeline from WGSL source with an automatic bind-group layout.
     pub fn pipeline(&self, label: &str, source: &str, entry: &str) -> wgpu::ComputePipeline {
+        self.pipeline_with_constants(label, source, entry, &[])
+    }
+
+    /// A compute pipeline whose WGSL `override` constants are set (compile-time specialisation).
+    pub fn pipeline_with_constants(
+        &self,
+        label: &str,
+        source: &str,
+        entry: &str,
+        constants: &[(&str, f64)],
+    ) -> wgpu::ComputePipeline {
         let module = self
             .device
             .create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -166,7 +177,10 @@ impl Gpu {
                 layout: None,
                 module: &module,
                 entry_point: Some(entry),
-                compilation_options: Default::default(),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants,
+                    ..Default::default()
+                },
                 cache: None,
             })
     }

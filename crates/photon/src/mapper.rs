@@ -55,6 +55,9 @@ pub struct PmSettings {
     /// paper uses it to break the smoothness of coarse grids). Frequency: one period per 4
     /// voxels at the lowest octave.
     pub detail_noise: f32,
+    /// Accumulate beams with global atomics even when the cache fits workgroup memory (the
+    /// result is identical; for testing and measuring both paths).
+    pub force_global_atomics: bool,
 }
 
 impl Default for PmSettings {
@@ -70,6 +73,7 @@ impl Default for PmSettings {
             early_exit: 0.02,
             seed: 0,
             detail_noise: 0.0,
+            force_global_atomics: false,
         }
     }
 }
@@ -227,8 +231,9 @@ impl<'g> PhotonMapper<'g> {
         } else {
             SHARED_CELLS
         };
-        let use_shared =
-            cells <= shared_cap && gpu.limits.max_compute_workgroup_storage_size >= shared_cap * 20;
+        let use_shared = !settings.force_global_atomics
+            && cells <= shared_cap
+            && gpu.limits.max_compute_workgroup_storage_size >= shared_cap * 20;
         let (forward, right, up, tan_half) = scene.camera.basis();
         let sun = scene.sun.as_ref();
         let params = PmParams {
@@ -334,10 +339,18 @@ impl<'g> PhotonMapper<'g> {
             ),
             pipeline: up_p,
         };
-        let raymarch_pipeline = gpu.pipeline(
+        let raymarch_pipeline = gpu.pipeline_with_constants(
             "photon raymarch",
             &shaders::source("photon_raymarch.wgsl"),
             "raymarch",
+            &[(
+                "DETAIL_NOISE",
+                if settings.detail_noise > 0.0 {
+                    1.0
+                } else {
+                    0.0
+                },
+            )],
         );
         Ok(Self {
             gpu,

@@ -251,6 +251,100 @@ fn half_resolution_is_close_to_full() {
     assert!((a / b - 1.0).abs() < 0.02, "full {a} vs half {b}");
 }
 
+/// Workgroup-memory and global-atomic accumulation are the same integer sums: identical caches.
+#[test]
+fn shared_and_global_accumulation_agree_exactly() {
+    let gpu = gpu();
+    let s = small_cloud();
+    let run = |force| {
+        let mut pm = PhotonMapper::new(
+            &gpu,
+            &s,
+            PmSettings {
+                beams_per_frame: 4096,
+                ring: 2,
+                cache_res: Some([6, 5, 6]),
+                force_global_atomics: force,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert_eq!(pm.uses_shared_memory(), !force);
+        pm.converge();
+        pm.read_total().unwrap()
+    };
+    assert_eq!(run(false), run(true));
+}
+
+/// Equal cache and density resolution: no filtering, J is the cache in physical units.
+#[test]
+fn equal_resolution_skips_the_filter() {
+    let gpu = gpu();
+    let res = [10, 8, 10];
+    let grid = generate::generate(nimbus_scene::CloudKind::Cumulus, 4, res).unwrap();
+    let (lo, hi) = generate::default_aabb(res);
+    let s = scene(
+        Volume::new(grid, Aabb::new(lo, hi).unwrap(), 10.0).unwrap(),
+        1.0,
+        0.8,
+        Some(Sun::new(DVec3::Y, DVec3::ONE, 0.0).unwrap()),
+        None,
+        Camera::new(DVec3::new(0.0, 0.0, 3.0), DVec3::ZERO, DVec3::Y, 40.0, 8, 8).unwrap(),
+    );
+    let mut pm = PhotonMapper::new(
+        &gpu,
+        &s,
+        PmSettings {
+            beams_per_frame: 2048,
+            ring: 2,
+            cache_res: Some([10, 8, 10]),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(pm.params.filtered, 0);
+    pm.converge();
+    pm.upsample();
+    let (j, total) = (pm.read_j().unwrap(), pm.read_total().unwrap());
+    for (i, v) in j.iter().enumerate() {
+        let c = reference::cell_value(&pm.params, &total, i);
+        assert_eq!(*v, [c.sun, c.sky, c.g, c.gamma]);
+    }
+}
+
+/// A grid whose upsampled cache exceeds the adapter's storage-binding limit is a clear error,
+/// not a crash (lavapipe allows 128 MiB per binding; 300³ voxels × 16 bytes = 432 MB).
+#[test]
+fn oversized_grids_are_refused() {
+    let gpu = gpu();
+    let limit = gpu
+        .limits
+        .max_storage_buffer_binding_size
+        .min(gpu.limits.max_buffer_size);
+    let n = ((limit / 16) as f64).cbrt().ceil() as usize + 1;
+    if n > 700 {
+        eprintln!("adapter allows {limit} bytes per binding; skipping the oversized-grid check");
+        return;
+    }
+    let grid = DensityGrid::constant([n, n, n], 1.0).unwrap();
+    let s = scene(
+        Volume::new(grid, Aabb::new(DVec3::ZERO, DVec3::ONE).unwrap(), 1.0).unwrap(),
+        1.0,
+        0.5,
+        Some(Sun::new(DVec3::Y, DVec3::ONE, 0.0).unwrap()),
+        None,
+        Camera::new(DVec3::new(0.0, 0.0, 3.0), DVec3::ZERO, DVec3::Y, 40.0, 8, 8).unwrap(),
+    );
+    let e = PhotonMapper::new(&gpu, &s, PmSettings::default())
+        .err()
+        .expect("must be refused")
+        .to_string();
+    assert!(
+        e.contains("upsampled cache J") && e.contains("allows at most"),
+        "{e}"
+    );
+}
+
 #[test]
 fn settings_are_checked() {
     let gpu = gpu();

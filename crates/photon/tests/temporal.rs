@@ -158,6 +158,54 @@ fn impostors_are_reused_until_a_criterion_fires() {
     assert_eq!(&reasons[1..4], &[None, None, Some("illumination")]);
 }
 
+/// An evolving density (procedural morph between two seeds) is traced every frame and fires
+/// the impostors' animation criterion; a folder sequence with a different resolution is refused
+/// by file name.
+#[test]
+fn evolving_density_is_traced_and_refreshes_impostors() {
+    let gpu = Gpu::new().unwrap();
+    let s = scene(DVec3::new(1.0, 0.6, 0.3));
+    let res = s.volume.grid().res();
+    let mut pm = PhotonMapper::new(
+        &gpu,
+        &s,
+        PmSettings {
+            ring: 1000,
+            ..settings()
+        },
+    )
+    .unwrap();
+    let opts = AnimateOptions {
+        frames: 6,
+        sun_speed_deg_s: 0.0,
+        fps: 30.0,
+        density: DensitySequence::morph(nimbus_scene::CloudKind::Cumulus, 3, res, 4).unwrap(),
+        impostors: Some(Default::default()),
+        half_res: false,
+    };
+    let mut reports = Vec::new();
+    animate(&mut pm, &s, &opts, |_, r| {
+        reports.push(r.clone());
+        Ok(())
+    })
+    .unwrap();
+    assert!(reports.iter().all(|r| r.traced));
+    // A ring of 1000 never reaches the illumination criterion in 6 frames (4 % = 40): every
+    // refresh after the first is the density's doing.
+    assert!(
+        reports[1..]
+            .iter()
+            .any(|r| r.refresh.map(|x| x.name()) == Some("animation"))
+    );
+    let dir = std::env::temp_dir().join(format!("nimbus-seq-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let g = nimbus_scene::DensityGrid::constant([4, 4, 4], 1.0).unwrap();
+    nimbus_scene::io::vol::write(&dir.join("f000.vol"), &g, (DVec3::ZERO, DVec3::ONE)).unwrap();
+    let seq = DensitySequence::from_dir(&dir).unwrap();
+    let e = seq.max_value(res).unwrap_err().to_string();
+    assert!(e.contains("f000.vol") && e.contains("resolution"), "{e}");
+}
+
 #[test]
 fn moving_sun_lags_little_behind_the_converged_solution() {
     // Sun turning at 0.5°/s, 30 frames/s (the paper's test), ring of 32: after 96 frames the
