@@ -5,34 +5,48 @@
 /// Shared helpers, prepended to the other shaders.
 pub const COMMON: &str = include_str!("../../../shaders/common.wgsl");
 
-/// (file name, source) of every shader except `common.wgsl`.
-pub const SHADERS: &[(&str, &str)] = &[
+/// (file name, source, whether `common.wgsl` is prepended) of every shader except
+/// `common.wgsl` itself.
+pub const SHADERS: &[(&str, &str, bool)] = &[
     (
         "photon_trace.wgsl",
         include_str!("../../../shaders/photon_trace.wgsl"),
+        true,
     ),
     (
         "photon_update.wgsl",
         include_str!("../../../shaders/photon_update.wgsl"),
+        true,
     ),
     (
         "photon_upsample.wgsl",
         include_str!("../../../shaders/photon_upsample.wgsl"),
+        true,
     ),
     (
         "photon_raymarch.wgsl",
         include_str!("../../../shaders/photon_raymarch.wgsl"),
+        true,
+    ),
+    (
+        "rpnn_descriptor.wgsl",
+        include_str!("../../../shaders/rpnn_descriptor.wgsl"),
+        false,
     ),
 ];
 
-/// Full source of a shader: `common.wgsl` followed by the file.
+/// Full source of a shader: `common.wgsl` (for the photon-mapping shaders) followed by the
+/// file.
 pub fn source(name: &str) -> String {
-    let body = SHADERS
+    let (_, body, common) = SHADERS
         .iter()
-        .find(|(n, _)| *n == name)
-        .unwrap_or_else(|| panic!("unknown shader {name}"))
-        .1;
-    format!("{COMMON}\n{body}")
+        .find(|(n, _, _)| *n == name)
+        .unwrap_or_else(|| panic!("unknown shader {name}"));
+    if *common {
+        format!("{COMMON}\n{body}")
+    } else {
+        body.to_string()
+    }
 }
 
 #[cfg(test)]
@@ -48,10 +62,10 @@ mod tests {
             .filter(|n| n.ends_with(".wgsl") && n != "common.wgsl")
             .collect();
         files.sort();
-        let mut registered: Vec<String> = SHADERS.iter().map(|(n, _)| n.to_string()).collect();
+        let mut registered: Vec<String> = SHADERS.iter().map(|(n, _, _)| n.to_string()).collect();
         registered.sort();
         assert_eq!(files, registered, "every shaders/*.wgsl must be in SHADERS");
-        for (name, _) in SHADERS {
+        for (name, _, _) in SHADERS {
             let src = source(name);
             let module = naga::front::wgsl::parse_str(&src)
                 .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&src)));

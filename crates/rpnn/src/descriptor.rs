@@ -1,0 +1,91 @@
+//! The hierarchical stencil descriptor of Kallweit 2017 §4.2 — CPU reference implementation.
+//! `shaders/rpnn_descriptor.wgsl` computes the same numbers on the GPU (test: agreement to
+//! 10⁻⁵ relative).
+//!
+//! ## Layout (the contract with `training/`)
+//! One descriptor is [`DESCRIPTOR_LEN`] = 2 251 f32, **level-major**:
+//! `z[(k − 1) · 225 + p]` is ρ at point p of stencil level k = 1 … 10, and `z[2250]` is
+//! γ = acos(ω · ω_l) in radians (computed as atan2(|ω × ω_l|, ω · ω_l)). Point p = ix + 5 iy + 25 iz (ix, iy ∈ 0..5, iz ∈ 0..9) sits at
+//! local coordinates (−1 + ix/2, −1 + iy/2, −1 + iz/2) · 2^(k−1) mean free paths, i.e. the 5×5×9
+//! grid spanning [−1, −1, −1] … [1, 1, 3], scaled per level.
+//!
+//! ## Frame
+//! z points towards the light (ω_l); x = normalize(z × ω) is perpendicular to the plane of z and
+//! the view direction ω; y = z × x. When ω ∥ ω_l (|z × ω| < 10⁻⁶, including ω = ±ω_l) the
+//! x-axis is the deterministic perpendicular of `nimbus_scene::frame::orthonormal_basis(z)`.
+//!
+//! ## Conventions
+//! ω is the direction of the camera ray (from the eye into the cloud), as in the path tracer;
+//! γ = 0 therefore means looking straight towards the light (back-lit, forward scattering).
+//! ρ = σ_t / σ̄ with σ̄ the mean σ_t of the non-zero voxels, and distances in mean free paths
+//! 1/σ̄ (Kallweit §4.2). Stencil level k reads pyramid level [`Pyramid::level_for`]`(k)`.
+
+use glam::Vec3;
+
+use crate::pyramid::Pyramid;
+
+pub const LEVELS: usize = 10;
+pub const POINTS: usize = 225;
+pub const DESCRIPTOR_LEN: usize = LEVELS * POINTS + 1;
+
+/// Local stencil coordinates (unscaled, in mean free paths) of point `p`.
+pub fn stencil_point(p: usize) -> Vec3 {
+    let (ix, iy, iz) = (p % 5, (p / 5) % 5, p / 25);
+    Vec3::new(
+        -1.0 + ix as f32 * 0.5,
+        -1.0 + iy as f32 * 0.5,
+        -1.0 + iz as f32 * 0.5,
+    )
+}
+
+/// The local frame (x, y, z) for view direction `view` and direction to the light `to_light`.
+pub fn frame(view: Vec3, to_light: Vec3) -> (Vec3, Vec3, Vec3) {
+    let z = to_light.normalize();
+    let c = z.cross(view.normalize());
+    let x = if c.length() < 1e-6 {
+        let (t, _) = nimbus_scene::frame::orthonormal_basis(z.as_dvec3());
+        t.as_vec3().normalize()
+    } else {
+        c.normalize()
+    };
+    (x, z.cross(x), z)
+}
+
+/// Writes the descriptor of the shading configuration (x, ω, ω_l) into `out`
+/// (len [`DESCRIPTOR_LEN`]).
+pub fn descriptor(pyr: &Pyramid, x: Vec3, view: Vec3, to_light: Vec3, out: &mut [f32]) {
+    assert_eq!(out.len(), DESCRIPTOR_LEN);
+    let (ex, ey, ez) = frame(view, to_light);
+    let mfp = (1.0 / pyr.mean_sigma) as f32;
+    for k in 1..=LEVELS {
+        let level = pyr.level_for(k as u32);
+        let scale = (1u32 << (k - 1)) as f32 * mfp;
+        for p in 0..POINTS {
+            let s = stencil_point(p);
+            let q = x + (ex * s.x + ey * s.y + ez * s.z) * scale;
+            out[(k - 1) * POINTS + p] = pyr.lookup(level, q);
+        }
+    }
+    // γ = angle between ω and ω_l, as atan2(|ω × ω_l|, ω · ω_l): accurate near 0 and π, where
+    // acos loses digits (and GPU acos approximations differ).
+    let (v, l) = (view.normalize(), to_light.normalize());
+    out[LEVELS * POINTS] = v.cross(l).length().atan2(v.dot(l));
+}
+
+/// Descriptors of many configurations (rows of [`DESCRIPTOR_LEN`]), in parallel.
+pub fn descriptors(pyr: &Pyramid, configs: &[Config]) -> Vec<f32> {
+    use rayon::prelude::*;
+    let mut out = vec![0.0f32; configs.len() * DESCRIPTOR_LEN];
+    out.par_chunks_mut(DESCRIPTOR_LEN)
+        .zip(configs)
+        .for_each(|(row, c)| descriptor(pyr, c.x, c.view, c.to_light, row));
+    out
+}
+
+/// A shading configuration: position, view (camera-ray) direction, direction to the light.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Config {
+    pub x: Vec3,
+    pub view: Vec3,
+    pub to_light: Vec3,
+}

@@ -1,0 +1,182 @@
+//! The descriptor on the GPU (`shaders/rpnn_descriptor.wgsl`): the pyramid lives in one storage
+//! buffer, a batch of N configurations gives N × 2 251 floats.
+
+use bytemuck::{Pod, Zeroable};
+use nimbus_gpu::{Gpu, GpuError, shaders};
+
+use crate::descriptor::{Config, DESCRIPTOR_LEN, LEVELS};
+use crate::pyramid::Pyramid;
+
+/// `struct DescParams` of the shader.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, Default, PartialEq)]
+pub struct DescParams {
+    pub aabb_min: [f32; 3],
+    /// One mean free path in world units.
+    pub mfp: f32,
+    pub aabb_max: [f32; 3],
+    pub n_configs: u32,
+    /// Pyramid level of stencil levels 1..=10, 4 per row.
+    pub level_of: [[u32; 4]; 3],
+}
+
+/// `struct LevelInfo` of the shader.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, Default, PartialEq)]
+pub struct LevelInfo {
+    pub res: [u32; 3],
+    pub offset: u32,
+}
+
+/// `struct Config` of the shader.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, Default, PartialEq)]
+pub struct GpuConfig {
+    pub x: [f32; 4],
+    pub view: [f32; 4],
+    pub to_light: [f32; 4],
+}
+
+/// A pyramid uploaded to the GPU with its descriptor pipeline.
+pub struct GpuDescriptor<'g> {
+    gpu: &'g Gpu,
+    params: DescParams,
+    pipeline: wgpu::ComputePipeline,
+    levels: wgpu::Buffer,
+    info: wgpu::Buffer,
+}
+
+impl<'g> GpuDescriptor<'g> {
+    pub fn new(gpu: &'g Gpu, pyr: &Pyramid) -> Result<Self, GpuError> {
+        let mut data = Vec::new();
+        let mut info = Vec::new();
+        for l in &pyr.levels {
+            info.push(LevelInfo {
+                res: l.res.map(|v| v as u32),
+                offset: data.len() as u32,
+            });
+            data.extend_from_slice(&l.data);
+        }
+        gpu.check_storage("the density pyramid", data.len() as u64 * 4)?;
+        let mut level_of = [[0u32; 4]; 3];
+        for k in 1..=LEVELS {
+            level_of[(k - 1) / 4][(k - 1) % 4] = pyr.level_for(k as u32) as u32;
+        }
+        let params = DescParams {
+            aabb_min: pyr.aabb_min.as_vec3().to_array(),
+            mfp: (1.0 / pyr.mean_sigma) as f32,
+            aabb_max: pyr.aabb_max.as_vec3().to_array(),
+            n_configs: 0,
+            level_of,
+        };
+        Ok(Self {
+            gpu,
+            params,
+            pipeline: gpu.pipeline(
+                "rpnn descriptor",
+                &shaders::source("rpnn_descriptor.wgsl"),
+                "descriptor",
+            ),
+            levels: gpu.storage("pyramid", &data),
+            info: gpu.storage("pyramid levels", &info),
+        })
+    }
+
+    /// Descriptors of `configs` (rows of [`DESCRIPTOR_LEN`]).
+    pub fn compute(&self, configs: &[Config]) -> Result<Vec<f32>, GpuError> {
+        if configs.is_empty() {
+            return Ok(Vec::new());
+        }
+        let n = configs.len() as u64;
+        self.gpu
+            .check_storage("the descriptor batch", n * DESCRIPTOR_LEN as u64 * 4)?;
+        let cfg: Vec<GpuConfig> = configs
+            .iter()
+            .map(|c| GpuConfig {
+                x: c.x.extend(0.0).to_array(),
+                view: c.view.extend(0.0).to_array(),
+                to_light: c.to_light.extend(0.0).to_array(),
+            })
+            .collect();
+        let params = DescParams {
+            n_configs: configs.len() as u32,
+            ..self.params
+        };
+        let ubuf = self.gpu.uniform("desc params", &params);
+        let cbuf = self.gpu.storage("configs", &cfg);
+        let out = self
+            .gpu
+            .zeroed("descriptors", n * DESCRIPTOR_LEN as u64 * 4);
+        let bind = self.gpu.bind(
+            &self.pipeline,
+            &[
+                (0, &ubuf),
+                (1, &self.levels),
+                (2, &self.info),
+                (3, &cbuf),
+                (4, &out),
+            ],
+        );
+        let total = (n * DESCRIPTOR_LEN as u64).div_ceil(64) as u32;
+        let (x, y) = if total <= 65535 {
+            (total, 1)
+        } else {
+            (65535, total.div_ceil(65535))
+        };
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.dispatch_workgroups(x, y, 1);
+        }
+        self.gpu.queue.submit([enc.finish()]);
+        self.gpu.read(&out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::mem::offset_of;
+
+    fn members(name: &str) -> (Vec<(String, u32)>, u32) {
+        let src = shaders::source("rpnn_descriptor.wgsl");
+        let module = naga::front::wgsl::parse_str(&src).unwrap();
+        let (_, ty) = module
+            .types
+            .iter()
+            .find(|(_, t)| t.name.as_deref() == Some(name))
+            .unwrap();
+        let naga::TypeInner::Struct { members, span } = &ty.inner else {
+            panic!()
+        };
+        (
+            members
+                .iter()
+                .map(|m| (m.name.clone().unwrap(), m.offset))
+                .collect(),
+            *span,
+        )
+    }
+
+    #[test]
+    fn layouts_match_wgsl() {
+        let (m, span) = members("DescParams");
+        assert_eq!(span as usize, std::mem::size_of::<DescParams>());
+        let rust = [
+            offset_of!(DescParams, aabb_min),
+            offset_of!(DescParams, mfp),
+            offset_of!(DescParams, aabb_max),
+            offset_of!(DescParams, n_configs),
+            offset_of!(DescParams, level_of),
+        ];
+        assert_eq!(m.iter().map(|x| x.1 as usize).collect::<Vec<_>>(), rust);
+        let (m, span) = members("LevelInfo");
+        assert_eq!(span as usize, std::mem::size_of::<LevelInfo>());
+        assert_eq!(m[1].1 as usize, offset_of!(LevelInfo, offset));
+        let (m, span) = members("Config");
+        assert_eq!(span as usize, std::mem::size_of::<GpuConfig>());
+        assert_eq!(m[2].1 as usize, offset_of!(GpuConfig, to_light));
+    }
+}

@@ -1,0 +1,12 @@
+//! # nimbus-rpnn
+//!
+//! Radiance-predicting neural networks (Kallweit et al. 2017): the Gaussian density pyramid and
+//! the hierarchical stencil descriptor (§4.2) on the CPU ([`descriptor`]) and the GPU
+//! ([`gpu`]).
+
+pub mod descriptor;
+pub mod gpu;
+pub mod pyramid;
+
+pub use descriptor::{Config, DESCRIPTOR_LEN, LEVELS, POINTS, descriptor, descriptors};
+pub use pyramid::{Pyramid, PyramidError};

@@ -1,0 +1,222 @@
+//! Descriptor tests: CPU = GPU, rotation invariance, analytic densities, mass conservation,
+//! degenerate frames.
+
+use glam::{DVec3, Vec3};
+use nimbus_rpnn::descriptor::{Config, DESCRIPTOR_LEN, POINTS, descriptor, descriptors, frame};
+use nimbus_rpnn::gpu::GpuDescriptor;
+use nimbus_rpnn::{Pyramid, PyramidError};
+use nimbus_scene::{Aabb, DensityGrid, Volume, generate};
+
+fn rng(seed: u64) -> impl FnMut() -> f32 {
+    let mut s = seed;
+    move || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((s >> 40) as f32) / (1u64 << 24) as f32
+    }
+}
+
+fn dir(r: &mut impl FnMut() -> f32) -> Vec3 {
+    let z = 1.0 - 2.0 * r();
+    let phi = std::f32::consts::TAU * r();
+    let s = (1.0 - z * z).max(0.0).sqrt();
+    Vec3::new(s * phi.cos(), s * phi.sin(), z)
+}
+
+fn cloud(res: [usize; 3]) -> Volume {
+    let g = generate::generate(nimbus_scene::CloudKind::Cumulus, 11, res).unwrap();
+    let (lo, hi) = generate::default_aabb(res);
+    Volume::new(g, Aabb::new(lo, hi).unwrap(), 20.0).unwrap()
+}
+
+#[test]
+fn gpu_matches_cpu() {
+    let vol = cloud([32, 24, 32]);
+    let pyr = Pyramid::new(&vol).unwrap();
+    let mut r = rng(5);
+    let (lo, hi) = (vol.aabb().min.as_vec3(), vol.aabb().max.as_vec3());
+    let mut configs: Vec<Config> = (0..96)
+        .map(|_| Config {
+            x: lo + (hi - lo) * Vec3::new(r(), r(), r()),
+            view: dir(&mut r),
+            to_light: dir(&mut r),
+        })
+        .collect();
+    // Degenerate frames: view along and against the light.
+    let l = Vec3::new(0.3, 0.8, -0.5).normalize();
+    configs.push(Config {
+        x: Vec3::ZERO,
+        view: l,
+        to_light: l,
+    });
+    configs.push(Config {
+        x: Vec3::ZERO,
+        view: -l,
+        to_light: l,
+    });
+    let cpu = descriptors(&pyr, &configs);
+    let gpu = nimbus_gpu::Gpu::new().expect("GPU adapter (mesa-vulkan-drivers)");
+    let gd = GpuDescriptor::new(&gpu, &pyr).unwrap();
+    let out = gd.compute(&configs).unwrap();
+    assert_eq!(out.len(), configs.len() * DESCRIPTOR_LEN);
+    let scale = cpu.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    for (i, (a, b)) in out.iter().zip(&cpu).enumerate() {
+        // 1e-5 relative; values near zero compare against 1e-5 of the largest value (trilinear
+        // weights computed with and without fused multiply-add differ in the last bits).
+        let tol = if i % DESCRIPTOR_LEN == DESCRIPTOR_LEN - 1 {
+            // γ ∈ [0, π]: 1e-5 of its range (GPU atan2/normalize approximations).
+            1e-5 * std::f32::consts::PI
+        } else {
+            1e-5 * a.abs().max(b.abs()).max(1e-2 * scale)
+        };
+        assert!(
+            (a - b).abs() <= tol,
+            "config {} index {}: GPU {a} vs CPU {b}",
+            i / DESCRIPTOR_LEN,
+            i % DESCRIPTOR_LEN
+        );
+        assert!(a.is_finite());
+    }
+}
+
+/// Rotating cloud, view and light together by 90° about y leaves the descriptor unchanged (the
+/// rotation maps voxel centres onto voxel centres, so lookups are exact correspondences).
+#[test]
+fn invariant_under_joint_rotation() {
+    let n = 32;
+    let res = [n, 24, n];
+    let vol = cloud(res);
+    let g = vol.grid();
+    // (x, y, z) → (z, y, −x): new[x' = z][y][z' = n−1−x] = old[x][y][z].
+    let mut rot = vec![0.0f32; g.data().len()];
+    for z in 0..n {
+        for y in 0..res[1] {
+            for x in 0..n {
+                rot[((n - 1 - x) * res[1] + y) * n + z] = g.get(x, y, z);
+            }
+        }
+    }
+    let ext = vol.aabb().max;
+    let vol_r = Volume::new(
+        DensityGrid::new(res, rot).unwrap(),
+        Aabb::new(
+            DVec3::new(-ext.z, -ext.y, -ext.x),
+            DVec3::new(ext.z, ext.y, ext.x),
+        )
+        .unwrap(),
+        20.0,
+    )
+    .unwrap();
+    let (pa, pb) = (Pyramid::new(&vol).unwrap(), Pyramid::new(&vol_r).unwrap());
+    let rotate = |v: Vec3| Vec3::new(v.z, v.y, -v.x);
+    let mut r = rng(9);
+    for _ in 0..20 {
+        let c = Config {
+            x: Vec3::new(r() - 0.5, r() * 0.5 - 0.25, r() - 0.5),
+            view: dir(&mut r),
+            to_light: dir(&mut r),
+        };
+        let mut a = vec![0.0; DESCRIPTOR_LEN];
+        let mut b = vec![0.0; DESCRIPTOR_LEN];
+        descriptor(&pa, c.x, c.view, c.to_light, &mut a);
+        descriptor(&pb, rotate(c.x), rotate(c.view), rotate(c.to_light), &mut b);
+        for (i, (u, v)) in a.iter().zip(&b).enumerate() {
+            assert!(
+                (u - v).abs() <= 1e-4 * u.abs().max(1.0),
+                "index {i}: {u} vs {v}"
+            );
+        }
+    }
+}
+
+/// Constant density: every level-1 point well inside the box reads ρ = 1 (σ_t equals the mean);
+/// half-space: ρ at the plane is ½ and ρ(−z) + ρ(z) = 1 (the blurred step is antisymmetric).
+#[test]
+fn analytic_densities() {
+    let n = 64;
+    let vox = 1.0 / n as f64;
+    let unit = Aabb::new(DVec3::splat(-0.5), DVec3::splat(0.5)).unwrap();
+    // One mean free path = one voxel.
+    let scale = 1.0 / vox;
+    let vol = Volume::new(DensityGrid::constant([n, n, n], 1.0).unwrap(), unit, scale).unwrap();
+    let pyr = Pyramid::new(&vol).unwrap();
+    assert!((pyr.mean_sigma - scale).abs() < 1e-9);
+    let mut d = vec![0.0; DESCRIPTOR_LEN];
+    descriptor(&pyr, Vec3::ZERO, Vec3::X, Vec3::Z, &mut d);
+    for (p, v) in d[..POINTS].iter().enumerate() {
+        assert!((v - 1.0).abs() < 1e-5, "level 1 point {p}: {v}");
+    }
+    assert!((d[DESCRIPTOR_LEN - 1] - std::f32::consts::FRAC_PI_2).abs() < 1e-6);
+    // Half-space z < 0.
+    let data: Vec<f32> = (0..n * n * n)
+        .map(|i| if i / (n * n) < n / 2 { 1.0 } else { 0.0 })
+        .collect();
+    let vol = Volume::new(DensityGrid::new([n, n, n], data).unwrap(), unit, scale).unwrap();
+    let pyr = Pyramid::new(&vol).unwrap();
+    descriptor(&pyr, Vec3::ZERO, Vec3::X, Vec3::Z, &mut d);
+    // Level-1 points with (ix, iy) = (2, 2) lie on the z axis at z = −1, −½, 0, …, 3 voxels.
+    let on_axis = |iz: usize| d[2 + 5 * 2 + 25 * iz];
+    assert!(
+        (on_axis(2) - 0.5).abs() < 1e-5,
+        "ρ at the plane: {}",
+        on_axis(2)
+    );
+    assert!((on_axis(0) + on_axis(4) - 1.0).abs() < 1e-5);
+    assert!((on_axis(1) + on_axis(3) - 1.0).abs() < 1e-5);
+    assert!(on_axis(0) > on_axis(1) && on_axis(1) > on_axis(2) && on_axis(3) > on_axis(4));
+    assert!(on_axis(8) < 3e-3); // Gaussian tail at 3σ: Φ(−3) ≈ 1.3e-3
+}
+
+/// Gaussian filtering and pair averaging conserve mass while the filter stays inside the box.
+#[test]
+fn pyramid_conserves_mass() {
+    let n = 64;
+    let c = n as f64 / 2.0;
+    let data: Vec<f32> = (0..n * n * n)
+        .map(|i| {
+            let (x, y, z) = (
+                (i % n) as f64 + 0.5,
+                ((i / n) % n) as f64 + 0.5,
+                (i / (n * n)) as f64 + 0.5,
+            );
+            let r2 = (x - c).powi(2) + (y - c).powi(2) + (z - c).powi(2);
+            (-(r2 / 32.0)).exp() as f32
+        })
+        .collect();
+    let vol = Volume::new(
+        DensityGrid::new([n, n, n], data).unwrap(),
+        Aabb::new(DVec3::ZERO, DVec3::ONE).unwrap(),
+        5.0,
+    )
+    .unwrap();
+    let pyr = Pyramid::new(&vol).unwrap();
+    let raw: f64 = vol.grid().data().iter().map(|v| *v as f64).sum::<f64>() / (n * n * n) as f64
+        * vol.density_scale()
+        / pyr.mean_sigma;
+    // Levels 0–3 (σ ≤ 8 voxels; the blob and 3σ of filter fit in the 64³ box).
+    for i in 0..4 {
+        let m = pyr.mass(i);
+        assert!((m / raw - 1.0).abs() < 1e-3, "level {i}: mass {m} vs {raw}");
+    }
+    assert_eq!(pyr.levels.last().unwrap().res, [1, 1, 1]);
+}
+
+#[test]
+fn degenerate_inputs() {
+    let l = Vec3::new(0.0, 1.0, 0.0);
+    for v in [l, -l] {
+        let (x, y, z) = frame(v, l);
+        for a in [x, y, z] {
+            assert!(a.is_finite() && (a.length() - 1.0).abs() < 1e-5);
+        }
+        assert!(x.dot(y).abs() < 1e-5 && x.dot(z).abs() < 1e-5);
+    }
+    let empty = Volume::new(
+        DensityGrid::constant([4, 4, 4], 0.0).unwrap(),
+        Aabb::new(DVec3::ZERO, DVec3::ONE).unwrap(),
+        1.0,
+    )
+    .unwrap();
+    assert!(matches!(Pyramid::new(&empty), Err(PyramidError::Empty)));
+}
