@@ -115,6 +115,36 @@ enum Command {
         #[arg(long)]
         exposure: Option<f64>,
     },
+    /// Generate RPNN training records (Kallweit 2017 §5.1): descriptors and path-traced indirect
+    /// radiance, sharded .npy files and manifest.json; resumable.
+    Datagen {
+        /// `gen:N` for N generated clouds, or a folder of .vol/.npy/.vdb files.
+        #[arg(long, default_value = "gen:40")]
+        clouds: String,
+        /// Training records.
+        #[arg(long)]
+        records: usize,
+        /// Records from the held-out test clouds (default: a quarter of --records).
+        #[arg(long)]
+        test_records: Option<usize>,
+        #[arg(long, short)]
+        out: PathBuf,
+        /// Phase function: hg (g = 0.857) or mie (chopped, r_eff 8 µm).
+        #[arg(long, default_value = "hg")]
+        phase: String,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long, default_value_t = 1000)]
+        shard_size: usize,
+        /// Sample cap per record (records that reach it are kept and flagged as not converged).
+        #[arg(long, default_value_t = 1 << 18)]
+        max_samples: u64,
+        /// σ_t per unit grid value for clouds read from a folder.
+        #[arg(long, default_value_t = 30.0)]
+        density_scale: f64,
+        #[arg(long, short)]
+        quiet: bool,
+    },
     /// Generate a procedural cloud and write it as .vol or .npy.
     Generate {
         /// cumulus, stratus or cirrus
@@ -368,6 +398,52 @@ fn run(cli: Cli) -> Result<()> {
                 frames,
                 gpu.describe(),
                 out.display()
+            );
+        }
+        Command::Datagen {
+            clouds,
+            records,
+            test_records,
+            out,
+            phase,
+            seed,
+            shard_size,
+            max_samples,
+            density_scale,
+            quiet,
+        } => {
+            use nimbus_rpnn::dataset;
+            let set = match clouds.strip_prefix("gen:") {
+                Some(n) => {
+                    let n: usize = n
+                        .parse()
+                        .with_context(|| format!("--clouds {clouds}: expected gen:N"))?;
+                    if n == 0 {
+                        bail!("--clouds gen:N needs N ≥ 1");
+                    }
+                    dataset::generated_set(n, seed)
+                }
+                None => dataset::folder_set(Path::new(&clouds), density_scale)?,
+            };
+            let opts = dataset::DatagenOptions {
+                records,
+                test_records: test_records.unwrap_or(records / 4),
+                shard_size,
+                seed,
+                max_samples,
+                albedo: 1.0,
+                phase,
+                progress: !quiet,
+            };
+            let r = dataset::run(&set, &opts, &out)?;
+            println!(
+                "{} records ({} computed now in {:.1} s, {:.2} records/s), {:.1} % converged -> {}",
+                r.records,
+                r.computed,
+                r.seconds,
+                r.computed as f64 / r.seconds.max(1e-9),
+                100.0 * r.converged as f64 / r.records.max(1) as f64,
+                out.join("manifest.json").display()
             );
         }
         Command::Generate {

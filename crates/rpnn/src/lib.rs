@@ -2,8 +2,10 @@
 //!
 //! Radiance-predicting neural networks (Kallweit et al. 2017): the Gaussian density pyramid and
 //! the hierarchical stencil descriptor (§4.2) on the CPU ([`descriptor`]) and the GPU
-//! ([`gpu`]).
+//! ([`gpu`]); training records ([`datagen`]) and sharded data sets ([`dataset`]).
 
+pub mod datagen;
+pub mod dataset;
 pub mod descriptor;
 pub mod gpu;
 pub mod pyramid;

@@ -66,10 +66,20 @@ impl<'a> PathTracer<'a> {
     }
 
     /// Radiance arriving at `o` from direction `-d` (the ray `o + t d`).
-    pub fn radiance(
+    pub fn radiance(&self, o: DVec3, d: DVec3, rng: &mut Pcg32, stats: &mut PathStats) -> DVec3 {
+        self.radiance_after(o, d, 0, None, rng, stats)
+    }
+
+    /// Like [`PathTracer::radiance`] for a path that has already scattered `scatterings` times:
+    /// its next segment uses the density and its next vertex the phase function of that depth,
+    /// and `first_pdf` (the density of the phase sample that produced `d`, if any) weights MIS
+    /// when it escapes. Used to estimate indirect in-scattered radiance inside the medium.
+    pub fn radiance_after(
         &self,
         mut o: DVec3,
         mut d: DVec3,
+        scatterings: u32,
+        first_pdf: Option<f64>,
         rng: &mut Pcg32,
         stats: &mut PathStats,
     ) -> DVec3 {
@@ -79,9 +89,9 @@ impl<'a> PathTracer<'a> {
         let medium = &scene.medium;
         let mut l = DVec3::ZERO;
         let mut beta = 1.0f64;
-        let mut scatterings = 0u32;
+        let mut scatterings = scatterings;
         // Density (per sr) of the phase sample that produced `d`; None for the camera ray.
-        let mut prev_pdf: Option<f64> = None;
+        let mut prev_pdf: Option<f64> = first_pdf;
         loop {
             let factor = medium.density_factor(scatterings);
             let collision = aabb

@@ -1,0 +1,442 @@
+//! Training data sets on disk: the cloud set, sharded `.npy` records and a JSON manifest.
+//!
+//! ## Files (readable by numpy/torch without extra dependencies)
+//! For split `train` or `test` and shard k:
+//! - `{split}_{k:05}_x.npy`: float32 `[n, 2251]` descriptors (layout in [`crate::descriptor`]);
+//! - `{split}_{k:05}_y.npy`: float32 `[n]` targets L_i (unit irradiance);
+//! - `{split}_{k:05}_meta.npy`: float32 `[n, 13]`: cloud index, x (3), ω (3), ω_l (3), sample
+//!   count, converged (0/1), relative 95 % half-width;
+//! - `manifest.json`: settings, clouds (with their split), shards, counts, convergence rate.
+//!
+//! Record r of a split uses its own random stream (seed, split, r) and cloud r mod (clouds of
+//! the split), so a run is deterministic for a seed and resumable: finished shards (all three
+//! files present with the right row count) are kept, the rest are recomputed.
+//!
+//! ## The generated cloud set (`gen:N`)
+//! Cloud i: kind cycles cumulus, stratus, cirrus, mixture (max of a cumulus and a 0.6-scaled
+//! stratus); x-resolution cycles 48, 64, 80, 96 (with the kind's proportions); density scale
+//! 10 × 2^(3u) (10…80) with u from the seed; every fifth cloud (i mod 5 = 4) is a test cloud that
+//! never enters training.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use nimbus_scene::{Aabb, CloudKind, DensityGrid, Medium, Phase, Volume, generate, io};
+use nimbus_trace::Pcg32;
+use nimbus_trace::rng::mix64;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::datagen::{CloudData, DatagenError, Record};
+use crate::descriptor::DESCRIPTOR_LEN;
+
+/// Columns of the `_meta.npy` arrays.
+pub const META_COLUMNS: usize = 13;
+
+/// Where a cloud comes from.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+#[serde(tag = "source")]
+pub enum CloudSource {
+    Generated {
+        kind: String,
+        seed: u64,
+        resolution: [usize; 3],
+    },
+    File {
+        path: PathBuf,
+    },
+}
+
+/// A cloud of the set.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct CloudSpec {
+    pub name: String,
+    #[serde(flatten)]
+    pub source: CloudSource,
+    pub density_scale: f64,
+    pub split: String,
+}
+
+/// The generated set of `n` clouds (see the module docs).
+pub fn generated_set(n: usize, seed: u64) -> Vec<CloudSpec> {
+    let kinds = ["cumulus", "stratus", "cirrus", "mixture"];
+    let sizes = [48, 64, 80, 96];
+    (0..n)
+        .map(|i| {
+            let kind = kinds[i % 4];
+            let nx = sizes[(i / 4) % 4];
+            let res = match kind {
+                "cumulus" | "mixture" => [nx, nx * 3 / 4, nx],
+                _ => [nx, (nx / 4).max(8), nx],
+            };
+            let s = mix64(seed ^ (i as u64).wrapping_mul(0x9e37_79b9));
+            let u = (s >> 11) as f64 / (1u64 << 53) as f64;
+            CloudSpec {
+                name: format!("{kind}_{i:03}"),
+                source: CloudSource::Generated {
+                    kind: kind.into(),
+                    seed: s % 1_000_000,
+                    resolution: res,
+                },
+                density_scale: 10.0 * 2f64.powf(3.0 * u),
+                split: if i % 5 == 4 {
+                    "test".into()
+                } else {
+                    "train".into()
+                },
+            }
+        })
+        .collect()
+}
+
+/// The clouds of a folder (.vol/.npy/.vdb, sorted); every fifth is a test cloud. The grids are
+/// placed in a box 2 units wide with cubic voxels (`.npy` has no box of its own).
+pub fn folder_set(dir: &Path, density_scale: f64) -> Result<Vec<CloudSpec>, DatagenError> {
+    let err = |msg: String| DatagenError::Cloud {
+        cloud: dir.display().to_string(),
+        msg,
+    };
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| err(e.to_string()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            matches!(
+                p.extension().and_then(|e| e.to_str()),
+                Some("vol" | "npy" | "vdb")
+            )
+        })
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        return Err(err("no .vol, .npy or .vdb files".into()));
+    }
+    Ok(files
+        .into_iter()
+        .enumerate()
+        .map(|(i, p)| CloudSpec {
+            name: p
+                .file_stem()
+                .unwrap_or_default()
+                .to_string_lossy()
+                .into_owned(),
+            source: CloudSource::File { path: p },
+            density_scale,
+            split: if i % 5 == 4 {
+                "test".into()
+            } else {
+                "train".into()
+            },
+        })
+        .collect())
+}
+
+/// Builds the volume of a cloud.
+pub fn build_volume(spec: &CloudSpec) -> Result<Volume, DatagenError> {
+    let err = |msg: String| DatagenError::Cloud {
+        cloud: spec.name.clone(),
+        msg,
+    };
+    let grid = match &spec.source {
+        CloudSource::Generated {
+            kind,
+            seed,
+            resolution,
+        } => {
+            let make = |k: CloudKind, s: u64| {
+                generate::generate(k, s, *resolution).map_err(|e| err(e.to_string()))
+            };
+            if kind == "mixture" {
+                let a = make(CloudKind::Cumulus, *seed)?;
+                let b = make(CloudKind::Stratus, *seed + 1000)?;
+                let data = a
+                    .data()
+                    .iter()
+                    .zip(b.data())
+                    .map(|(x, y)| x.max(0.6 * y))
+                    .collect();
+                DensityGrid::new(*resolution, data).map_err(|e| err(e.to_string()))?
+            } else {
+                make(
+                    kind.parse()
+                        .map_err(|e: nimbus_scene::FieldError| err(e.to_string()))?,
+                    *seed,
+                )?
+            }
+        }
+        CloudSource::File { path } => io::read_grid(path).map_err(|e| err(e.to_string()))?.grid,
+    };
+    let (lo, hi) = generate::default_aabb(grid.res());
+    Volume::new(grid, Aabb::new(lo, hi).unwrap(), spec.density_scale)
+        .map_err(|e| err(e.to_string()))
+}
+
+/// Settings of a data-generation run.
+#[derive(Debug, Clone, Serialize)]
+pub struct DatagenOptions {
+    /// Training records (from the training clouds).
+    pub records: usize,
+    /// Test records (from the held-out clouds).
+    pub test_records: usize,
+    pub shard_size: usize,
+    pub seed: u64,
+    /// Sample cap of one estimate.
+    pub max_samples: u64,
+    pub albedo: f64,
+    /// `hg` (g = 0.857) or `mie` (r_eff 8 µm, chopped at 5°: full function at x, chopped after).
+    pub phase: String,
+    pub progress: bool,
+}
+
+#[derive(Debug, Clone, Serialize)]
+struct ShardInfo {
+    split: String,
+    index: usize,
+    records: usize,
+    converged: usize,
+    x: String,
+    y: String,
+    meta: String,
+}
+
+#[derive(Debug, Clone, Serialize)]
+struct Manifest {
+    format: &'static str,
+    descriptor_len: usize,
+    descriptor_layout: &'static str,
+    meta_columns: [&'static str; META_COLUMNS],
+    settings: DatagenOptions,
+    clouds: Vec<CloudSpec>,
+    shards: Vec<ShardInfo>,
+    records: usize,
+    converged: usize,
+    convergence_rate: f64,
+    seconds_this_run: f64,
+    records_per_second_this_run: f64,
+}
+
+/// Summary of a run.
+#[derive(Debug, Clone, Copy)]
+pub struct RunSummary {
+    pub records: usize,
+    pub computed: usize,
+    pub converged: usize,
+    pub seconds: f64,
+}
+
+fn medium(opts: &DatagenOptions) -> Result<Medium, DatagenError> {
+    let err = |msg: String| DatagenError::Cloud {
+        cloud: "medium".into(),
+        msg,
+    };
+    match opts.phase.as_str() {
+        "hg" => Medium::new(
+            opts.albedo,
+            Phase::HenyeyGreenstein(nimbus_scene::phase::HenyeyGreenstein::new(0.857).unwrap()),
+        )
+        .map_err(|e| err(e.to_string())),
+        "mie" => {
+            let m = nimbus_scene::phase::mie::cached(&nimbus_scene::phase::MieParams {
+                chop_deg: 5.0,
+                ..Default::default()
+            })
+            .map_err(|e| err(e.to_string()))?;
+            Medium::mie(opts.albedo, &m).map_err(|e| err(e.to_string()))
+        }
+        other => Err(err(format!("unknown phase `{other}` (hg or mie)"))),
+    }
+}
+
+fn write_npy(path: &Path, shape: &[u64], data: &[f32]) -> Result<(), DatagenError> {
+    use npyz::WriterBuilder;
+    let err = |e: std::io::Error| DatagenError::Cloud {
+        cloud: path.display().to_string(),
+        msg: e.to_string(),
+    };
+    let tmp = path.with_extension("npy.tmp");
+    {
+        let f = std::io::BufWriter::new(std::fs::File::create(&tmp).map_err(err)?);
+        let mut w = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(shape)
+            .writer(f)
+            .begin_nd()
+            .map_err(err)?;
+        w.extend(data.iter().copied()).map_err(err)?;
+        w.finish().map_err(err)?;
+    }
+    std::fs::rename(&tmp, path).map_err(err)
+}
+
+fn rows_of(path: &Path) -> Option<u64> {
+    let f = std::fs::File::open(path).ok()?;
+    let npy = npyz::NpyFile::new(std::io::BufReader::new(f)).ok()?;
+    npy.shape().first().copied()
+}
+
+/// Generates (or completes) a data set in `out`.
+pub fn run(
+    clouds: &[CloudSpec],
+    opts: &DatagenOptions,
+    out: &Path,
+) -> Result<RunSummary, DatagenError> {
+    let err = |msg: String| DatagenError::Cloud {
+        cloud: out.display().to_string(),
+        msg,
+    };
+    if opts.shard_size == 0 {
+        return Err(err("shard size must be at least 1".into()));
+    }
+    std::fs::create_dir_all(out).map_err(|e| err(e.to_string()))?;
+    let medium = medium(opts)?;
+    let start = Instant::now();
+    let mut shards = Vec::new();
+    let (mut computed, mut total, mut converged) = (0usize, 0usize, 0usize);
+    for (split, count) in [("train", opts.records), ("test", opts.test_records)] {
+        let members: Vec<usize> = (0..clouds.len())
+            .filter(|&i| clouds[i].split == split)
+            .collect();
+        if count == 0 {
+            continue;
+        }
+        if members.is_empty() {
+            return Err(err(format!(
+                "{count} {split} records requested but the set has no {split} clouds"
+            )));
+        }
+        // Build the clouds of this split (volume + pyramid), in parallel.
+        let data: Vec<CloudData> = members
+            .par_iter()
+            .map(|&i| CloudData::new(&clouds[i].name, build_volume(&clouds[i])?, medium.clone()))
+            .collect::<Result<_, _>>()?;
+        let n_shards = count.div_ceil(opts.shard_size);
+        let bar = if opts.progress {
+            ProgressBar::with_draw_target(Some(count as u64), ProgressDrawTarget::stderr())
+        } else {
+            ProgressBar::hidden()
+        };
+        bar.set_style(
+            ProgressStyle::with_template(
+                "{prefix} [{bar:40}] {pos}/{len} records, {per_sec}, eta {eta}",
+            )
+            .unwrap()
+            .progress_chars("=> "),
+        );
+        bar.set_prefix(split);
+        for k in 0..n_shards {
+            let lo = k * opts.shard_size;
+            let hi = ((k + 1) * opts.shard_size).min(count);
+            let name = |what: &str| format!("{split}_{k:05}_{what}.npy");
+            let (px, py, pm) = (
+                out.join(name("x")),
+                out.join(name("y")),
+                out.join(name("meta")),
+            );
+            let n = (hi - lo) as u64;
+            if rows_of(&px) == Some(n) && rows_of(&py) == Some(n) && rows_of(&pm) == Some(n) {
+                // Finished earlier: keep it, but count its convergence.
+                let meta: Vec<f32> = npyz::NpyFile::new(std::io::BufReader::new(
+                    std::fs::File::open(&pm).map_err(|e| err(e.to_string()))?,
+                ))
+                .and_then(|f| f.into_vec::<f32>())
+                .map_err(|e| err(e.to_string()))?;
+                let conv = meta.chunks(META_COLUMNS).filter(|r| r[11] > 0.5).count();
+                converged += conv;
+                total += n as usize;
+                shards.push(ShardInfo {
+                    split: split.into(),
+                    index: k,
+                    records: n as usize,
+                    converged: conv,
+                    x: name("x"),
+                    y: name("y"),
+                    meta: name("meta"),
+                });
+                bar.inc(n);
+                continue;
+            }
+            let split_id = if split == "train" { 0u64 } else { 1u64 };
+            let records: Vec<(usize, Record)> = (lo..hi)
+                .into_par_iter()
+                .map(|r| {
+                    let ci = r % data.len();
+                    let mut rng = Pcg32::new(mix64(opts.seed ^ mix64(split_id)), mix64(r as u64));
+                    let rec = data[ci].record(opts.max_samples, &mut rng)?;
+                    bar.inc(1);
+                    Ok((members[ci], rec))
+                })
+                .collect::<Result<_, DatagenError>>()?;
+            let mut xs = Vec::with_capacity(records.len() * DESCRIPTOR_LEN);
+            let mut ys = Vec::with_capacity(records.len());
+            let mut ms = Vec::with_capacity(records.len() * META_COLUMNS);
+            let mut conv = 0;
+            for (ci, r) in &records {
+                xs.extend_from_slice(&r.descriptor);
+                ys.push(r.target);
+                ms.push(*ci as f32);
+                ms.extend_from_slice(&r.x.to_array());
+                ms.extend_from_slice(&r.view.to_array());
+                ms.extend_from_slice(&r.to_light.to_array());
+                ms.extend_from_slice(&[r.samples as f32, r.converged as u8 as f32, r.rel_ci]);
+                conv += r.converged as usize;
+            }
+            write_npy(&px, &[n, DESCRIPTOR_LEN as u64], &xs)?;
+            write_npy(&py, &[n], &ys)?;
+            write_npy(&pm, &[n, META_COLUMNS as u64], &ms)?;
+            computed += n as usize;
+            total += n as usize;
+            converged += conv;
+            shards.push(ShardInfo {
+                split: split.into(),
+                index: k,
+                records: n as usize,
+                converged: conv,
+                x: name("x"),
+                y: name("y"),
+                meta: name("meta"),
+            });
+        }
+        bar.finish_and_clear();
+    }
+    let seconds = start.elapsed().as_secs_f64();
+    let manifest = Manifest {
+        format: "nimbus-rpnn-records/1",
+        descriptor_len: DESCRIPTOR_LEN,
+        descriptor_layout: "level-major: [(k-1)*225 + p] = rho at stencil point p (p = ix + 5 iy + 25 iz) of level k = 1..10; [2250] = gamma (radians)",
+        meta_columns: [
+            "cloud",
+            "x",
+            "y",
+            "z",
+            "view_x",
+            "view_y",
+            "view_z",
+            "light_x",
+            "light_y",
+            "light_z",
+            "samples",
+            "converged",
+            "rel_ci95",
+        ],
+        settings: opts.clone(),
+        clouds: clouds.to_vec(),
+        shards,
+        records: total,
+        converged,
+        convergence_rate: if total > 0 {
+            converged as f64 / total as f64
+        } else {
+            0.0
+        },
+        seconds_this_run: seconds,
+        records_per_second_this_run: computed as f64 / seconds.max(1e-9),
+    };
+    let text = serde_json::to_string_pretty(&manifest).map_err(|e| err(e.to_string()))?;
+    std::fs::write(out.join("manifest.json"), text).map_err(|e| err(e.to_string()))?;
+    Ok(RunSummary {
+        records: total,
+        computed,
+        converged,
+        seconds,
+    })
+}

@@ -1,0 +1,173 @@
+//! Training-record generation: the L_i estimator and its stopping rule, determinism, resuming,
+//! bad clouds.
+
+use glam::DVec3;
+use nimbus_rpnn::datagen::CloudData;
+use nimbus_rpnn::dataset::{self, DatagenOptions};
+use nimbus_scene::{Aabb, DensityGrid, Medium, Phase, Volume};
+use nimbus_trace::Pcg32;
+
+/// A homogeneous sphere of radius 0.45 in a 24³ grid over [−0.5, 0.5]³, σ_t = 6, albedo 0.9,
+/// isotropic phase (a cheap configuration whose estimates converge in ~10⁴ samples).
+fn sphere() -> CloudData {
+    let n = 24;
+    let data: Vec<f32> = (0..n * n * n)
+        .map(|i| {
+            let p = DVec3::new((i % n) as f64, ((i / n) % n) as f64, (i / (n * n)) as f64);
+            let q = (p + DVec3::splat(0.5)) / n as f64 - DVec3::splat(0.5);
+            if q.length() < 0.45 { 1.0 } else { 0.0 }
+        })
+        .collect();
+    let vol = Volume::new(
+        DensityGrid::new([n, n, n], data).unwrap(),
+        Aabb::new(DVec3::splat(-0.5), DVec3::splat(0.5)).unwrap(),
+        6.0,
+    )
+    .unwrap();
+    CloudData::new("sphere", vol, Medium::new(0.9, Phase::Isotropic).unwrap()).unwrap()
+}
+
+const X: DVec3 = DVec3::new(0.1, -0.05, 0.2);
+const VIEW: DVec3 = DVec3::new(0.0, 0.0, -1.0);
+
+fn light() -> DVec3 {
+    DVec3::new(0.6, 0.7, 0.2).normalize()
+}
+
+/// The ±2 % / 95 % estimate agrees with a run 100× longer, and the rule's interval covers the
+/// long-run value in close to 95 % of repeated runs (40 runs: at least 80 %, 4.4 binomial σ
+/// below 95 %, so a correct rule fails this with probability < 10⁻⁴).
+#[test]
+fn stopping_rule_and_coverage() {
+    let c = sphere();
+    let (est, n, converged, rel) = c.estimate(X, VIEW, light(), 1 << 20, &mut Pcg32::new(1, 1));
+    assert!(converged && rel <= 0.02, "n = {n}, rel = {rel}");
+    // 100× longer, with a fixed sample count (no stopping rule).
+    let (long, done, _, long_rel) =
+        c.estimate_to(X, VIEW, light(), 100 * n, 0.0, &mut Pcg32::new(2, 2));
+    assert!(done >= 100 * n && long_rel < 0.003);
+    assert!(
+        (est / long - 1.0).abs() < 0.025,
+        "estimate {est} vs long run {long} ({n} vs {done} samples)"
+    );
+    let runs = 40;
+    let mut covered = 0;
+    for s in 0..runs {
+        let (m, _, conv, _) = c.estimate(X, VIEW, light(), 1 << 20, &mut Pcg32::new(100 + s, 7));
+        assert!(conv);
+        covered += ((m / long - 1.0).abs() <= 0.02) as usize;
+    }
+    assert!(covered >= 32, "only {covered}/{runs} estimates within ±2 %");
+}
+
+/// L_i excludes the uncollided light: a purely absorbing medium (albedo 0) has no indirect
+/// in-scattered radiance.
+#[test]
+fn indirect_only() {
+    let c0 = sphere();
+    let vol = (*c0.scene.volume).clone();
+    let c = CloudData::new(
+        "absorbing",
+        vol,
+        Medium::new(0.0, Phase::Isotropic).unwrap(),
+    )
+    .unwrap();
+    let (m, _, _, _) = c.estimate(X, VIEW, light(), 4096, &mut Pcg32::new(3, 3));
+    assert_eq!(m, 0.0);
+}
+
+fn opts(seed: u64) -> DatagenOptions {
+    DatagenOptions {
+        records: 6,
+        test_records: 2,
+        shard_size: 4,
+        seed,
+        max_samples: 2048,
+        albedo: 1.0,
+        phase: "hg".into(),
+        progress: false,
+    }
+}
+
+fn tmp(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("nimbus-datagen-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+#[test]
+fn deterministic_and_resumable() {
+    let set: Vec<_> = dataset::generated_set(5, 1)
+        .into_iter()
+        .map(|mut c| {
+            // Small clouds keep the test quick.
+            if let dataset::CloudSource::Generated { resolution, .. } = &mut c.source {
+                *resolution = [24, 18, 24];
+            }
+            c
+        })
+        .collect();
+    assert_eq!(set.iter().filter(|c| c.split == "test").count(), 1);
+    let (a, b) = (tmp("a"), tmp("b"));
+    let ra = dataset::run(&set, &opts(4), &a).unwrap();
+    assert_eq!((ra.records, ra.computed), (8, 8));
+    dataset::run(&set, &opts(4), &b).unwrap();
+    let files = [
+        "train_00000_x.npy",
+        "train_00001_y.npy",
+        "train_00001_meta.npy",
+        "test_00000_x.npy",
+    ];
+    for f in files {
+        assert_eq!(
+            std::fs::read(a.join(f)).unwrap(),
+            std::fs::read(b.join(f)).unwrap(),
+            "{f}"
+        );
+    }
+    // Resume: a removed shard is recomputed identically; the rest is kept.
+    let before = std::fs::read(a.join("train_00001_y.npy")).unwrap();
+    std::fs::remove_file(a.join("train_00001_y.npy")).unwrap();
+    let rr = dataset::run(&set, &opts(4), &a).unwrap();
+    assert_eq!((rr.records, rr.computed), (8, 2));
+    assert_eq!(std::fs::read(a.join("train_00001_y.npy")).unwrap(), before);
+    // Values are finite; the manifest names clouds, splits and the layout.
+    let y: Vec<f32> = npyz::NpyFile::new(&std::fs::read(a.join("train_00000_y.npy")).unwrap()[..])
+        .unwrap()
+        .into_vec()
+        .unwrap();
+    assert!(y.iter().all(|v| v.is_finite() && *v >= 0.0));
+    let m = std::fs::read_to_string(a.join("manifest.json")).unwrap();
+    assert!(m.contains("\"descriptor_len\": 2251") && m.contains("\"split\": \"test\""));
+    // Another seed gives other records.
+    let c = tmp("c");
+    dataset::run(&set, &opts(5), &c).unwrap();
+    assert_ne!(
+        std::fs::read(a.join("train_00000_y.npy")).unwrap(),
+        std::fs::read(c.join("train_00000_y.npy")).unwrap()
+    );
+}
+
+#[test]
+fn bad_clouds_are_named() {
+    let vol = Volume::new(
+        DensityGrid::constant([4, 4, 4], 0.0).unwrap(),
+        Aabb::new(DVec3::ZERO, DVec3::ONE).unwrap(),
+        1.0,
+    )
+    .unwrap();
+    let e = CloudData::new(
+        "empty_cloud",
+        vol,
+        Medium::new(1.0, Phase::Isotropic).unwrap(),
+    )
+    .err()
+    .unwrap()
+    .to_string();
+    assert!(e.contains("empty_cloud") && e.contains("non-zero"), "{e}");
+    let e = dataset::folder_set(std::path::Path::new("/nonexistent/clouds"), 1.0)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("/nonexistent/clouds"), "{e}");
+}
