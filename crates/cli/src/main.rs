@@ -20,6 +20,12 @@ struct Cli {
     cmd: Command,
 }
 
+#[derive(Clone, Copy, ValueEnum, PartialEq)]
+enum Device {
+    Cpu,
+    Gpu,
+}
+
 #[derive(Clone, Copy, ValueEnum)]
 enum Method {
     /// Reference volumetric path tracer (CPU).
@@ -35,6 +41,10 @@ enum Command {
         scene: PathBuf,
         #[arg(long, value_enum, default_value = "pt")]
         method: Method,
+        /// Path tracing on the CPU (reference, default) or the GPU (f32, HG/isotropic, delta sun,
+        /// constant sky).
+        #[arg(long, value_enum, default_value = "cpu")]
+        device: Device,
         /// Samples per pixel (default: the scene's `render.spp`).
         #[arg(long)]
         spp: Option<u32>,
@@ -142,6 +152,9 @@ enum Command {
         /// σ_t per unit grid value for clouds read from a folder.
         #[arg(long, default_value_t = 30.0)]
         density_scale: f64,
+        /// Estimate L_i on the CPU or the GPU (default: the GPU when an adapter is available).
+        #[arg(long, value_enum)]
+        device: Option<Device>,
         #[arg(long, short)]
         quiet: bool,
     },
@@ -191,6 +204,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Render {
             scene,
             method,
+            device,
             spp,
             seed,
             out,
@@ -234,6 +248,26 @@ fn run(cli: Cli) -> Result<()> {
                     .with_context(|| format!("cannot create {}", dir.display()))?;
             }
             let image = match method {
+                Method::Pt if device == Device::Gpu => {
+                    let gpu = nimbus_gpu::Gpu::new()?;
+                    let t0 = std::time::Instant::now();
+                    let mut gpt = nimbus_trace::gpu::GpuPathTracer::new(&gpu, &s)?;
+                    let (image, variance) = gpt.render(opts.spp, opts.seed)?;
+                    let secs = t0.elapsed().as_secs_f64();
+                    image.write_exr(&exr, Some(&variance))?;
+                    println!(
+                        "{}: GPU path tracing on {} — {}x{} at {} spp in {:.2} s ({:.3e} camera paths/s)",
+                        scene.display(),
+                        gpu.describe(),
+                        s.camera.width,
+                        s.camera.height,
+                        opts.spp,
+                        secs,
+                        (s.camera.width * s.camera.height) as f64 * opts.spp as f64
+                            / secs.max(1e-9)
+                    );
+                    image
+                }
                 Method::Pt => {
                     let result = nimbus_trace::render(&s, &opts);
                     result.image.write_exr(&exr, Some(&result.variance))?;
@@ -410,6 +444,7 @@ fn run(cli: Cli) -> Result<()> {
             shard_size,
             max_samples,
             density_scale,
+            device,
             quiet,
         } => {
             use nimbus_rpnn::dataset;
@@ -432,6 +467,10 @@ fn run(cli: Cli) -> Result<()> {
                 seed,
                 max_samples,
                 albedo: 1.0,
+                gpu: match device {
+                    Some(d) => d == Device::Gpu,
+                    None => nimbus_gpu::Gpu::new().is_ok() && phase == "hg",
+                },
                 phase,
                 progress: !quiet,
             };

@@ -4,6 +4,7 @@
 //! lavapipe), limit checks with clear errors, the registry of all WGSL shaders in `shaders/`,
 //! buffer helpers and GPU timestamp queries.
 
+pub mod params;
 pub mod shaders;
 pub mod timing;
 

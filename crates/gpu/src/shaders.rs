@@ -28,6 +28,7 @@ pub const SHADERS: &[(&str, &str, bool)] = &[
         include_str!("../../../shaders/photon_raymarch.wgsl"),
         true,
     ),
+    ("pt.wgsl", include_str!("../../../shaders/pt.wgsl"), true),
     (
         "rpnn_descriptor.wgsl",
         include_str!("../../../shaders/rpnn_descriptor.wgsl"),

@@ -11,8 +11,8 @@
 pub mod animate;
 pub mod impostor;
 pub mod mapper;
-pub mod params;
+
 pub mod reference;
 
 pub use mapper::{PhotonMapper, PmError, PmSettings};
-pub use params::PmParams;
+pub use nimbus_gpu::params::PmParams;

@@ -9,7 +9,7 @@ use nimbus_gpu::timing::StageTimer;
 use nimbus_gpu::{Gpu, GpuError, shaders};
 use nimbus_scene::{Camera, Image, Phase, Scene, Sky};
 
-use crate::params::PmParams;
+use nimbus_gpu::params::PmParams;
 
 /// Fixed-point scale of one unit of beam weight in the caches (`W_SCALE` in the shader).
 pub const W_SCALE: f64 = 4096.0;

@@ -21,7 +21,7 @@
 
 use glam::Vec3;
 
-use crate::params::PmParams;
+use nimbus_gpu::params::PmParams;
 
 /// Stable truncated exponential filter (see the module docs).
 pub fn f_exp(d: f32, lambda: f32, r: f32) -> f32 {

@@ -36,6 +36,59 @@ pub const BATCH: u64 = 256;
 /// Least number of samples before the stopping rule is checked.
 pub const MIN_SAMPLES: u64 = 1024;
 
+/// Estimates L_i for many configurations of one cloud on the GPU, progressively: rounds of
+/// [`BATCH`] samples per still-open configuration until each meets the ±2 % / 95 % rule (after
+/// [`MIN_SAMPLES`]) or reaches `max_samples`. Same quantity as [`CloudData::estimate`].
+pub fn estimate_gpu(
+    gpt: &mut nimbus_trace::gpu::GpuPathTracer,
+    configs: &[(DVec3, DVec3, DVec3)],
+    max_samples: u64,
+    seed: u64,
+) -> Result<Vec<(f64, u64, bool, f64)>, nimbus_trace::gpu::GpuPtError> {
+    let tasks: Vec<nimbus_trace::gpu::LiTask> = configs
+        .iter()
+        .map(|(x, v, l)| nimbus_trace::gpu::LiTask {
+            x: x.as_vec3().extend(0.0).to_array(),
+            view: v.as_vec3().extend(0.0).to_array(),
+            to_light: l.as_vec3().extend(0.0).to_array(),
+        })
+        .collect();
+    let mut sums = vec![[0.0f64; 3]; configs.len()];
+    let mut result = vec![None; configs.len()];
+    let mut round = 0u32;
+    loop {
+        let open: Vec<usize> = (0..configs.len())
+            .filter(|&i| result[i].is_none())
+            .collect();
+        if open.is_empty() {
+            break;
+        }
+        let batch: Vec<_> = open.iter().map(|&i| tasks[i]).collect();
+        let per = if round == 0 { MIN_SAMPLES } else { BATCH * 4 };
+        let r = gpt.indirect(&batch, per as u32, round, seed)?;
+        for (k, &i) in open.iter().enumerate() {
+            for c in 0..3 {
+                sums[i][c] += r[k][c];
+            }
+            let [s, s2, n] = sums[i];
+            let mean = s / n;
+            let var = ((s2 / n - mean * mean) * n / (n - 1.0)).max(0.0);
+            let rel = if mean > 0.0 {
+                1.96 * (var / n).sqrt() / mean
+            } else {
+                f64::INFINITY
+            };
+            if rel <= 0.02 {
+                result[i] = Some((mean, n as u64, true, rel));
+            } else if n as u64 >= max_samples {
+                result[i] = Some((mean, n as u64, false, rel));
+            }
+        }
+        round += 1;
+    }
+    Ok(result.into_iter().map(|r| r.unwrap()).collect())
+}
+
 /// One training record.
 #[derive(Debug, Clone)]
 pub struct Record {
@@ -175,11 +228,27 @@ impl CloudData {
         }
     }
 
+    /// A shading configuration (x, ω, ω_l) from `rng` (§5.1).
+    pub fn sample_config(&self, rng: &mut Pcg32) -> Result<(DVec3, DVec3, DVec3), DatagenError> {
+        let (x, view) = self.sample_position(rng)?;
+        Ok((x, view, uniform_sphere(rng.next2())))
+    }
+
     /// One complete record from `rng`.
     pub fn record(&self, max_samples: u64, rng: &mut Pcg32) -> Result<Record, DatagenError> {
-        let (x, view) = self.sample_position(rng)?;
-        let to_light = uniform_sphere(rng.next2());
+        let (x, view, to_light) = self.sample_config(rng)?;
         let (mean, samples, converged, rel) = self.estimate(x, view, to_light, max_samples, rng);
+        self.finish(x, view, to_light, (mean, samples, converged, rel))
+    }
+
+    /// Builds the record (descriptor, checks) for an estimate.
+    pub fn finish(
+        &self,
+        x: DVec3,
+        view: DVec3,
+        to_light: DVec3,
+        (mean, samples, converged, rel): (f64, u64, bool, f64),
+    ) -> Result<Record, DatagenError> {
         let mut d = vec![0.0f32; DESCRIPTOR_LEN];
         descriptor(
             &self.pyramid,

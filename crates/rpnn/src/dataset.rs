@@ -186,6 +186,8 @@ pub struct DatagenOptions {
     /// `hg` (g = 0.857) or `mie` (r_eff 8 µm, chopped at 5°: full function at x, chopped after).
     pub phase: String,
     pub progress: bool,
+    /// Estimate L_i on the GPU (`shaders/pt.wgsl`) instead of the CPU path tracer.
+    pub gpu: bool,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -289,6 +291,11 @@ pub fn run(
     }
     std::fs::create_dir_all(out).map_err(|e| err(e.to_string()))?;
     let medium = medium(opts)?;
+    let gpu = if opts.gpu {
+        Some(nimbus_gpu::Gpu::new().map_err(|e| err(e.to_string()))?)
+    } else {
+        None
+    };
     let start = Instant::now();
     let mut shards = Vec::new();
     let (mut computed, mut total, mut converged) = (0usize, 0usize, 0usize);
@@ -356,16 +363,47 @@ pub fn run(
                 continue;
             }
             let split_id = if split == "train" { 0u64 } else { 1u64 };
-            let records: Vec<(usize, Record)> = (lo..hi)
-                .into_par_iter()
-                .map(|r| {
-                    let ci = r % data.len();
-                    let mut rng = Pcg32::new(mix64(opts.seed ^ mix64(split_id)), mix64(r as u64));
-                    let rec = data[ci].record(opts.max_samples, &mut rng)?;
-                    bar.inc(1);
-                    Ok((members[ci], rec))
-                })
-                .collect::<Result<_, DatagenError>>()?;
+            let rng_of = |r: usize| Pcg32::new(mix64(opts.seed ^ mix64(split_id)), mix64(r as u64));
+            let records: Vec<(usize, Record)> = match &gpu {
+                None => (lo..hi)
+                    .into_par_iter()
+                    .map(|r| {
+                        let ci = r % data.len();
+                        let rec = data[ci].record(opts.max_samples, &mut rng_of(r))?;
+                        bar.inc(1);
+                        Ok((members[ci], rec))
+                    })
+                    .collect::<Result<_, DatagenError>>()?,
+                Some(gpu) => {
+                    let mut out: Vec<Option<(usize, Record)>> = vec![None; hi - lo];
+                    for (ci, cloud) in data.iter().enumerate() {
+                        let rs: Vec<usize> = (lo..hi).filter(|r| r % data.len() == ci).collect();
+                        if rs.is_empty() {
+                            continue;
+                        }
+                        let cfgs: Vec<_> = rs
+                            .par_iter()
+                            .map(|&r| cloud.sample_config(&mut rng_of(r)))
+                            .collect::<Result<_, _>>()?;
+                        let mut gpt = nimbus_trace::gpu::GpuPathTracer::new(gpu, &cloud.scene)
+                            .map_err(|e| err(e.to_string()))?;
+                        let est = crate::datagen::estimate_gpu(
+                            &mut gpt,
+                            &cfgs,
+                            opts.max_samples,
+                            mix64(opts.seed ^ (k as u64) ^ ((ci as u64) << 32)),
+                        )
+                        .map_err(|e| err(e.to_string()))?;
+                        for ((&r, c), e) in rs.iter().zip(&cfgs).zip(est) {
+                            out[r - lo] = Some((members[ci], cloud.finish(c.0, c.1, c.2, e)?));
+                            bar.inc(1);
+                        }
+                    }
+                    out.into_iter()
+                        .map(|o| o.expect("every record assigned"))
+                        .collect()
+                }
+            };
             let mut xs = Vec::with_capacity(records.len() * DESCRIPTOR_LEN);
             let mut ys = Vec::with_capacity(records.len());
             let mut ms = Vec::with_capacity(records.len() * META_COLUMNS);

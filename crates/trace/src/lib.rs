@@ -8,6 +8,7 @@
 //! [`compare`] for the error metrics used against the Mitsuba 3 references.
 
 pub mod compare;
+pub mod gpu;
 pub mod integrator;
 pub mod render;
 pub mod rng;

@@ -1,4 +1,5 @@
-//! The uniform block shared by all photon-mapping shaders (`struct Params` in
+//! The uniform block shared by the shaders that include `common.wgsl` (photon mapping, GPU path
+//! tracing) (`struct Params` in
 //! `shaders/common.wgsl`). `#[repr(C)]` + bytemuck; a test checks every field offset against the
 //! layout naga computes for the WGSL struct.
 
@@ -65,7 +66,7 @@ mod tests {
 
     #[test]
     fn layout_matches_wgsl() {
-        let src = nimbus_gpu::shaders::source("photon_update.wgsl");
+        let src = crate::shaders::source("photon_update.wgsl");
         let module = naga::front::wgsl::parse_str(&src).unwrap();
         let mut layouter = naga::proc::Layouter::default();
         layouter.update(module.to_ctx()).unwrap();

@@ -1,0 +1,239 @@
+//! The path tracer on the GPU (`shaders/pt.wgsl`): whole images (`--method pt --device gpu`,
+//! progressive) and batches of indirect-radiance estimates for RPNN training records. Same
+//! algorithm as [`crate::integrator`] in f32, with a global majorant instead of the majorant
+//! grid. Supported: HG or isotropic phase, a delta sun, a constant sky; other scenes get a clear
+//! error (use the CPU path tracer).
+
+use bytemuck::{Pod, Zeroable};
+use glam::DVec3;
+use nimbus_gpu::params::PmParams;
+use nimbus_gpu::{Gpu, GpuError, shaders};
+use nimbus_scene::{Image, Phase, Scene, Sky};
+
+/// `struct Task` of the shader.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, Default)]
+pub struct Task {
+    pub spp: u32,
+    pub sample_offset: u32,
+    pub mode: u32,
+    pub max_depth: i32,
+    pub n_tasks: u32,
+    pub slots: u32,
+    pub _a: u32,
+    pub _b: u32,
+}
+
+/// `struct LiTask` of the shader: a shading configuration.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, Default)]
+pub struct LiTask {
+    pub x: [f32; 4],
+    pub view: [f32; 4],
+    pub to_light: [f32; 4],
+}
+
+/// Errors of the GPU path tracer.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuPtError {
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    #[error(
+        "{0} (the GPU path tracer supports HG/isotropic phase, a delta sun and a constant sky; use --device cpu)"
+    )]
+    Unsupported(String),
+}
+
+/// Samples per invocation per dispatch (keeps each dispatch short enough for any driver).
+const SPP_PER_DISPATCH: u32 = 4;
+
+fn f3(v: DVec3) -> [f32; 3] {
+    v.as_vec3().to_array()
+}
+
+/// A scene uploaded for GPU path tracing.
+pub struct GpuPathTracer<'g> {
+    gpu: &'g Gpu,
+    params: PmParams,
+    pipeline: wgpu::ComputePipeline,
+    params_buf: wgpu::Buffer,
+    density: wgpu::Buffer,
+    max_depth: i32,
+}
+
+impl<'g> GpuPathTracer<'g> {
+    pub fn new(gpu: &'g Gpu, scene: &Scene) -> Result<Self, GpuPtError> {
+        let src = scene.source.display();
+        let g = match &scene.medium.phase {
+            Phase::HenyeyGreenstein(hg) => hg.g(),
+            Phase::Isotropic => 0.0,
+            Phase::Tabulated(_) => {
+                return Err(GpuPtError::Unsupported(format!(
+                    "{src}: tabulated (Mie) phase function"
+                )));
+            }
+        };
+        if scene.sun.as_ref().is_some_and(|s| !s.is_delta()) {
+            return Err(GpuPtError::Unsupported(format!(
+                "{src}: sun with a finite angular radius"
+            )));
+        }
+        if matches!(scene.sky, Some(Sky::Env(_))) {
+            return Err(GpuPtError::Unsupported(format!(
+                "{src}: environment-map sky"
+            )));
+        }
+        let vol = &scene.volume;
+        let r = vol.grid().res();
+        gpu.check_storage("the density grid", (r[0] * r[1] * r[2]) as u64 * 4)?;
+        let (forward, right, up, tan_half) = scene.camera.basis();
+        let aabb = vol.aabb();
+        let params = PmParams {
+            aabb_min: f3(aabb.min),
+            density_scale: vol.density_scale() as f32,
+            aabb_max: f3(aabb.max),
+            albedo: scene.medium.albedo as f32,
+            d_res: r.map(|v| v as u32),
+            g: g as f32,
+            sigma_max: vol.max_sigma_t().max(1e-30) as f32,
+            sun_dir: f3(scene.sun.as_ref().map_or(DVec3::Y, |s| s.dir)),
+            sun_irradiance: f3(scene.sun.as_ref().map_or(DVec3::ZERO, |s| s.irradiance)),
+            sky_radiance: match &scene.sky {
+                Some(Sky::Constant(c)) => f3(*c),
+                _ => [0.0; 3],
+            },
+            cam_origin: f3(scene.camera.origin),
+            tan_half: tan_half as f32,
+            cam_forward: f3(forward),
+            aspect: (scene.camera.width as f64 / scene.camera.height as f64) as f32,
+            cam_right: f3(right),
+            cam_up: f3(up),
+            width: scene.camera.width as u32,
+            height: scene.camera.height as u32,
+            seed: scene.render.seed as u32,
+            ..Default::default()
+        };
+        Ok(Self {
+            gpu,
+            pipeline: gpu.pipeline("path tracer", &shaders::source("pt.wgsl"), "pt"),
+            params_buf: gpu.uniform("pt params", &params),
+            density: gpu.storage("density", vol.grid().data()),
+            params,
+            max_depth: scene
+                .render
+                .max_depth
+                .map_or(-1, |d| d.min(i32::MAX as u32) as i32),
+        })
+    }
+
+    fn dispatch(&self, task: Task, tasks: &wgpu::Buffer, out: &wgpu::Buffer, invocations: u32) {
+        let tbuf = self.gpu.uniform("pt task", &task);
+        let bind = self.gpu.bind(
+            &self.pipeline,
+            &[
+                (0, &self.params_buf),
+                (1, &self.density),
+                (2, &tbuf),
+                (3, tasks),
+                (4, out),
+            ],
+        );
+        let wg = invocations.div_ceil(64).max(1);
+        let (x, y) = if wg <= 65535 {
+            (wg, 1)
+        } else {
+            (65535, wg.div_ceil(65535))
+        };
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.dispatch_workgroups(x, y, 1);
+        }
+        self.gpu.queue.submit([enc.finish()]);
+    }
+
+    /// Renders `spp` samples per pixel with seed `seed`: (mean image, variance of each pixel's
+    /// mean luminance).
+    pub fn render(&mut self, spp: u32, seed: u64) -> Result<(Image, Vec<f32>), GpuPtError> {
+        self.params.seed = (seed ^ (seed >> 32)) as u32;
+        self.gpu
+            .queue
+            .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
+        let (w, h) = (self.params.width as usize, self.params.height as usize);
+        self.gpu.check_storage("the image", (w * h) as u64 * 16)?;
+        let out = self.gpu.zeroed("pt image", (w * h) as u64 * 16);
+        let none = self.gpu.zeroed("no tasks", 48);
+        let mut done = 0;
+        while done < spp {
+            let n = SPP_PER_DISPATCH.min(spp - done);
+            let task = Task {
+                spp: n,
+                sample_offset: done,
+                mode: 0,
+                max_depth: self.max_depth,
+                ..Default::default()
+            };
+            self.dispatch(task, &none, &out, (w * h) as u32);
+            done += n;
+        }
+        let sums: Vec<[f32; 4]> = self.gpu.read(&out)?;
+        let n = spp.max(1) as f64;
+        let mut img = Image::new(w, h);
+        let mut var = vec![0.0f32; w * h];
+        for (i, s) in sums.iter().enumerate() {
+            let rgb = [s[0] as f64 / n, s[1] as f64 / n, s[2] as f64 / n];
+            img.pixels[i] = rgb.map(|v| v as f32);
+            let mean = (rgb[0] + rgb[1] + rgb[2]) / 3.0;
+            if spp > 1 {
+                var[i] = ((s[3] as f64 / n - mean * mean).max(0.0) / (n - 1.0)) as f32;
+            }
+        }
+        Ok((img, var))
+    }
+
+    /// For each configuration, (Σ L_i, Σ L_i², n) over `samples` (rounded up to whole dispatches)
+    /// indirect-radiance samples for unit irradiance from its light direction; `round` selects
+    /// independent random numbers for progressive estimation.
+    pub fn indirect(
+        &mut self,
+        configs: &[LiTask],
+        samples: u32,
+        round: u32,
+        seed: u64,
+    ) -> Result<Vec<[f64; 3]>, GpuPtError> {
+        if configs.is_empty() {
+            return Ok(Vec::new());
+        }
+        self.params.seed = (seed ^ (seed >> 32)) as u32;
+        self.gpu
+            .queue
+            .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
+        let slots = samples.div_ceil(SPP_PER_DISPATCH).clamp(1, 4096);
+        let per = samples.div_ceil(slots);
+        let tasks = self.gpu.storage("li tasks", configs);
+        let n = configs.len() as u64 * slots as u64;
+        self.gpu.check_storage("the estimate slots", n * 16)?;
+        let out = self.gpu.zeroed("li sums", n * 16);
+        let task = Task {
+            spp: per,
+            sample_offset: round.wrapping_mul(1 << 20),
+            mode: 1,
+            max_depth: self.max_depth,
+            n_tasks: configs.len() as u32,
+            slots,
+            ..Default::default()
+        };
+        self.dispatch(task, &tasks, &out, n as u32);
+        let sums: Vec<[f32; 4]> = self.gpu.read(&out)?;
+        Ok(sums
+            .chunks(slots as usize)
+            .map(|c| {
+                c.iter().fold([0.0f64; 3], |a, s| {
+                    [a[0] + s[0] as f64, a[1] + s[1] as f64, a[2] + s[2] as f64]
+                })
+            })
+            .collect())
+    }
+}
