@@ -205,3 +205,22 @@ fn gpu_estimator_matches_cpu() {
         est[0]
     );
 }
+
+/// A cloud so thin that no free flight ends inside it: a clear error after the try limit, not a
+/// hang.
+#[test]
+fn cloud_that_is_never_hit() {
+    let vol = Volume::new(
+        DensityGrid::constant([4, 4, 4], 1.0).unwrap(),
+        Aabb::new(DVec3::ZERO, DVec3::ONE).unwrap(),
+        1e-12,
+    )
+    .unwrap();
+    let c = CloudData::new("ghost", vol, Medium::new(1.0, Phase::Isotropic).unwrap()).unwrap();
+    let e = c
+        .sample_position(&mut Pcg32::new(1, 1))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("ghost") && e.contains("no ray entered"), "{e}");
+}
