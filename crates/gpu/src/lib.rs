@@ -239,6 +239,36 @@ impl Gpu {
         Ok(out)
     }
 
+    /// Workgroup counts (x, y) covering `invocations` threads of 64-wide workgroups; beyond the
+    /// 65 535 limit of one dimension the rest goes to y (shaders index
+    /// `gid.x + gid.y * num_workgroups.x * 64`).
+    pub fn workgroups_1d(invocations: u32) -> (u32, u32) {
+        let wg = invocations.div_ceil(64).max(1);
+        if wg <= 65535 {
+            (wg, 1)
+        } else {
+            (65535, wg.div_ceil(65535))
+        }
+    }
+
+    /// Records and submits one compute pass of `pipeline` over `invocations` threads.
+    pub fn dispatch_1d(
+        &self,
+        pipeline: &wgpu::ComputePipeline,
+        bind: &wgpu::BindGroup,
+        invocations: u32,
+    ) {
+        let (x, y) = Self::workgroups_1d(invocations);
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, bind, &[]);
+            pass.dispatch_workgroups(x, y, 1);
+        }
+        self.queue.submit([enc.finish()]);
+    }
+
     /// Waits until all submitted work is done.
     pub fn wait(&self) {
         let _ = self.device.poll(wgpu::PollType::wait_indefinitely());

@@ -413,15 +413,6 @@ impl<'g> PhotonMapper<'g> {
         self.frame >= self.settings.ring
     }
 
-    fn dispatch_1d(n: u32) -> (u32, u32) {
-        let wg = n.div_ceil(64).max(1);
-        if wg <= 65535 {
-            (wg, 1)
-        } else {
-            (65535, wg.div_ceil(65535))
-        }
-    }
-
     /// Replaces the density field (same resolution) for the following frames.
     pub fn set_density(&mut self, data: &[f32]) -> Result<(), PmError> {
         if data.len() != self.voxels as usize {
@@ -486,7 +477,7 @@ impl<'g> PhotonMapper<'g> {
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         enc.clear_buffer(&self.h_new, 0, None);
         if n_sun + n_sky > 0 {
-            let (x, y) = Self::dispatch_1d(n_sun + n_sky);
+            let (x, y) = Gpu::workgroups_1d(n_sun + n_sky);
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("trace"),
                 timestamp_writes: self.timer.pass("tracing"),
@@ -544,7 +535,7 @@ impl<'g> PhotonMapper<'g> {
             .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         {
-            let (x, y) = Self::dispatch_1d(self.voxels);
+            let (x, y) = Gpu::workgroups_1d(self.voxels);
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("upsample"),
                 timestamp_writes: self.timer.pass(if self.params.filtered != 0 {

@@ -117,20 +117,8 @@ impl<'g> GpuDescriptor<'g> {
                 (4, &out),
             ],
         );
-        let total = (n * DESCRIPTOR_LEN as u64).div_ceil(64) as u32;
-        let (x, y) = if total <= 65535 {
-            (total, 1)
-        } else {
-            (65535, total.div_ceil(65535))
-        };
-        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-        {
-            let mut pass = enc.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&self.pipeline);
-            pass.set_bind_group(0, &bind, &[]);
-            pass.dispatch_workgroups(x, y, 1);
-        }
-        self.gpu.queue.submit([enc.finish()]);
+        self.gpu
+            .dispatch_1d(&self.pipeline, &bind, (n * DESCRIPTOR_LEN as u64) as u32);
         self.gpu.read(&out)
     }
 }

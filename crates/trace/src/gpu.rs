@@ -138,20 +138,7 @@ impl<'g> GpuPathTracer<'g> {
                 (4, out),
             ],
         );
-        let wg = invocations.div_ceil(64).max(1);
-        let (x, y) = if wg <= 65535 {
-            (wg, 1)
-        } else {
-            (65535, wg.div_ceil(65535))
-        };
-        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-        {
-            let mut pass = enc.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&self.pipeline);
-            pass.set_bind_group(0, &bind, &[]);
-            pass.dispatch_workgroups(x, y, 1);
-        }
-        self.gpu.queue.submit([enc.finish()]);
+        self.gpu.dispatch_1d(&self.pipeline, &bind, invocations);
     }
 
     /// Renders `spp` samples per pixel with seed `seed`: (mean image, variance of each pixel's
