@@ -340,6 +340,15 @@ pub fn run(
                 out.join(name("meta")),
             );
             let n = (hi - lo) as u64;
+            let shard = |converged| ShardInfo {
+                split: split.into(),
+                index: k,
+                records: n as usize,
+                converged,
+                x: name("x"),
+                y: name("y"),
+                meta: name("meta"),
+            };
             if rows_of(&px) == Some(n) && rows_of(&py) == Some(n) && rows_of(&pm) == Some(n) {
                 // Finished earlier: keep it, but count its convergence.
                 let meta: Vec<f32> = npyz::NpyFile::new(std::io::BufReader::new(
@@ -350,15 +359,7 @@ pub fn run(
                 let conv = meta.chunks(META_COLUMNS).filter(|r| r[11] > 0.5).count();
                 converged += conv;
                 total += n as usize;
-                shards.push(ShardInfo {
-                    split: split.into(),
-                    index: k,
-                    records: n as usize,
-                    converged: conv,
-                    x: name("x"),
-                    y: name("y"),
-                    meta: name("meta"),
-                });
+                shards.push(shard(conv));
                 bar.inc(n);
                 continue;
             }
@@ -424,15 +425,7 @@ pub fn run(
             computed += n as usize;
             total += n as usize;
             converged += conv;
-            shards.push(ShardInfo {
-                split: split.into(),
-                index: k,
-                records: n as usize,
-                converged: conv,
-                x: name("x"),
-                y: name("y"),
-                meta: name("meta"),
-            });
+            shards.push(shard(conv));
         }
         bar.finish_and_clear();
     }

@@ -10,8 +10,9 @@ use npyz::{Order, WriterBuilder};
 use crate::error::{Error, Result};
 use crate::grid::{DensityGrid, check_resolution};
 
-/// Parses `.npy` bytes; `path` only labels errors.
-pub fn parse(bytes: &[u8], path: &Path) -> Result<DensityGrid> {
+/// Parses any little-endian float32/float64 C-order array as (shape, f32 values). The data
+/// size must match the header's shape exactly, so nothing is allocated beyond the file's size.
+fn parse_array(bytes: &[u8], path: &Path) -> Result<(Vec<u64>, Vec<f32>)> {
     let mut cursor = Cursor::new(bytes);
     let header = npyz::NpyHeader::from_reader(&mut cursor)
         .map_err(|e| Error::invalid(path, "header", format!("not a valid .npy header: {e}")))?;
@@ -25,23 +26,9 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<DensityGrid> {
         ));
     }
     let shape = npy.shape().to_vec();
-    if shape.len() != 3 {
-        return Err(Error::invalid(
-            path,
-            "header.shape",
-            format!("expected 3 dimensions [z][y][x], found {shape:?}"),
-        ));
-    }
-    let as_i64 = |v: u64| i64::try_from(v).unwrap_or(i64::MAX);
-    let res = check_resolution(
-        [as_i64(shape[2]), as_i64(shape[1]), as_i64(shape[0])],
-        "header.shape",
-    )
-    .map_err(|e| e.at(path))?;
-    let n = res[0] * res[1] * res[2];
     let descr = npy.dtype().descr();
     let descr = descr.trim_matches('\'');
-    let elem = match descr {
+    let elem: u64 = match descr {
         "<f4" => 4,
         "<f8" => 8,
         other => {
@@ -52,14 +39,15 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<DensityGrid> {
             ));
         }
     };
-    let available = bytes.len() - data_start;
-    if available != n * elem {
+    let available = (bytes.len() - data_start) as u64;
+    let needed = shape.iter().try_fold(elem, |a, &b| a.checked_mul(b));
+    if needed != Some(available) {
         return Err(Error::invalid(
             path,
             "data",
             format!(
                 "shape {shape:?} of {descr} needs {} bytes, the file has {available}",
-                n * elem
+                needed.map_or("too many".to_string(), |n| n.to_string())
             ),
         ));
     }
@@ -73,6 +61,25 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<DensityGrid> {
             .map(|v| v as f32)
             .collect()
     };
+    Ok((shape, data))
+}
+
+/// Parses `.npy` bytes; `path` only labels errors.
+pub fn parse(bytes: &[u8], path: &Path) -> Result<DensityGrid> {
+    let (shape, data) = parse_array(bytes, path)?;
+    if shape.len() != 3 {
+        return Err(Error::invalid(
+            path,
+            "header.shape",
+            format!("expected 3 dimensions [z][y][x], found {shape:?}"),
+        ));
+    }
+    let as_i64 = |v: u64| i64::try_from(v).unwrap_or(i64::MAX);
+    let res = check_resolution(
+        [as_i64(shape[2]), as_i64(shape[1]), as_i64(shape[0])],
+        "header.shape",
+    )
+    .map_err(|e| e.at(path))?;
     DensityGrid::new(res, data).map_err(|e| e.at(path))
 }
 
@@ -80,43 +87,8 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<DensityGrid> {
 /// auxiliary arrays such as the references' optical-depth masks.
 pub fn read_array(path: &Path) -> Result<(Vec<usize>, Vec<f32>)> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let mut cursor = Cursor::new(&bytes[..]);
-    let header = npyz::NpyHeader::from_reader(&mut cursor)
-        .map_err(|e| Error::invalid(path, "header", format!("not a valid .npy header: {e}")))?;
-    let start = cursor.position() as usize;
-    let npy = npyz::NpyFile::with_header(header, &bytes[start..]);
-    let shape: Vec<usize> = npy.shape().iter().map(|&v| v as usize).collect();
-    let n = shape.iter().try_fold(1usize, |a, &b| a.checked_mul(b));
-    let descr = npy.dtype().descr();
-    let elem = match descr.trim_matches('\'') {
-        "<f4" => 4,
-        "<f8" => 8,
-        other => {
-            return Err(Error::invalid(
-                path,
-                "header.descr",
-                format!("dtype {other} is not supported"),
-            ));
-        }
-    };
-    if npy.order() != Order::C || n.map(|n| n * elem) != Some(bytes.len() - start) {
-        return Err(Error::invalid(
-            path,
-            "data",
-            "size does not match the header shape (or Fortran order)",
-        ));
-    }
-    let data = if elem == 4 {
-        npy.into_vec::<f32>()
-            .map_err(|e| Error::invalid(path, "data", e.to_string()))?
-    } else {
-        npy.into_vec::<f64>()
-            .map_err(|e| Error::invalid(path, "data", e.to_string()))?
-            .into_iter()
-            .map(|v| v as f32)
-            .collect()
-    };
-    Ok((shape, data))
+    let (shape, data) = parse_array(&bytes, path)?;
+    Ok((shape.into_iter().map(|v| v as usize).collect(), data))
 }
 
 pub fn read(path: &Path) -> Result<DensityGrid> {
