@@ -9,6 +9,14 @@ use glam::DVec3;
 use nimbus_scene::{CloudKind, Scene, generate, io};
 use nimbus_trace::{RenderOptions, compare};
 
+/// Prints a line to stdout, ignoring a closed pipe (`nimbus … | head` must not panic).
+macro_rules! say {
+    ($($t:tt)*) => {{
+        use std::io::Write;
+        let _ = writeln!(std::io::stdout(), $($t)*);
+    }};
+}
+
 #[derive(Parser)]
 #[command(
     name = "nimbus",
@@ -84,6 +92,10 @@ enum Command {
         /// Photon mapping: detail noise amplitude in density voxels (0 = off).
         #[arg(long, default_value_t = 0.0)]
         detail_noise: f32,
+        /// Photon mapping: similarity threshold t (switch to σ√(1−g), isotropic, after
+        /// log t / log|g| bounces; 0 = never switch).
+        #[arg(long, default_value_t = 0.05)]
+        similarity: f64,
     },
     /// Render an animation with photon mapping: moving sun and/or evolving density; numbered
     /// PNG frames and per-frame timings (CSV).
@@ -218,6 +230,7 @@ fn run(cli: Cli) -> Result<()> {
             timings,
             half_res,
             detail_noise,
+            similarity,
         } => {
             if let Some(n) = threads {
                 rayon::ThreadPoolBuilder::new()
@@ -255,7 +268,7 @@ fn run(cli: Cli) -> Result<()> {
                     let (image, variance) = gpt.render(opts.spp, opts.seed)?;
                     let secs = t0.elapsed().as_secs_f64();
                     image.write_exr(&exr, Some(&variance))?;
-                    println!(
+                    say!(
                         "{}: GPU path tracing on {} — {}x{} at {} spp in {:.2} s ({:.3e} camera paths/s)",
                         scene.display(),
                         gpu.describe(),
@@ -272,7 +285,7 @@ fn run(cli: Cli) -> Result<()> {
                     let result = nimbus_trace::render(&s, &opts);
                     result.image.write_exr(&exr, Some(&result.variance))?;
                     let st = result.stats;
-                    println!(
+                    say!(
                         "{}: path tracing {}x{} at {} spp in {:.2} s ({:.3e} camera paths/s, {:.1} scatterings/path)",
                         scene.display(),
                         s.camera.width,
@@ -292,6 +305,7 @@ fn run(cli: Cli) -> Result<()> {
                         cache_res,
                         seed: opts.seed as u32,
                         detail_noise,
+                        similarity_t: similarity,
                         ..Default::default()
                     };
                     let gpu = nimbus_gpu::Gpu::new()?;
@@ -305,7 +319,7 @@ fn run(cli: Cli) -> Result<()> {
                         pm.raymarch(&s.camera)?
                     };
                     image.write_exr(&exr, None)?;
-                    println!(
+                    say!(
                         "{}: photon mapping on {} — {} frames × {} beams, cache {:?} ({}), {}x{} in {:.2} s",
                         scene.display(),
                         gpu.describe(),
@@ -323,10 +337,10 @@ fn run(cli: Cli) -> Result<()> {
                     );
                     if timings {
                         if pm.last_times.is_empty() {
-                            println!("GPU timestamps are not available on this adapter");
+                            say!("GPU timestamps are not available on this adapter");
                         }
                         for (stage, ms) in &pm.last_times {
-                            println!("  {stage:14} {ms:9.3} ms (last frame)");
+                            say!("  {stage:14} {ms:9.3} ms (last frame)");
                         }
                     }
                     image
@@ -334,7 +348,7 @@ fn run(cli: Cli) -> Result<()> {
             };
             let e = exposure.unwrap_or_else(|| image.auto_exposure());
             image.write_png(&png, e)?;
-            println!("wrote {} and {}", exr.display(), png.display());
+            say!("wrote {} and {}", exr.display(), png.display());
             if let Some(r) = reference {
                 print_metrics(&exr, &r, None)?;
             }
@@ -427,7 +441,7 @@ fn run(cli: Cli) -> Result<()> {
             let csv_path = out.join("timings.csv");
             std::fs::write(&csv_path, csv)
                 .with_context(|| format!("cannot write {}", csv_path.display()))?;
-            println!(
+            say!(
                 "{} frames on {} -> {}",
                 frames,
                 gpu.describe(),
@@ -475,7 +489,7 @@ fn run(cli: Cli) -> Result<()> {
                 progress: !quiet,
             };
             let r = dataset::run(&set, &opts, &out)?;
-            println!(
+            say!(
                 "{} records ({} computed now in {:.1} s, {:.2} records/s), {:.1} % converged -> {}",
                 r.records,
                 r.computed,
@@ -501,7 +515,7 @@ fn run(cli: Cli) -> Result<()> {
             let grid = generate::generate(kind, seed, res).map_err(|e| anyhow::anyhow!("{e}"))?;
             io::write_grid(&out, &grid, generate::default_aabb(res))?;
             let st = grid.stats();
-            println!(
+            say!(
                 "{} seed {seed}: {}x{}x{}, mean {:.4}, non-zero {:.1} % -> {}",
                 kind.name(),
                 res[0],
@@ -534,15 +548,15 @@ fn run(cli: Cli) -> Result<()> {
             let st = g.stats();
             let r = g.res();
             let tau = vol.max_axis_optical_depth();
-            println!("file            {}", file.display());
-            println!(
+            say!("file            {}", file.display());
+            say!(
                 "resolution      {} x {} x {} ({} voxels)",
                 r[0],
                 r[1],
                 r[2],
                 r[0] * r[1] * r[2]
             );
-            println!(
+            say!(
                 "bounds          {lo} .. {hi}{}",
                 if f.bounds.is_some() {
                     " (from file)"
@@ -550,12 +564,14 @@ fn run(cli: Cli) -> Result<()> {
                     ""
                 }
             );
-            println!("cell size       {}", vol.cell_size());
-            println!("min/mean/max    {} / {:.6} / {}", st.min, st.mean, st.max);
-            println!("non-zero        {:.3} %", 100.0 * st.nonzero_fraction);
-            println!(
+            say!("cell size       {}", vol.cell_size());
+            say!("min/mean/max    {} / {:.6} / {}", st.min, st.mean, st.max);
+            say!("non-zero        {:.3} %", 100.0 * st.nonzero_fraction);
+            say!(
                 "max optical depth along x/y/z at density scale {density_scale}: {:.4} / {:.4} / {:.4}",
-                tau[0], tau[1], tau[2]
+                tau[0],
+                tau[1],
+                tau[2]
             );
         }
         Command::Compare {
@@ -600,13 +616,13 @@ fn print_metrics(test: &Path, reference: &Path, mask: Option<PathBuf>) -> Result
         None => None,
     };
     let res = compare::compare(&t, &r, m.as_deref());
-    println!("cloud pixels        {}", res.cloud_pixels);
-    println!("rmse_rgb            {:.6}", res.rmse_rgb);
-    println!("rel_rmse_cloud      {:.4}", res.rel_rmse_cloud);
-    println!("rel_rmse_cloud_4x4  {:.4}", res.rel_rmse_cloud_4x4);
-    println!("mean_lum_ratio      {:.5}", res.mean_lum_ratio);
+    say!("cloud pixels        {}", res.cloud_pixels);
+    say!("rmse_rgb            {:.6}", res.rmse_rgb);
+    say!("rel_rmse_cloud      {:.4}", res.rel_rmse_cloud);
+    say!("rel_rmse_cloud_4x4  {:.4}", res.rel_rmse_cloud_4x4);
+    say!("mean_lum_ratio      {:.5}", res.mean_lum_ratio);
     if res.nonfinite > 0 {
-        println!("non-finite values   {}", res.nonfinite);
+        say!("non-finite values   {}", res.nonfinite);
     }
     Ok(())
 }
