@@ -96,6 +96,9 @@ enum Command {
         /// log t / log|g| bounces; 0 = never switch).
         #[arg(long, default_value_t = 0.05)]
         similarity: f64,
+        /// Photon mapping: a beam stops after this many scatterings.
+        #[arg(long, default_value_t = 1024)]
+        max_order: u32,
     },
     /// Render an animation with photon mapping: moving sun and/or evolving density; numbered
     /// PNG frames and per-frame timings (CSV).
@@ -231,6 +234,7 @@ fn run(cli: Cli) -> Result<()> {
             half_res,
             detail_noise,
             similarity,
+            max_order,
         } => {
             if let Some(n) = threads {
                 rayon::ThreadPoolBuilder::new()
@@ -306,6 +310,7 @@ fn run(cli: Cli) -> Result<()> {
                         seed: opts.seed as u32,
                         detail_noise,
                         similarity_t: similarity,
+                        max_order,
                         ..Default::default()
                     };
                     let gpu = nimbus_gpu::Gpu::new()?;
