@@ -167,7 +167,9 @@ enum Command {
         /// σ_t per unit grid value for clouds read from a folder.
         #[arg(long, default_value_t = 30.0)]
         density_scale: f64,
-        /// Estimate L_i on the CPU or the GPU (default: the GPU when an adapter is available).
+        /// Estimate L_i on the CPU or the GPU (default: the GPU when a hardware adapter is
+        /// available and the phase function is HG; a software rasteriser is slower than the CPU
+        /// path tracer).
         #[arg(long, value_enum)]
         device: Option<Device>,
         #[arg(long, short)]
@@ -488,7 +490,7 @@ fn run(cli: Cli) -> Result<()> {
                 albedo: 1.0,
                 gpu: match device {
                     Some(d) => d == Device::Gpu,
-                    None => nimbus_gpu::Gpu::new().is_ok() && phase == "hg",
+                    None => phase == "hg" && nimbus_gpu::Gpu::new().is_ok_and(|g| !g.is_software()),
                 },
                 phase,
                 progress: !quiet,

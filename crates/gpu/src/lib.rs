@@ -92,6 +92,11 @@ impl Gpu {
         )
     }
 
+    /// Whether the adapter is a software rasteriser (lavapipe/llvmpipe) running on the CPU.
+    pub fn is_software(&self) -> bool {
+        self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
     pub fn has_timestamps(&self) -> bool {
         self.features.contains(wgpu::Features::TIMESTAMP_QUERY)
     }
