@@ -206,6 +206,12 @@ enum Command {
         /// Optical-depth mask (.npy, cloud = τ ≥ 0.1); default: <reference>_tau.npy if present.
         #[arg(long)]
         mask: Option<PathBuf>,
+        /// Write the panels reference | test | relative difference (false colour) as PNG.
+        #[arg(long)]
+        png: Option<PathBuf>,
+        /// Full scale of the difference panel (0.2 = ±20 %).
+        #[arg(long, default_value_t = 0.2)]
+        range: f64,
     },
 }
 
@@ -585,9 +591,40 @@ fn run(cli: Cli) -> Result<()> {
             test,
             reference,
             mask,
-        } => print_metrics(&test, &reference, mask)?,
+            png,
+            range,
+        } => {
+            print_metrics(&test, &reference, mask.clone())?;
+            if let Some(out) = png {
+                if !(range.is_finite() && range > 0.0) {
+                    bail!("--range must be > 0");
+                }
+                let t = nimbus_scene::Image::read_exr(&test)?;
+                let r = nimbus_scene::Image::read_exr(&reference)?;
+                let m = match mask_for(&reference, mask) {
+                    Some(p) => Some(compare::tau_mask(&p, r.width, r.height)?),
+                    None => None,
+                };
+                // The reference's auto exposure (99th-percentile luminance → 0.9) for both panels.
+                let e = r.auto_exposure();
+                compare::diff_panels(&t, &r, m.as_deref(), range, e).write_png(&out, 1.0)?;
+                say!(
+                    "diff panels (reference | test | (test−ref)/ref, ±{range}) -> {}",
+                    out.display()
+                );
+            }
+        }
     }
     Ok(())
+}
+
+/// The cloud mask to use: the given one, else `<reference>_tau.npy` when it exists.
+fn mask_for(reference: &Path, mask: Option<PathBuf>) -> Option<PathBuf> {
+    let auto = PathBuf::from(format!(
+        "{}_tau.npy",
+        reference.with_extension("").display()
+    ));
+    mask.or_else(|| auto.exists().then_some(auto))
 }
 
 /// Three comma-separated values, or none.
@@ -613,11 +650,7 @@ fn print_metrics(test: &Path, reference: &Path, mask: Option<PathBuf>) -> Result
             r.height
         );
     }
-    let auto = {
-        let stem = reference.with_extension("");
-        PathBuf::from(format!("{}_tau.npy", stem.display()))
-    };
-    let mask_path = mask.or_else(|| auto.exists().then_some(auto));
+    let mask_path = mask_for(reference, mask);
     let m = match &mask_path {
         Some(p) => Some(compare::tau_mask(p, r.width, r.height)?),
         None => None,

@@ -127,6 +127,71 @@ pub fn compare(test: &Image, reference: &Image, mask: Option<&[bool]>) -> Metric
     }
 }
 
+/// The three-panel comparison image of `shared/refs/compare.py`: reference | test | signed
+/// relative difference (test − ref) / max(ref, 0.05 · mean ref over cloud pixels) in false colour
+/// (blue: test darker, white: equal, red: test brighter; saturated at ±`range`), pixels outside
+/// the cloud mask dimmed to 35 %. The first two panels are linear radiance times `exposure`
+/// (write with exposure 1 and the sRGB curve of [`Image::write_png`]); the third is already
+/// display-referred. Panels are separated by 2 white columns.
+pub fn diff_panels(
+    test: &Image,
+    reference: &Image,
+    mask: Option<&[bool]>,
+    range: f64,
+    exposure: f64,
+) -> Image {
+    let (w, h) = (reference.width, reference.height);
+    let lum = |img: &Image, i: usize| {
+        let p = img.pixels[i];
+        (p[0] as f64 + p[1] as f64 + p[2] as f64) / 3.0
+    };
+    let default_mask: Vec<bool>;
+    let mask = match mask {
+        Some(m) => m,
+        None => {
+            let max = (0..w * h).map(|i| lum(reference, i)).fold(0.0, f64::max);
+            default_mask = (0..w * h).map(|i| lum(reference, i) > 1e-3 * max).collect();
+            &default_mask
+        }
+    };
+    let cloud: Vec<usize> = (0..w * h).filter(|&i| mask[i]).collect();
+    let mref = cloud.iter().map(|&i| lum(reference, i)).sum::<f64>() / cloud.len().max(1) as f64;
+    let mut out = Image::new(3 * w + 4, h);
+    // Display-referred values are stored pre-linearised so that write_png's sRGB curve with
+    // exposure 1 reproduces them: invert the sRGB transfer function.
+    let linear = |v: f64| {
+        let v = v.clamp(0.0, 1.0);
+        if v <= 0.04045 {
+            v / 12.92
+        } else {
+            ((v + 0.055) / 1.055).powf(2.4)
+        }
+    };
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            let o = y * out.width;
+            out.pixels[o + x] = reference.pixels[i].map(|c| (c as f64 * exposure) as f32);
+            out.pixels[o + w + 2 + x] = test.pixels[i].map(|c| (c as f64 * exposure) as f32);
+            let rel = (lum(test, i) - lum(reference, i)) / lum(reference, i).max(0.05 * mref);
+            let t = (rel / range).clamp(-1.0, 1.0);
+            let (white, red, blue) = ([1.0, 1.0, 1.0], [0.80, 0.05, 0.05], [0.05, 0.20, 0.85]);
+            let target = if t >= 0.0 { red } else { blue };
+            let a = t.abs();
+            let dim = if mask[i] { 1.0 } else { 0.35 };
+            let mut c = [0.0f32; 3];
+            for k in 0..3 {
+                c[k] = linear(dim * (white[k] + a * (target[k] - white[k]))) as f32;
+            }
+            out.pixels[o + 2 * w + 4 + x] = c;
+        }
+        for k in [w, w + 1, 2 * w + 2, 2 * w + 3] {
+            out.pixels[y * out.width + k] = [1.0; 3];
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -147,6 +212,22 @@ mod tests {
         assert!((m.rel_rmse_cloud_4x4 - 0.1 * rms_over_mean(&r)).abs() < 1e-3);
         t.pixels[0][0] = f32::NAN;
         assert_eq!(compare(&t, &r, None).nonfinite, 1);
+        // Diff panels: equal images give a white third panel; a brighter test is red.
+        let p = diff_panels(&r, &r, None, 0.2, 1.0);
+        assert_eq!((p.width, p.height), (28, 8));
+        assert!(
+            p.pixels[2 * 8 + 4..3 * 8 + 4]
+                .iter()
+                .all(|c| c.iter().all(|v| (v - 1.0).abs() < 1e-6))
+        );
+        let mut bright = r.clone();
+        bright
+            .pixels
+            .iter_mut()
+            .for_each(|p| p.iter_mut().for_each(|c| *c *= 1.5));
+        let p = diff_panels(&bright, &r, None, 0.2, 1.0);
+        let c = p.pixels[2 * 8 + 4];
+        assert!(c[0] > 0.5 && c[2] < 0.1, "{c:?}");
     }
 
     fn rms_over_mean(r: &Image) -> f64 {
