@@ -15,6 +15,10 @@
 
 @group(0) @binding(2) var<storage, read> total: array<u32>;
 @group(0) @binding(3) var<storage, read_write> j_out: array<vec4<f32>>;
+// Per coarse cell, computed once by `cells` before `upsample` reads them 27 + 8 times per voxel:
+// (sun fluence, sky fluence, g', γ) and (D at the cell centre, has sun flux, 0, 0).
+@group(0) @binding(4) var<storage, read_write> cell_vals: array<vec4<f32>>;
+@group(0) @binding(5) var<storage, read_write> cell_aux: array<vec4<f32>>;
 
 struct CellValue { sun: f32, sky: f32, g: f32, gamma: f32, has_sun: bool };
 
@@ -30,6 +34,17 @@ fn cell_value(i: u32) -> CellValue {
     var gamma = 0.0;
     if (n > 0.0) { gamma = ord / n; }
     return CellValue(w_sun * P.sun_norm, w_sky * P.sky_norm, g, gamma, w_sun > 0.0);
+}
+
+@compute @workgroup_size(64)
+fn cells(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let n = P.i_res.x * P.i_res.y * P.i_res.z;
+    let i = gid.x;
+    if (i >= n) { return; }
+    let cv = cell_value(i);
+    cell_vals[i] = vec4<f32>(cv.sun, cv.sky, cv.g, cv.gamma);
+    let c = vec3<u32>(i % P.i_res.x, (i / P.i_res.x) % P.i_res.y, i / (P.i_res.x * P.i_res.y));
+    cell_aux[i] = vec4<f32>(density_at(coarse_centre(c)), select(0.0, 1.0, cv.has_sun), 0.0, 0.0);
 }
 
 fn coarse_centre(c: vec3<u32>) -> vec3<f32> {
@@ -59,10 +74,10 @@ fn gamma_at(p: vec3<f32>) -> f32 {
     let t = trilinear(p, P.i_res);
     let r = P.i_res;
     let f = t.f;
-    let c00 = mix(cell_value(grid_index(t.i0.x, t.i0.y, t.i0.z, r)).gamma, cell_value(grid_index(t.i1.x, t.i0.y, t.i0.z, r)).gamma, f.x);
-    let c10 = mix(cell_value(grid_index(t.i0.x, t.i1.y, t.i0.z, r)).gamma, cell_value(grid_index(t.i1.x, t.i1.y, t.i0.z, r)).gamma, f.x);
-    let c01 = mix(cell_value(grid_index(t.i0.x, t.i0.y, t.i1.z, r)).gamma, cell_value(grid_index(t.i1.x, t.i0.y, t.i1.z, r)).gamma, f.x);
-    let c11 = mix(cell_value(grid_index(t.i0.x, t.i1.y, t.i1.z, r)).gamma, cell_value(grid_index(t.i1.x, t.i1.y, t.i1.z, r)).gamma, f.x);
+    let c00 = mix(cell_vals[grid_index(t.i0.x, t.i0.y, t.i0.z, r)].w, cell_vals[grid_index(t.i1.x, t.i0.y, t.i0.z, r)].w, f.x);
+    let c10 = mix(cell_vals[grid_index(t.i0.x, t.i1.y, t.i0.z, r)].w, cell_vals[grid_index(t.i1.x, t.i1.y, t.i0.z, r)].w, f.x);
+    let c01 = mix(cell_vals[grid_index(t.i0.x, t.i0.y, t.i1.z, r)].w, cell_vals[grid_index(t.i1.x, t.i0.y, t.i1.z, r)].w, f.x);
+    let c11 = mix(cell_vals[grid_index(t.i0.x, t.i1.y, t.i1.z, r)].w, cell_vals[grid_index(t.i1.x, t.i1.y, t.i1.z, r)].w, f.x);
     return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
 }
 
@@ -80,8 +95,7 @@ fn trilinear_fluence(p: vec3<f32>) -> vec2<f32> {
         let wx = select(1.0 - t.f.x, t.f.x, sx);
         let wy = select(1.0 - t.f.y, t.f.y, sy);
         let wz = select(1.0 - t.f.z, t.f.z, sz);
-        let cv = cell_value(grid_index(ix, iy, iz, r));
-        acc += vec2<f32>(cv.sun, cv.sky) * (wx * wy * wz);
+        acc += cell_vals[grid_index(ix, iy, iz, r)].xy * (wx * wy * wz);
     }
     return acc;
 }
@@ -96,8 +110,7 @@ fn upsample(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     let y = (idx / res.x) % res.y;
     let z = idx / (res.x * res.y);
     if (P.filtered == 0u) {
-        let cv = cell_value(idx);
-        j_out[idx] = vec4<f32>(cv.sun, cv.sky, cv.g, cv.gamma);
+        j_out[idx] = cell_vals[idx];
         return;
     }
     let ext = P.aabb_max - P.aabb_min;
@@ -122,19 +135,21 @@ fn upsample(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
                 if (any(q < vec3<i32>(0)) || any(q >= vec3<i32>(P.i_res))) { continue; }
                 let qu = vec3<u32>(q);
                 let qc = coarse_centre(qu);
-                let dq = density_at(qc);
+                let qi = grid_index(qu.x, qu.y, qu.z, P.i_res);
+                let aux = cell_aux[qi];
+                let dq = aux.x;
                 let lambda = sigma_s * (dp - dq) * 0.5;
                 let wl = f_exp(length(p - qc), lambda, radius) * max(1.0 - abs(dp - dq) / P.d_max, 0.0);
                 if (wl <= 0.0) { continue; }
-                let cv = cell_value(grid_index(qu.x, qu.y, qu.z, P.i_res));
+                let cv = cell_vals[qi];
                 sw += wl;
-                s_sun += wl * cv.sun;
-                s_sky += wl * cv.sky;
-                if (cv.has_sun) {
+                s_sun += wl * cv.x;
+                s_sky += wl * cv.y;
+                if (aux.y > 0.0) {
                     var wg = 1.0;
-                    if (abs(P.g) >= 1.0e-6) { wg = exp(clamp((gp - cv.gamma) * lng, -60.0, 60.0)); }
+                    if (abs(P.g) >= 1.0e-6) { wg = exp(clamp((gp - cv.w) * lng, -60.0, 60.0)); }
                     swg += wg * wl;
-                    s_g += wg * wl * cv.g;
+                    s_g += wg * wl * cv.z;
                 }
             }
         }

@@ -122,6 +122,8 @@ pub struct PhotonMapper<'g> {
     voxels: u32,
     trace: Stage,
     update: Stage,
+    /// Per-cell values of I (computed once per upsampling).
+    cells_stage: Stage,
     upsample: Stage,
     raymarch: Option<(Stage, usize, usize)>,
     params_buf: wgpu::Buffer,
@@ -327,15 +329,34 @@ impl<'g> PhotonMapper<'g> {
             ),
             pipeline: update_p,
         };
-        let up_p = gpu.pipeline(
-            "photon upsample",
-            &shaders::source("photon_upsample.wgsl"),
-            "upsample",
-        );
+        let up_src = shaders::source("photon_upsample.wgsl");
+        let cell_vals = gpu.zeroed("cache cells", cells as u64 * 16);
+        let cell_aux = gpu.zeroed("cache cell aux", cells as u64 * 16);
+        let cells_p = gpu.pipeline("photon cache cells", &up_src, "cells");
+        let cells_stage = Stage {
+            bind: gpu.bind(
+                &cells_p,
+                &[
+                    (0, &params_buf),
+                    (1, &density),
+                    (2, &total),
+                    (4, &cell_vals),
+                    (5, &cell_aux),
+                ],
+            ),
+            pipeline: cells_p,
+        };
+        let up_p = gpu.pipeline("photon upsample", &up_src, "upsample");
         let upsample = Stage {
             bind: gpu.bind(
                 &up_p,
-                &[(0, &params_buf), (1, &density), (2, &total), (3, &j)],
+                &[
+                    (0, &params_buf),
+                    (1, &density),
+                    (3, &j),
+                    (4, &cell_vals),
+                    (5, &cell_aux),
+                ],
             ),
             pipeline: up_p,
         };
@@ -359,6 +380,7 @@ impl<'g> PhotonMapper<'g> {
             voxels,
             trace,
             update,
+            cells_stage,
             upsample,
             raymarch: None,
             params_buf,
@@ -534,6 +556,19 @@ impl<'g> PhotonMapper<'g> {
             .queue
             .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("cache cells"),
+                timestamp_writes: self.timer.pass(if self.params.filtered != 0 {
+                    "upsampling"
+                } else {
+                    "conversion"
+                }),
+            });
+            pass.set_pipeline(&self.cells_stage.pipeline);
+            pass.set_bind_group(0, &self.cells_stage.bind, &[]);
+            pass.dispatch_workgroups(self.cells.div_ceil(64), 1, 1);
+        }
         {
             let (x, y) = Gpu::workgroups_1d(self.voxels);
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
