@@ -224,3 +224,49 @@ impl<'g> GpuPathTracer<'g> {
             .collect())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::mem::offset_of;
+
+    /// (member offsets, size) of a struct in `pt.wgsl`, computed by naga.
+    fn wgsl_layout(name: &str) -> (Vec<u32>, u32) {
+        let src = shaders::source("pt.wgsl");
+        let module = naga::front::wgsl::parse_str(&src).unwrap();
+        let (_, ty) = module
+            .types
+            .iter()
+            .find(|(_, t)| t.name.as_deref() == Some(name))
+            .unwrap();
+        let naga::TypeInner::Struct { members, span } = &ty.inner else {
+            panic!("{name} is not a struct")
+        };
+        (members.iter().map(|m| m.offset).collect(), *span)
+    }
+
+    #[test]
+    fn layouts_match_wgsl() {
+        let (off, span) = wgsl_layout("Task");
+        assert_eq!(span as usize, std::mem::size_of::<Task>());
+        let rust = [
+            offset_of!(Task, spp),
+            offset_of!(Task, sample_offset),
+            offset_of!(Task, mode),
+            offset_of!(Task, max_depth),
+            offset_of!(Task, n_tasks),
+            offset_of!(Task, slots),
+            offset_of!(Task, _a),
+            offset_of!(Task, _b),
+        ];
+        assert_eq!(off.iter().map(|&o| o as usize).collect::<Vec<_>>(), rust);
+        let (off, span) = wgsl_layout("LiTask");
+        assert_eq!(span as usize, std::mem::size_of::<LiTask>());
+        let rust = [
+            offset_of!(LiTask, x),
+            offset_of!(LiTask, view),
+            offset_of!(LiTask, to_light),
+        ];
+        assert_eq!(off.iter().map(|&o| o as usize).collect::<Vec<_>>(), rust);
+    }
+}
