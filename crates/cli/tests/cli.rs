@@ -138,3 +138,144 @@ fn bad_input_is_a_clear_error() {
     // A clean error, not a panic.
     assert!(!text(&nimbus(&["info", garbage.to_str().unwrap()])).contains("panicked"));
 }
+
+fn root() -> PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// Every estimator and the GPU commands run end to end on the demo scene (tiny budgets), and
+/// their images agree on the sky and show a cloud.
+#[test]
+fn demo_scene_with_every_method() {
+    let d = tmp();
+    let demo = root().join("scenes/demo-cumulus.toml");
+    // The GPU path tracer needs a delta sun: the same scene with angular radius 0.
+    let delta = d.join("demo-delta-sun.toml");
+    let text_of = std::fs::read_to_string(&demo).unwrap();
+    std::fs::write(
+        &delta,
+        text_of.replace("angular_radius_deg = 0.27", "angular_radius_deg = 0.0"),
+    )
+    .unwrap();
+    let (demo, delta) = (demo.to_str().unwrap(), delta.to_str().unwrap());
+    let runs: [(&str, Vec<&str>); 3] = [
+        ("pt", vec!["--spp", "2"]),
+        ("gpt", vec!["--device", "gpu", "--spp", "2"]),
+        (
+            "pm",
+            vec![
+                "--method",
+                "pm",
+                "--beams",
+                "2048",
+                "--ring",
+                "2",
+                "--timings",
+            ],
+        ),
+    ];
+    for (name, extra) in runs {
+        let out = d.join(name);
+        let scene = if name == "gpt" { delta } else { demo };
+        let mut args = vec!["render", scene, "-q", "-o", out.to_str().unwrap()];
+        args.extend(extra);
+        let o = nimbus(&args);
+        assert!(o.status.success(), "{name}: {}", text(&o));
+        let img = nimbus_scene::Image::read_exr(out.with_extension("exr")).unwrap();
+        // The top-left corner is sky (0.12, 0.2, 0.38); the central region holds the sunlit
+        // cloud, on average brighter than the sky (luminance 0.233).
+        let corner = img.get(0, 0);
+        assert!((corner[2] - 0.38).abs() < 1e-3, "{name}: corner {corner:?}");
+        let (w, h) = (img.width, img.height);
+        let mut centre = 0.0;
+        for y in h * 2 / 5..h * 3 / 5 {
+            for x in w * 2 / 5..w * 3 / 5 {
+                centre += img.lum(x, y);
+            }
+        }
+        let centre = centre / ((h / 5) * (w / 5)) as f64;
+        assert!(
+            centre > 0.3 && centre.is_finite(),
+            "{name}: centre {centre}"
+        );
+        assert!(img.pixels.iter().flatten().all(|v| v.is_finite()));
+    }
+    // compare --png of two estimators.
+    let png = d.join("diff.png");
+    let o = nimbus(&[
+        "compare",
+        d.join("pm.exr").to_str().unwrap(),
+        d.join("pt.exr").to_str().unwrap(),
+        "--png",
+        png.to_str().unwrap(),
+    ]);
+    assert!(o.status.success() && png.exists(), "{}", text(&o));
+    // animate: two frames with a moving sun and their timings.
+    let anim = d.join("anim");
+    let o = nimbus(&[
+        "animate",
+        demo,
+        "--frames",
+        "2",
+        "--beams",
+        "1024",
+        "--ring",
+        "2",
+        "--sun-speed",
+        "30",
+        "-o",
+        anim.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let csv = std::fs::read_to_string(anim.join("timings.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 3, "{csv}");
+    assert!(anim.join("frame_00001.png").exists());
+}
+
+/// datagen end to end: a tiny set, the manifest and shards it promises.
+#[test]
+fn datagen_end_to_end() {
+    let d = tmp().join("data");
+    let o = nimbus(&[
+        "datagen",
+        "--clouds",
+        "gen:5",
+        "--records",
+        "2",
+        "--test-records",
+        "1",
+        "--shard-size",
+        "2",
+        "--max-samples",
+        "512",
+        "--device",
+        "cpu",
+        "-q",
+        "-o",
+        d.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("3 records"), "{}", text(&o));
+    for f in [
+        "manifest.json",
+        "train_00000_x.npy",
+        "train_00000_y.npy",
+        "test_00000_meta.npy",
+    ] {
+        assert!(d.join(f).exists(), "{f}");
+    }
+    let o = nimbus(&[
+        "datagen",
+        "--clouds",
+        "gen:0",
+        "--records",
+        "1",
+        "-o",
+        d.to_str().unwrap(),
+    ]);
+    assert!(
+        !o.status.success() && text(&o).contains("gen:N"),
+        "{}",
+        text(&o)
+    );
+}
