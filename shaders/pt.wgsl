@@ -1,6 +1,8 @@
 // GPU volumetric path tracer (the reference estimator's algorithm in f32): delta tracking with
-// the global majorant, ratio-tracking next-event estimation to a delta sun, HG/isotropic phase
-// sampling, constant sky, Russian roulette on throughput < 1 after 8 scatterings.
+// the global majorant, ratio-tracking next-event estimation to the sun (a delta light, or a disc
+// sampled uniformly in its cone — NEE only, so phase-sampled paths that escape add the sky but
+// not the sun; camera rays that see the disc directly add it), HG/isotropic phase sampling,
+// constant sky, Russian roulette on throughput < 1 after 8 scatterings.
 // Mirrors crates/trace/src/integrator.rs; prefixed by common.wgsl (Params, RNG, lookups, HG).
 //
 // Two modes (Task.mode):
@@ -50,7 +52,11 @@ fn ratio_track(o: vec3<f32>, d: vec3<f32>, rng: ptr<function, Rng>) -> f32 {
 
 // Radiance along o + t d for a path that has scattered `scat0` times, lit by a delta sun
 // towards `sun_dir` with irradiance `sun_e` and the constant sky.
-fn radiance(o0: vec3<f32>, d0: vec3<f32>, scat0: u32, sun_dir: vec3<f32>, sun_e: vec3<f32>, rng: ptr<function, Rng>) -> vec3<f32> {
+fn radiance(o0: vec3<f32>, d0: vec3<f32>, scat0: u32, sun_dir: vec3<f32>, sun_e: vec3<f32>, disc: bool, rng: ptr<function, Rng>) -> vec3<f32> {
+    // Disc: 1 − cos r from sin² r = 1 / (π L_unit) without cancellation; solid angle Ω.
+    let sin2 = select(0.0, 1.0 / (PI * P.sun_disc_radiance), disc);
+    let omc = sin2 / (1.0 + P.sun_cos_max);
+    let omega = 2.0 * PI * omc;
     var o = o0;
     var d = d0;
     var beta = 1.0;
@@ -62,6 +68,9 @@ fn radiance(o0: vec3<f32>, d0: vec3<f32>, scat0: u32, sun_dir: vec3<f32>, sun_e:
         if (hit.x <= hit.y) { t = delta_track(o, d, hit.x, hit.y, rng); }
         if (t < 0.0) {
             l += beta * P.sky_radiance;
+            if (disc && scat == 0u && dot(d, sun_dir) >= P.sun_cos_max) {
+                l += beta * sun_e * P.sun_disc_radiance;
+            }
             break;
         }
         if (T.max_depth >= 0 && i32(scat) >= T.max_depth) { break; }
@@ -69,9 +78,18 @@ fn radiance(o0: vec3<f32>, d0: vec3<f32>, scat0: u32, sun_dir: vec3<f32>, sun_e:
         scat++;
         beta *= P.albedo;
         if (beta <= 0.0) { break; }
-        let ph = hg_eval(P.g, dot(d, sun_dir));
-        if (ph > 0.0 && any(sun_e > vec3<f32>(0.0))) {
-            l += beta * ph * ratio_track(x, sun_dir, rng) * sun_e;
+        if (any(sun_e > vec3<f32>(0.0))) {
+            var wi = sun_dir;
+            var scale = 1.0;
+            if (disc) {
+                // Uniform in the cone: L / pdf = (E · L_unit) · Ω.
+                wi = around(sun_dir, 1.0 - rand(rng) * omc, 2.0 * PI * rand(rng));
+                scale = P.sun_disc_radiance * omega;
+            }
+            let ph = hg_eval(P.g, dot(d, wi));
+            if (ph > 0.0) {
+                l += beta * ph * scale * ratio_track(x, wi, rng) * sun_e;
+            }
         }
         let u1 = rand(rng);
         d = around(d, hg_sample_cos(P.g, u1), 2.0 * PI * rand(rng));
@@ -97,7 +115,7 @@ fn pt(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nw
             let fx = (f32(px) + rand(&rng)) / f32(P.width) * 2.0 - 1.0;
             let fy = 1.0 - (f32(py) + rand(&rng)) / f32(P.height) * 2.0;
             let d = normalize(P.cam_forward + P.cam_right * (fx * P.tan_half * P.aspect) + P.cam_up * (fy * P.tan_half));
-            let l = radiance(P.cam_origin, d, 0u, P.sun_dir, P.sun_irradiance, &rng);
+            let l = radiance(P.cam_origin, d, 0u, P.sun_dir, P.sun_irradiance, P.sun_disc_radiance > 0.0, &rng);
             let lum = (l.x + l.y + l.z) / 3.0;
             acc += vec4<f32>(l, lum * lum);
         }
@@ -112,7 +130,7 @@ fn pt(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nw
         for (var s = 0u; s < T.spp; s++) {
             var rng = rng_new(P.seed ^ 0x9e3779b9u, i, T.sample_offset + s);
             let dir = around(view, hg_sample_cos(P.g, rand(&rng)), 2.0 * PI * rand(&rng));
-            let l = radiance(task.x.xyz, dir, 1u, light, vec3<f32>(1.0), &rng);
+            let l = radiance(task.x.xyz, dir, 1u, light, vec3<f32>(1.0), false, &rng);
             let v = (l.x + l.y + l.z) / 3.0;
             s1 += v;
             s2 += v * v;

@@ -49,7 +49,7 @@ enum Command {
         scene: PathBuf,
         #[arg(long, value_enum, default_value = "pt")]
         method: Method,
-        /// Path tracing on the CPU (reference, default) or the GPU (f32, HG/isotropic, delta sun,
+        /// Path tracing on the CPU (reference, default) or the GPU (f32, HG/isotropic, any sun,
         /// constant sky).
         #[arg(long, value_enum, default_value = "cpu")]
         device: Device,

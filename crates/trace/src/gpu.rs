@@ -1,8 +1,9 @@
 //! The path tracer on the GPU (`shaders/pt.wgsl`): whole images (`--method pt --device gpu`,
 //! progressive) and batches of indirect-radiance estimates for RPNN training records. Same
 //! algorithm as [`crate::integrator`] in f32, with a global majorant instead of the majorant
-//! grid. Supported: HG or isotropic phase, a delta sun, a constant sky; other scenes get a clear
-//! error (use the CPU path tracer).
+//! grid and next-event estimation alone (no MIS) for a sun disc. Supported: HG or isotropic
+//! phase, a delta or disc sun, a constant sky; other scenes get a clear error (use the CPU path
+//! tracer).
 
 use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
@@ -39,7 +40,7 @@ pub enum GpuPtError {
     #[error(transparent)]
     Gpu(#[from] GpuError),
     #[error(
-        "{0} (the GPU path tracer supports HG/isotropic phase, a delta sun and a constant sky; use --device cpu)"
+        "{0} (the GPU path tracer supports HG/isotropic phase and a constant sky; use --device cpu)"
     )]
     Unsupported(String),
 }
@@ -73,11 +74,6 @@ impl<'g> GpuPathTracer<'g> {
                 )));
             }
         };
-        if scene.sun.as_ref().is_some_and(|s| !s.is_delta()) {
-            return Err(GpuPtError::Unsupported(format!(
-                "{src}: sun with a finite angular radius"
-            )));
-        }
         if matches!(scene.sky, Some(Sky::Env(_))) {
             return Err(GpuPtError::Unsupported(format!(
                 "{src}: environment-map sky"
@@ -98,6 +94,17 @@ impl<'g> GpuPathTracer<'g> {
             sigma_max: vol.max_sigma_t().max(1e-30) as f32,
             sun_dir: f3(scene.sun.as_ref().map_or(DVec3::Y, |s| s.dir)),
             sun_irradiance: f3(scene.sun.as_ref().map_or(DVec3::ZERO, |s| s.irradiance)),
+            sun_cos_max: scene
+                .sun
+                .as_ref()
+                .map_or(1.0, |s| s.angular_radius.cos() as f32),
+            sun_disc_radiance: scene
+                .sun
+                .as_ref()
+                .filter(|s| !s.is_delta())
+                .map_or(0.0, |s| {
+                    (1.0 / (std::f64::consts::PI * s.angular_radius.sin().powi(2))) as f32
+                }),
             sky_radiance: match &scene.sky {
                 Some(Sky::Constant(c)) => f3(*c),
                 _ => [0.0; 3],

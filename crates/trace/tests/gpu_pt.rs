@@ -11,8 +11,23 @@ use nimbus_trace::{RenderOptions, compare, render};
 /// f64, global majorant vs majorant grid — same expectation).
 #[test]
 fn gpu_image_matches_cpu() {
+    check(None);
+}
+
+/// A sun disc of 2° (large, so that the cone sampling matters): GPU next-event estimation alone
+/// and CPU NEE + MIS estimate the same image.
+#[test]
+fn gpu_sun_disc_matches_cpu() {
+    check(Some(2.0));
+}
+
+fn check(disc_deg: Option<f64>) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let mut scene = Scene::load(root.join("scenes/refs/cube_iso.toml")).unwrap();
+    if let Some(r) = disc_deg {
+        let s = scene.sun.clone().unwrap();
+        scene.sun = Some(nimbus_scene::Sun::new(s.dir, s.irradiance, r).unwrap());
+    }
     scene.camera = nimbus_scene::Camera::new(
         scene.camera.origin,
         scene.camera.target(),
@@ -59,11 +74,13 @@ fn gpu_image_matches_cpu() {
 fn unsupported_scenes_are_refused() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let mut scene = Scene::load(root.join("scenes/refs/cube_iso.toml")).unwrap();
-    scene.sun = Some(nimbus_scene::Sun::new(glam::DVec3::Y, glam::DVec3::ONE, 0.5).unwrap());
+    scene.sky = Some(nimbus_scene::Sky::Env(
+        nimbus_scene::EnvMap::new(nimbus_scene::Image::new(4, 2), 1.0).unwrap(),
+    ));
     let gpu = nimbus_gpu::Gpu::new().unwrap();
     let e = GpuPathTracer::new(&gpu, &scene).err().unwrap().to_string();
     assert!(
-        e.contains("angular radius") && e.contains("--device cpu"),
+        e.contains("environment-map") && e.contains("--device cpu"),
         "{e}"
     );
 }
