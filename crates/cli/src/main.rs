@@ -42,6 +42,48 @@ enum Method {
     Pm,
 }
 
+/// Photon-mapping settings shared by `render --method pm` and `animate`.
+#[derive(clap::Args)]
+struct PmArgs {
+    /// Photon mapping: beams traced per frame (n_g).
+    #[arg(long, default_value_t = 8192)]
+    beams: u32,
+    /// Photon mapping: partial caches in the ring (m).
+    #[arg(long, default_value_t = 100)]
+    ring: u32,
+    /// Photon mapping: cache resolution X,Y,Z (default: ≤ 2400 cells, the grid's proportions).
+    #[arg(long, value_delimiter = ',')]
+    cache_res: Option<Vec<u32>>,
+    /// Photon mapping: ray march at half resolution and upscale.
+    #[arg(long)]
+    half_res: bool,
+    /// Photon mapping: detail noise amplitude in density voxels (0 = off).
+    #[arg(long, default_value_t = 0.0)]
+    detail_noise: f32,
+    /// Photon mapping: similarity threshold t (switch to σ√(1−g), isotropic, after
+    /// log t / log|g| bounces; 0 = never switch).
+    #[arg(long, default_value_t = 0.05)]
+    similarity: f64,
+    /// Photon mapping: a beam stops after this many scatterings.
+    #[arg(long, default_value_t = 1024)]
+    max_order: u32,
+}
+
+impl PmArgs {
+    fn settings(&self, seed: u32) -> Result<nimbus_photon::PmSettings> {
+        Ok(nimbus_photon::PmSettings {
+            beams_per_frame: self.beams,
+            ring: self.ring,
+            cache_res: triple(self.cache_res.clone(), "--cache-res")?,
+            seed,
+            detail_noise: self.detail_noise,
+            similarity_t: self.similarity,
+            max_order: self.max_order,
+            ..Default::default()
+        })
+    }
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Render a scene to linear EXR (+ per-pixel variance) and a tone-mapped PNG.
@@ -74,31 +116,11 @@ enum Command {
         /// No progress bar.
         #[arg(long, short)]
         quiet: bool,
-        /// Photon mapping: beams traced per frame (n_g).
-        #[arg(long, default_value_t = 8192)]
-        beams: u32,
-        /// Photon mapping: partial caches in the ring (m).
-        #[arg(long, default_value_t = 100)]
-        ring: u32,
-        /// Photon mapping: cache resolution X,Y,Z (default: ≤ 2400 cells, the grid's proportions).
-        #[arg(long, value_delimiter = ',')]
-        cache_res: Option<Vec<u32>>,
         /// Print GPU time per stage (photon mapping).
         #[arg(long)]
         timings: bool,
-        /// Photon mapping: ray march at half resolution and upscale.
-        #[arg(long)]
-        half_res: bool,
-        /// Photon mapping: detail noise amplitude in density voxels (0 = off).
-        #[arg(long, default_value_t = 0.0)]
-        detail_noise: f32,
-        /// Photon mapping: similarity threshold t (switch to σ√(1−g), isotropic, after
-        /// log t / log|g| bounces; 0 = never switch).
-        #[arg(long, default_value_t = 0.05)]
-        similarity: f64,
-        /// Photon mapping: a beam stops after this many scatterings.
-        #[arg(long, default_value_t = 1024)]
-        max_order: u32,
+        #[command(flatten)]
+        pm: PmArgs,
     },
     /// Render an animation with photon mapping: moving sun and/or evolving density; numbered
     /// PNG frames and per-frame timings (CSV).
@@ -118,22 +140,11 @@ enum Command {
         /// Morph the scene's generated cloud into the next seed and back over N frames.
         #[arg(long)]
         evolve: Option<u32>,
-        #[arg(long, default_value_t = 8192)]
-        beams: u32,
-        #[arg(long, default_value_t = 100)]
-        ring: u32,
-        /// Cache resolution X,Y,Z (default: ≤ 2400 cells, the grid's proportions).
-        #[arg(long, value_delimiter = ',')]
-        cache_res: Option<Vec<u32>>,
         /// Reuse the last image while Elek's four impostor criteria allow.
         #[arg(long)]
         impostors: bool,
-        /// Ray march at half resolution and upscale.
-        #[arg(long)]
-        half_res: bool,
-        /// Detail noise amplitude in density voxels (0 = off).
-        #[arg(long, default_value_t = 0.0)]
-        detail_noise: f32,
+        #[command(flatten)]
+        pm: PmArgs,
         /// Output folder (frames frame_00000.png …, timings.csv).
         #[arg(long, short, default_value = "out/animation")]
         out: PathBuf,
@@ -235,14 +246,8 @@ fn run(cli: Cli) -> Result<()> {
             threads,
             reference,
             quiet,
-            beams,
-            ring,
-            cache_res,
             timings,
-            half_res,
-            detail_noise,
-            similarity,
-            max_order,
+            pm: pm_args,
         } => {
             if let Some(n) = threads {
                 rayon::ThreadPoolBuilder::new()
@@ -310,23 +315,13 @@ fn run(cli: Cli) -> Result<()> {
                     result.image
                 }
                 Method::Pm => {
-                    let cache_res = triple(cache_res, "--cache-res")?;
-                    let settings = nimbus_photon::PmSettings {
-                        beams_per_frame: beams,
-                        ring,
-                        cache_res,
-                        seed: opts.seed as u32,
-                        detail_noise,
-                        similarity_t: similarity,
-                        max_order,
-                        ..Default::default()
-                    };
+                    let settings = pm_args.settings(opts.seed as u32)?;
                     let gpu = nimbus_gpu::Gpu::new()?;
                     let t0 = std::time::Instant::now();
                     let mut pm = nimbus_photon::PhotonMapper::new(&gpu, &s, settings)?;
                     pm.converge();
                     pm.upsample();
-                    let image = if half_res {
+                    let image = if pm_args.half_res {
                         pm.raymarch_half(&s.camera)?
                     } else {
                         pm.raymarch(&s.camera)?
@@ -337,7 +332,7 @@ fn run(cli: Cli) -> Result<()> {
                         scene.display(),
                         gpu.describe(),
                         pm.frames(),
-                        beams,
+                        pm_args.beams,
                         pm.cache_res(),
                         if pm.uses_shared_memory() {
                             "workgroup memory"
@@ -373,12 +368,8 @@ fn run(cli: Cli) -> Result<()> {
             fps,
             density_seq,
             evolve,
-            beams,
-            ring,
-            cache_res,
             impostors,
-            half_res,
-            detail_noise,
+            pm: pm_args,
             out,
             exposure,
         } => {
@@ -401,14 +392,7 @@ fn run(cli: Cli) -> Result<()> {
             std::fs::create_dir_all(&out)
                 .with_context(|| format!("cannot create {}", out.display()))?;
             let gpu = nimbus_gpu::Gpu::new()?;
-            let settings = nimbus_photon::PmSettings {
-                beams_per_frame: beams,
-                ring,
-                cache_res: triple(cache_res, "--cache-res")?,
-                seed: s.render.seed as u32,
-                detail_noise,
-                ..Default::default()
-            };
+            let settings = pm_args.settings(s.render.seed as u32)?;
             let mut pm = nimbus_photon::PhotonMapper::new(&gpu, &s, settings)?;
             let opts = AnimateOptions {
                 frames,
@@ -416,7 +400,7 @@ fn run(cli: Cli) -> Result<()> {
                 fps,
                 density,
                 impostors: impostors.then(Default::default),
-                half_res,
+                half_res: pm_args.half_res,
             };
             let mut csv = String::from(
                 "frame,sun_azimuth_deg,traced,upsampled,impostor,tracing_ms,update_ms,upsampling_ms,raymarching_ms,gpu_total_ms,wall_ms\n",
