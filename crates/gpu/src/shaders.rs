@@ -50,6 +50,28 @@ pub fn source(name: &str) -> String {
     }
 }
 
+/// Layout of a WGSL struct as naga computes it: (member name, byte offset) in declaration
+/// order, and the struct's size. Layout tests compare it with the `#[repr(C)]` Rust twin.
+pub fn struct_layout(shader: &str, name: &str) -> (Vec<(String, u32)>, u32) {
+    let src = source(shader);
+    let module = naga::front::wgsl::parse_str(&src)
+        .unwrap_or_else(|e| panic!("{shader}: {}", e.emit_to_string(&src)));
+    let ty = module
+        .types
+        .iter()
+        .find(|(_, t)| t.name.as_deref() == Some(name))
+        .unwrap_or_else(|| panic!("{shader}: no struct {name}"))
+        .1;
+    let naga::TypeInner::Struct { members, span } = &ty.inner else {
+        panic!("{shader}: {name} is not a struct")
+    };
+    let m = members
+        .iter()
+        .map(|m| (m.name.clone().unwrap_or_default(), m.offset))
+        .collect();
+    (m, *span)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

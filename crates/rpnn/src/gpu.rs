@@ -129,23 +129,7 @@ mod tests {
     use std::mem::offset_of;
 
     fn members(name: &str) -> (Vec<(String, u32)>, u32) {
-        let src = shaders::source("rpnn_descriptor.wgsl");
-        let module = naga::front::wgsl::parse_str(&src).unwrap();
-        let (_, ty) = module
-            .types
-            .iter()
-            .find(|(_, t)| t.name.as_deref() == Some(name))
-            .unwrap();
-        let naga::TypeInner::Struct { members, span } = &ty.inner else {
-            panic!()
-        };
-        (
-            members
-                .iter()
-                .map(|m| (m.name.clone().unwrap(), m.offset))
-                .collect(),
-            *span,
-        )
+        shaders::struct_layout("rpnn_descriptor.wgsl", name)
     }
 
     #[test]

@@ -239,17 +239,8 @@ mod tests {
 
     /// (member offsets, size) of a struct in `pt.wgsl`, computed by naga.
     fn wgsl_layout(name: &str) -> (Vec<u32>, u32) {
-        let src = shaders::source("pt.wgsl");
-        let module = naga::front::wgsl::parse_str(&src).unwrap();
-        let (_, ty) = module
-            .types
-            .iter()
-            .find(|(_, t)| t.name.as_deref() == Some(name))
-            .unwrap();
-        let naga::TypeInner::Struct { members, span } = &ty.inner else {
-            panic!("{name} is not a struct")
-        };
-        (members.iter().map(|m| m.offset).collect(), *span)
+        let (m, span) = shaders::struct_layout("pt.wgsl", name);
+        (m.into_iter().map(|x| x.1).collect(), span)
     }
 
     #[test]
