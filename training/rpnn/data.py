@@ -1,0 +1,131 @@
+"""Reading ``nimbus datagen`` record sets (layout: crates/rpnn/src/dataset.rs).
+
+Shards are memory-mapped (``np.load(mmap_mode="r")``) so a set larger than memory trains without
+being read in full; minibatches gather their rows shard by shard in sorted order. With
+``preload=True`` the rows are copied into one array (or onto the GPU by the trainer) once, which is
+what keeps a GPU fed when the set fits in memory.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .model import DESCRIPTOR_LEN
+
+FORMAT = "nimbus-rpnn-records/1"
+
+
+class DataError(ValueError):
+    """A record set that cannot be used; the message names the file and the field."""
+
+
+@dataclass
+class Shard:
+    x: np.ndarray  # [n, 2251] float32 (memory-mapped)
+    y: np.ndarray  # [n] float32
+    path: Path
+
+
+def manifest_hash(root: Path) -> str:
+    return hashlib.sha256((Path(root) / "manifest.json").read_bytes()).hexdigest()
+
+
+def read_manifest(root: Path) -> dict:
+    path = Path(root) / "manifest.json"
+    try:
+        m = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise DataError(f"{path}: not found (run `nimbus datagen --out {root}` first)") from None
+    except json.JSONDecodeError as e:
+        raise DataError(f"{path}: not valid JSON ({e})") from None
+    if m.get("format") != FORMAT:
+        raise DataError(f"{path}: field 'format' is {m.get('format')!r}, expected {FORMAT!r}")
+    if m.get("descriptor_len") != DESCRIPTOR_LEN:
+        raise DataError(
+            f"{path}: field 'descriptor_len' is {m.get('descriptor_len')}, expected {DESCRIPTOR_LEN}"
+        )
+    if not isinstance(m.get("shards"), list):
+        raise DataError(f"{path}: field 'shards' is missing or not a list")
+    return m
+
+
+def _load(path: Path, shape_tail: tuple) -> np.ndarray:
+    try:
+        a = np.load(path, mmap_mode="r")
+    except FileNotFoundError:
+        raise DataError(f"{path}: not found (the manifest lists it)") from None
+    except ValueError as e:
+        raise DataError(f"{path}: not a readable .npy file ({e})") from None
+    if a.dtype != np.float32 or a.shape[1:] != shape_tail:
+        raise DataError(f"{path}: expected float32 [n{''.join(f', {d}' for d in shape_tail)}], "
+                        f"got {a.dtype} {list(a.shape)}")
+    return a
+
+
+def load_shards(root: Path, split: str, check: bool = True) -> list[Shard]:
+    """The shards of ``split`` ("train" or "test"), checked for shape and finite values."""
+    root = Path(root)
+    m = read_manifest(root)
+    shards = []
+    for i, s in enumerate(m["shards"]):
+        if s.get("split") != split:
+            continue
+        for key in ("x", "y", "records"):
+            if key not in s:
+                raise DataError(f"{root / 'manifest.json'}: shards[{i}] has no field '{key}'")
+        x = _load(root / s["x"], (DESCRIPTOR_LEN,))
+        y = _load(root / s["y"], ())
+        if len(x) != s["records"] or len(y) != s["records"]:
+            raise DataError(f"{root / s['x']}: {len(x)} rows of x and {len(y)} of y, "
+                            f"manifest field shards[{i}].records says {s['records']}")
+        if check:
+            bad = np.flatnonzero(~np.isfinite(y) | (y < 0))
+            if bad.size:
+                raise DataError(f"{root / s['y']}: row {bad[0]} is {y[bad[0]]}; targets must be finite and >= 0")
+            rows = np.flatnonzero(~np.isfinite(x).all(axis=1))
+            if rows.size:
+                raise DataError(f"{root / s['x']}: row {rows[0]} has a non-finite descriptor value")
+        shards.append(Shard(x=x, y=y, path=root / s["x"]))
+    return shards
+
+
+class Records:
+    """Rows of several shards addressed by one global index."""
+
+    def __init__(self, shards: list[Shard]):
+        self.shards = shards
+        sizes = np.array([len(s.y) for s in shards], dtype=np.int64)
+        self.offsets = np.concatenate([[0], np.cumsum(sizes)])
+
+    def __len__(self) -> int:
+        return int(self.offsets[-1])
+
+    def gather(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(x [len(idx), 2251], y [len(idx)]) for global row indices ``idx``, in that order."""
+        idx = np.asarray(idx, dtype=np.int64)
+        x = np.empty((len(idx), DESCRIPTOR_LEN), dtype=np.float32)
+        y = np.empty(len(idx), dtype=np.float32)
+        shard_of = np.searchsorted(self.offsets, idx, side="right") - 1
+        for s in np.unique(shard_of):
+            sel = np.flatnonzero(shard_of == s)
+            local = idx[sel] - self.offsets[s]
+            order = np.argsort(local)  # sorted reads are sequential on a memory map
+            x[sel[order]] = self.shards[s].x[local[order]]
+            y[sel[order]] = self.shards[s].y[local[order]]
+        return x, y
+
+
+def split_indices(n: int, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A fixed random split of n rows: (train, validation)."""
+    if not 0.0 < val_fraction < 1.0:
+        raise DataError(f"validation fraction must lie in (0, 1), got {val_fraction}")
+    perm = np.random.default_rng(seed).permutation(n)
+    n_val = max(1, int(round(n * val_fraction)))
+    if n - n_val < 1:
+        raise DataError(f"{n} records are too few to split into training and validation")
+    return np.sort(perm[n_val:]), np.sort(perm[:n_val])

@@ -1,0 +1,137 @@
+"""ONNX export of a trained RPNN, its onnxruntime check, and the model card.
+
+The graph has one input ``descriptor`` (float32 [N, 2251], layout in rpnn/model.py: raw densities
+relative to the cloud's mean extinction, level-major, then gamma in radians; N is a dynamic axis)
+and one output ``radiance`` (float32 [N, outputs]): indirect in-scattered radiance per unit sun
+irradiance. The architecture is stored in the model's metadata (``nimbus.rpnn.config``) so readers
+can refuse a graph that is not an RPNN.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+
+INPUT_NAME = "descriptor"
+OUTPUT_NAME = "radiance"
+OPSET = 17
+# Relative differences are taken against max(|torch output|, mean |torch output|): float32
+# rounding through 23 layers is relative to the size of the activations, so an output much smaller
+# than the typical one (a near-cancellation, or a ReLU output of exactly 0) carries an error that
+# is relative to the typical output, not to itself.
+
+
+def export_onnx(model: torch.nn.Module, path: Path, extra_metadata: dict | None = None) -> None:
+    import onnx
+
+    model = model.eval().cpu()
+    dummy = torch.zeros(2, model.input_len)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with warnings.catch_warnings():
+        # The TorchScript exporter gives a plain graph of MatMul/Gemm, Add, Relu, Slice and
+        # Concat nodes with the parameters as named initializers, which is what Nimbus' own
+        # ONNX reader (the WGSL backend) parses.
+        warnings.simplefilter("ignore", DeprecationWarning)
+        torch.onnx.export(
+            model,
+            (dummy,),
+            str(path),
+            input_names=[INPUT_NAME],
+            output_names=[OUTPUT_NAME],
+            dynamic_axes={INPUT_NAME: {0: "batch"}, OUTPUT_NAME: {0: "batch"}},
+            opset_version=OPSET,
+            do_constant_folding=True,
+            dynamo=False,
+        )
+    m = onnx.load(str(path))
+    meta = {"nimbus.rpnn.config": json.dumps(model.config())}
+    meta.update({k: json.dumps(v) if not isinstance(v, str) else v for k, v in (extra_metadata or {}).items()})
+    for k, v in meta.items():
+        entry = m.metadata_props.add()
+        entry.key, entry.value = k, v
+    m.producer_name = "nimbus-training"
+    onnx.checker.check_model(m)
+    onnx.save(m, str(path))
+
+
+def onnx_predict(path: Path, x: np.ndarray) -> np.ndarray:
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.log_severity_level = 3
+    sess = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+    return sess.run([OUTPUT_NAME], {INPUT_NAME: np.ascontiguousarray(x, dtype=np.float32)})[0]
+
+
+def max_relative_difference(a: np.ndarray, b: np.ndarray) -> float:
+    """max |a - b| / max(|b|, mean |b|) over all entries (b: the reference)."""
+    if not a.size:
+        return 0.0
+    floor = max(float(np.mean(np.abs(b))), 1e-30)
+    return float(np.max(np.abs(a - b) / np.maximum(np.abs(b), floor)))
+
+
+def verify(model: torch.nn.Module, path: Path, x: np.ndarray) -> dict:
+    """Runs torch and onnxruntime on the same rows; returns the comparison."""
+    model = model.eval().cpu()
+    with torch.no_grad():
+        ref = model(torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))).numpy()
+    got = onnx_predict(path, x)
+    if got.shape != ref.shape:
+        raise RuntimeError(f"{path}: onnxruntime output shape {got.shape} != torch {ref.shape}")
+    d = max_relative_difference(got, ref)
+    return {"rows": int(len(x)), "max_relative_difference": d, "passed": bool(d < 1e-5)}
+
+
+def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
+    """Writes ``<model>.json`` and ``<model>.md`` next to the ONNX file."""
+    path_onnx = Path(path_onnx)
+    pj = path_onnx.with_suffix(".json")
+    pm = path_onnx.with_suffix(".md")
+    pj.write_text(json.dumps(card, indent=2) + "\n")
+    a, d, t, e = card["architecture"], card["data"], card["training"], card["export_check"]
+    lines = [
+        f"# Model card: `{path_onnx.name}`",
+        "",
+        "Radiance-predicting neural network (Kallweit et al. 2017, §4.3) for Nimbus' RPNN estimator.",
+        "",
+        "## Architecture",
+        f"- {a['levels']} residual blocks (stencil level k and gamma into block k), "
+        f"{a['head_layers']} fully connected ReLU layers, width {a['width']}, "
+        f"{a['outputs']} output(s); {a['layers']} layers, {a['parameters']:,} parameters.",
+        f"- Input `{INPUT_NAME}`: float32 [N, {a['input_len']}], level-major densities relative to the "
+        "cloud's mean extinction, then gamma (radians); no further normalisation.",
+        f"- Output `{OUTPUT_NAME}`: float32 [N, {a['outputs']}], indirect in-scattered radiance per unit "
+        "sun irradiance.",
+        "",
+        "## Data",
+        f"- Set: `{d['root']}` (manifest sha256 `{d['manifest_sha256']}`), phase function "
+        f"{d['phase']}, albedo {d['albedo']}.",
+        f"- Clouds: {d['train_clouds']} training clouds, {d['test_clouds']} held-out test clouds.",
+        f"- Records: {d['train_records']} training-cloud records ({t['train_rows']} fitted, "
+        f"{t['val_rows']} validation), {d['test_records']} test-cloud records; "
+        f"{100 * d['convergence_rate']:.0f} % converged to ±2 % (95 %).",
+        "",
+        "## Training",
+        f"- Loss (log(1 + ŷ) − log(1 + y))², Adam (default settings), minibatch {t['batch']}, "
+        f"{t['epochs']} epochs, seed {t['seed']}, device {t['device']}, {t['seconds']:.0f} s.",
+        f"- Best validation loss {t['best_val_loss']:.4g} (epoch {t['best_epoch']}); "
+        f"test-cloud loss {t['test_loss'] if t['test_loss'] is None else format(t['test_loss'], '.4g')}.",
+        "",
+        "## Export check",
+        f"- onnxruntime vs torch on {e['rows']} real records: max relative difference "
+        f"{e['max_relative_difference']:.2e} ({'passed' if e['passed'] else 'FAILED'}, bound 1e-5).",
+        "",
+        "## Reproduce",
+        "```",
+        card["reproduce"],
+        "```",
+        "",
+    ]
+    pm.write_text("\n".join(lines))
+    return pj, pm

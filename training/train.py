@@ -1,0 +1,308 @@
+#!/usr/bin/env python3
+"""Train the RPNN of Kallweit et al. 2017 (§4.3 network, §5.2 procedure) on `nimbus datagen`
+records and export it to ONNX.
+
+    python training/train.py --data out/rpnn-hg --run out/train-hg --epochs 200 \
+        --export models/rpnn-hg.onnx
+
+- Loss (log(1 + y_hat) - log(1 + y))^2, Adam with default settings, minibatches of 1000 (§5.2).
+- The records of the training clouds are split 75 % / 25 % (fixed seed) into fitting and
+  validation rows; the held-out test clouds' records (split "test") are reported separately.
+- Every epoch: validation (and test) loss, a row in ``<run>/log.csv``, ``<run>/curves.png``,
+  ``<run>/last.pt`` (resumable with ``--resume``) and ``<run>/best.pt`` when validation improves.
+- ``--export`` writes the best checkpoint as ONNX, checks it against torch with onnxruntime on
+  real records (max relative difference < 1e-5) and writes the model card next to it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from rpnn import data as rdata  # noqa: E402
+from rpnn import export as rexport  # noqa: E402
+from rpnn.model import RPNN, log_loss, parameter_count  # noqa: E402
+
+
+def parse_args(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--data", required=True, type=Path, help="a `nimbus datagen --out` folder")
+    p.add_argument("--run", required=True, type=Path, help="folder for checkpoints, log and plot")
+    p.add_argument("--epochs", type=int, default=100)
+    p.add_argument("--batch", type=int, default=1000, help="minibatch size (§5.2: 1000)")
+    p.add_argument("--val-fraction", type=float, default=0.25)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
+    p.add_argument("--width", type=int, default=200)
+    p.add_argument("--levels", type=int, default=10)
+    p.add_argument("--head-layers", type=int, default=3)
+    p.add_argument("--outputs", type=int, default=1, help="output channels (1: grey radiance)")
+    p.add_argument("--lr", type=float, default=1e-3, help="Adam step size (default: Adam's own)")
+    p.add_argument("--resume", action="store_true", help="continue from <run>/last.pt")
+    p.add_argument("--preload", default="auto", choices=["auto", "yes", "no"],
+                   help="copy the records into memory (GPU memory on CUDA) instead of reading "
+                        "memory-mapped shards per batch; auto: when they take < 4 GiB")
+    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+    p.add_argument("--export", type=Path, help="write the best model as ONNX (+ card) here")
+    p.add_argument("--reproduce", default="", help="the command recorded in the model card")
+    p.add_argument("--quiet", action="store_true")
+    args = p.parse_args(argv)
+    for name in ("epochs", "batch", "width", "levels", "head_layers", "outputs"):
+        v = getattr(args, name)
+        if v < (0 if name == "epochs" else 1):
+            p.error(f"--{name.replace('_', '-')} must be >= {0 if name == 'epochs' else 1}, got {v}")
+    if not (args.lr > 0 and np.isfinite(args.lr)):
+        p.error(f"--lr must be positive, got {args.lr}")
+    return args
+
+
+def pick_device(name: str) -> torch.device:
+    if name == "cuda" and not torch.cuda.is_available():
+        raise SystemExit("--device cuda: torch sees no CUDA device")
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    return torch.device(name)
+
+
+class Batches:
+    """Minibatches of a record subset; memory-mapped with one batch prefetched, or preloaded."""
+
+    def __init__(self, records: rdata.Records, idx: np.ndarray, device, preload: bool):
+        self.records, self.idx, self.device = records, idx, device
+        self.x = self.y = None
+        if preload and len(idx):
+            x, y = records.gather(idx)
+            self.x = torch.from_numpy(x).to(device)
+            self.y = torch.from_numpy(y).to(device)
+
+    def __len__(self):
+        return len(self.idx)
+
+    def iterate(self, batch: int, order: np.ndarray | None):
+        """Yields (x, y) tensors on the device; ``order`` permutes the rows (None: in order)."""
+        n = len(self.idx)
+        pos = np.arange(n) if order is None else order
+        chunks = [pos[i : i + batch] for i in range(0, n, batch)]
+        if self.x is not None:
+            for c in chunks:
+                t = torch.from_numpy(c).to(self.device)
+                yield self.x[t], self.y[t]
+            return
+
+        def load(c):
+            x, y = self.records.gather(self.idx[c])
+            return torch.from_numpy(x), torch.from_numpy(y)
+
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            fut = pool.submit(load, chunks[0]) if chunks else None
+            for i in range(len(chunks)):
+                x, y = fut.result()
+                if i + 1 < len(chunks):
+                    fut = pool.submit(load, chunks[i + 1])
+                nb = self.device.type == "cuda"
+                yield x.to(self.device, non_blocking=nb), y.to(self.device, non_blocking=nb)
+
+
+def evaluate(model, batches: Batches, batch: int) -> float | None:
+    if len(batches) == 0:
+        return None
+    model.eval()
+    total = 0.0
+    with torch.no_grad():
+        for x, y in batches.iterate(batch, None):
+            total += float(log_loss(model(x), y[:, None].expand(-1, model.outputs))) * len(y)
+    return total / len(batches)
+
+
+def plot(log_rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
+    ep = [r["epoch"] for r in log_rows]
+    for key, label in (("train_loss", "training"), ("val_loss", "validation"),
+                       ("test_loss", "held-out clouds")):
+        vals = [r[key] for r in log_rows]
+        if any(v is not None and v != "" for v in vals):
+            ax.plot(ep, [float(v) if v not in (None, "") else np.nan for v in vals], label=label)
+    ax.set_yscale("log")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("loss (log(1+ŷ) − log(1+y))²")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def build_model(args) -> RPNN:
+    torch.manual_seed(args.seed)
+    return RPNN(levels=args.levels, width=args.width, head_layers=args.head_layers,
+                outputs=args.outputs)
+
+
+def train(args) -> dict:
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    device = pick_device(args.device)
+    say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
+    manifest = rdata.read_manifest(args.data)
+    train_shards = rdata.load_shards(args.data, "train")
+    test_shards = rdata.load_shards(args.data, "test")
+    train_recs = rdata.Records(train_shards)
+    test_recs = rdata.Records(test_shards)
+    if len(train_recs) < 2:
+        raise SystemExit(f"{args.data}: {len(train_recs)} training records; at least 2 are needed")
+    fit_idx, val_idx = rdata.split_indices(len(train_recs), args.val_fraction, args.seed)
+    total_bytes = (len(train_recs) + len(test_recs)) * rdata.DESCRIPTOR_LEN * 4
+    preload = args.preload == "yes" or (args.preload == "auto" and total_bytes < 4 << 30)
+    fit = Batches(train_recs, fit_idx, device, preload)
+    val = Batches(train_recs, val_idx, device, preload)
+    test = Batches(test_recs, np.arange(len(test_recs)), device, preload)
+
+    model = build_model(args)
+    model.init_output_bias(float(np.mean(train_recs.gather(fit_idx)[1])))
+    model = model.to(device)
+    opt = torch.optim.Adam(model.parameters(), lr=args.lr)
+    args.run.mkdir(parents=True, exist_ok=True)
+    last, best = args.run / "last.pt", args.run / "best.pt"
+    state = {"epoch": 0, "best_val": float("inf"), "best_epoch": 0, "log": [], "seconds": 0.0}
+    if args.resume and last.exists():
+        ck = torch.load(last, map_location=device, weights_only=False)
+        if ck["config"] != model.config():
+            raise SystemExit(f"{last}: checkpoint architecture {ck['config']} differs from "
+                             f"the requested {model.config()}")
+        model.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["optimizer"])
+        state = ck["state"]
+        say(f"resumed from {last} after epoch {state['epoch']}")
+    say(f"RPNN {model.config()}: {parameter_count(model):,} parameters; device {device}; "
+        f"{len(fit)} fitting / {len(val)} validation / {len(test)} test records; "
+        f"{'preloaded' if preload else 'memory-mapped'}")
+
+    if not state["log"]:
+        # Epoch 0: the untrained network (a constant near the mean target), the baseline of the
+        # learning curves.
+        state["log"].append({"epoch": 0, "train_loss": None,
+                             "val_loss": evaluate(model, val, 4 * args.batch),
+                             "test_loss": evaluate(model, test, 4 * args.batch), "seconds": 0.0})
+    for epoch in range(state["epoch"] + 1, args.epochs + 1):
+        t0 = time.time()
+        model.train()
+        order = np.random.default_rng([args.seed, epoch]).permutation(len(fit))
+        tl, tn = 0.0, 0
+        for x, y in fit.iterate(args.batch, order):
+            opt.zero_grad(set_to_none=True)
+            loss = log_loss(model(x), y[:, None].expand(-1, model.outputs))
+            loss.backward()
+            opt.step()
+            tl += float(loss.detach()) * len(y)
+            tn += len(y)
+        vl = evaluate(model, val, 4 * args.batch)
+        te = evaluate(model, test, 4 * args.batch)
+        dt = time.time() - t0
+        state["seconds"] += dt
+        state["epoch"] = epoch
+        row = {"epoch": epoch, "train_loss": tl / max(tn, 1), "val_loss": vl,
+               "test_loss": te, "seconds": state["seconds"]}
+        state["log"].append(row)
+        if vl < state["best_val"]:
+            state["best_val"], state["best_epoch"] = vl, epoch
+            torch.save({"model": model.state_dict(), "config": model.config(), "epoch": epoch}, best)
+        torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(),
+                    "config": model.config(), "state": state}, last)
+        with open(args.run / "log.csv", "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(row))
+            w.writeheader()
+            w.writerows(state["log"])
+        plot(state["log"], args.run / "curves.png")
+        te_s = "" if te is None else f", test {te:.5g}"
+        say(f"epoch {epoch}: train {row['train_loss']:.5g}, validation {vl:.5g}{te_s} ({dt:.1f} s)")
+
+    result = {"state": state, "manifest": manifest, "fit": len(fit), "val": len(val),
+              "test": len(test), "device": str(device)}
+    if args.export:
+        result["card"] = export(args, result, train_recs, val_idx, test_recs)
+        say(f"wrote {args.export} (export check: max relative difference "
+            f"{result['card']['export_check']['max_relative_difference']:.2e})")
+    return result
+
+
+def export(args, result, train_recs, val_idx, test_recs) -> dict:
+    best = args.run / "best.pt"
+    if not best.exists():
+        raise SystemExit(f"{best}: no checkpoint to export (train at least one epoch)")
+    ck = torch.load(best, map_location="cpu", weights_only=False)
+    model = RPNN(**ck["config"])
+    model.load_state_dict(ck["model"])
+    m = result["manifest"]
+    rexport.export_onnx(model, args.export, {
+        "nimbus.rpnn.phase": m.get("settings", {}).get("phase", "unknown"),
+        "nimbus.rpnn.data_manifest_sha256": rdata.manifest_hash(args.data),
+    })
+    # Check on real records: validation rows, then held-out ones (up to 2000 in all).
+    xv, _ = train_recs.gather(val_idx[:1000])
+    rows = [xv]
+    if len(test_recs):
+        rows.append(test_recs.gather(np.arange(min(1000, len(test_recs))))[0])
+    check = rexport.verify(model, args.export, np.concatenate(rows))
+    s = result["state"]
+    cfg = model.config()
+    settings = m.get("settings", {})
+    splits = [c.get("split") for c in m.get("clouds", [])]
+    card = {
+        "model": Path(args.export).name,
+        "architecture": {**cfg, "input_len": model.input_len,
+                         "layers": 2 * cfg["levels"] + cfg["head_layers"],
+                         "parameters": parameter_count(model),
+                         "input": rexport.INPUT_NAME, "output": rexport.OUTPUT_NAME,
+                         "opset": rexport.OPSET},
+        "data": {"root": str(args.data), "manifest_sha256": rdata.manifest_hash(args.data),
+                 "phase": settings.get("phase"), "albedo": settings.get("albedo"),
+                 "seed": settings.get("seed"), "max_samples": settings.get("max_samples"),
+                 "train_clouds": splits.count("train"), "test_clouds": splits.count("test"),
+                 "clouds": m.get("clouds", []),
+                 "train_records": result["fit"] + result["val"],
+                 "test_records": result["test"],
+                 "convergence_rate": m.get("convergence_rate")},
+        "training": {"epochs": s["epoch"], "best_epoch": s["best_epoch"],
+                     "best_val_loss": s["best_val"],
+                     "test_loss": next((r["test_loss"] for r in s["log"]
+                                        if r["epoch"] == s["best_epoch"]), None),
+                     "train_rows": result["fit"], "val_rows": result["val"],
+                     "batch": args.batch, "lr": args.lr, "seed": args.seed,
+                     "device": result["device"], "seconds": s["seconds"],
+                     "torch": torch.__version__},
+        "export_check": check,
+        "reproduce": args.reproduce or " ".join(["python"] + sys.argv),
+    }
+    rexport.write_card(args.export, card)
+    if not check["passed"]:
+        raise SystemExit(f"{args.export}: onnxruntime and torch differ by "
+                         f"{check['max_relative_difference']:.2e} (> 1e-5)")
+    return card
+
+
+def main(argv=None):
+    args = parse_args(argv)
+    try:
+        train(args)
+    except rdata.DataError as e:
+        raise SystemExit(f"error: {e}") from None
+
+
+if __name__ == "__main__":
+    main()
