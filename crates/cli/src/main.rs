@@ -151,6 +151,59 @@ enum Command {
         #[arg(long)]
         exposure: Option<f64>,
     },
+    /// Interactive viewer: the photon-mapped cloud in a window, following sun, camera and
+    /// density changes (Elek 2012); progressive path tracing on key 2. Without a scene: a
+    /// generated cumulus. `--headless` runs the same loop without a window.
+    View {
+        /// Scene TOML (default: the demo cumulus at 960×600).
+        scene: Option<PathBuf>,
+        /// Run without a window for --frames frames (default: the ring size m, i.e. converged).
+        #[arg(long)]
+        headless: bool,
+        /// Stop after this many frames (windowed: close the window).
+        #[arg(long)]
+        frames: Option<u32>,
+        /// Timed actions, one `FRAME ACTION [ARGS]` per line (see `nimbus_viewer::script`).
+        #[arg(long)]
+        script: Option<PathBuf>,
+        /// Save the last frame here when the viewer stops (`.exr`: linear; else PNG).
+        #[arg(long)]
+        screenshot: Option<PathBuf>,
+        /// Image size WIDTHxHEIGHT (default: the scene camera's).
+        #[arg(long)]
+        size: Option<String>,
+        /// Estimator at start: pm or pt.
+        #[arg(long, default_value = "pm")]
+        method: String,
+        /// Start with the sun moving.
+        #[arg(long)]
+        play_sun: bool,
+        /// Sun angular speed about +y while playing, degrees per second.
+        #[arg(long, default_value_t = 10.0)]
+        sun_speed: f64,
+        /// Folder of volume files, one per frame (same resolution as the scene's volume).
+        #[arg(long)]
+        density_seq: Option<PathBuf>,
+        /// Morph the scene's generated cloud into the next seed and back over N frames.
+        #[arg(long)]
+        evolve: Option<u32>,
+        /// Density-animation frames per second (the animation starts playing when given).
+        #[arg(long, default_value_t = 10.0)]
+        density_fps: f64,
+        /// Ray march every frame instead of re-projecting the impostor (Elek §4.4).
+        #[arg(long)]
+        no_impostors: bool,
+        /// Headless: simulated seconds per frame.
+        #[arg(long, default_value_t = 1.0 / 30.0)]
+        dt: f64,
+        /// Print every frame's status line (stages, photons, impostor criteria).
+        #[arg(long)]
+        log: bool,
+        #[arg(long)]
+        exposure: Option<f64>,
+        #[command(flatten)]
+        pm: PmArgs,
+    },
     /// Generate RPNN training records (Kallweit 2017 §5.1): descriptors and path-traced indirect
     /// radiance, sharded .npy files and manifest.json; resumable.
     Datagen {
@@ -361,6 +414,43 @@ fn run(cli: Cli) -> Result<()> {
                 print_metrics(&exr, &r, None)?;
             }
         }
+        Command::View {
+            scene,
+            headless,
+            frames,
+            script,
+            screenshot,
+            size,
+            method,
+            play_sun,
+            sun_speed,
+            density_seq,
+            evolve,
+            density_fps,
+            no_impostors,
+            dt,
+            log,
+            exposure,
+            pm,
+        } => view(
+            scene,
+            headless,
+            frames,
+            script,
+            screenshot,
+            size,
+            method,
+            play_sun,
+            sun_speed,
+            density_seq,
+            evolve,
+            density_fps,
+            no_impostors,
+            dt,
+            log,
+            exposure,
+            pm,
+        )?,
         Command::Animate {
             scene,
             frames,
@@ -373,22 +463,12 @@ fn run(cli: Cli) -> Result<()> {
             out,
             exposure,
         } => {
-            use nimbus_photon::animate::{AnimateOptions, DensitySequence, animate};
+            use nimbus_photon::animate::{AnimateOptions, animate};
             let s = Scene::load(&scene)?;
             if !(fps.is_finite() && fps > 0.0 && sun_speed.is_finite()) {
                 bail!("--fps must be > 0 and --sun-speed finite");
             }
-            let density = match (density_seq, evolve) {
-                (Some(_), Some(_)) => bail!("give --density-seq or --evolve, not both"),
-                (Some(d), None) => DensitySequence::from_dir(&d)?,
-                (None, Some(n)) => match &s.volume_source {
-                    nimbus_scene::VolumeSource::Generated { kind, seed } => {
-                        DensitySequence::morph(*kind, *seed, s.volume.grid().res(), n)?
-                    }
-                    _ => bail!("--evolve needs a scene whose volume uses `generator`"),
-                },
-                (None, None) => DensitySequence::Static,
-            };
+            let density = density_sequence(&s, density_seq, evolve)?;
             std::fs::create_dir_all(&out)
                 .with_context(|| format!("cannot create {}", out.display()))?;
             let gpu = nimbus_gpu::Gpu::new()?;
@@ -603,6 +683,166 @@ fn run(cli: Cli) -> Result<()> {
 }
 
 /// The cloud mask to use: the given one, else `<reference>_tau.npy` when it exists.
+/// The density animation asked for by `--density-seq` / `--evolve`.
+fn density_sequence(
+    s: &Scene,
+    density_seq: Option<PathBuf>,
+    evolve: Option<u32>,
+) -> Result<nimbus_photon::animate::DensitySequence> {
+    use nimbus_photon::animate::DensitySequence;
+    Ok(match (density_seq, evolve) {
+        (Some(_), Some(_)) => bail!("give --density-seq or --evolve, not both"),
+        (Some(d), None) => DensitySequence::from_dir(&d)?,
+        (None, Some(n)) => match &s.volume_source {
+            nimbus_scene::VolumeSource::Generated { kind, seed } => {
+                DensitySequence::morph(*kind, *seed, s.volume.grid().res(), n)?
+            }
+            _ => bail!("--evolve needs a scene whose volume uses `generator`"),
+        },
+        (None, None) => DensitySequence::Static,
+    })
+}
+
+/// `nimbus view`.
+#[allow(clippy::too_many_arguments)]
+fn view(
+    scene: Option<PathBuf>,
+    headless: bool,
+    frames: Option<u32>,
+    script: Option<PathBuf>,
+    screenshot: Option<PathBuf>,
+    size: Option<String>,
+    method: String,
+    play_sun: bool,
+    sun_speed: f64,
+    density_seq: Option<PathBuf>,
+    evolve: Option<u32>,
+    density_fps: f64,
+    no_impostors: bool,
+    dt: f64,
+    log: bool,
+    exposure: Option<f64>,
+    pm_args: PmArgs,
+) -> Result<()> {
+    use nimbus_viewer::{Method, Script, ViewerOptions};
+    let (mut s, source) = match &scene {
+        Some(p) => {
+            let s = Scene::load(p)?;
+            let text = std::fs::read_to_string(p)
+                .with_context(|| format!("cannot read {}", p.display()))?;
+            let dir = p.parent().map(|d| d.to_path_buf()).unwrap_or_default();
+            let dir = std::fs::canonicalize(if dir.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                &dir
+            })
+            .unwrap_or(dir);
+            (s, Some((text, dir)))
+        }
+        None => {
+            let text = nimbus_viewer::DEFAULT_SCENE;
+            let label = Path::new("scenes/demo-cumulus.toml");
+            let mut s = Scene::from_toml_str(text, Path::new("."), label)?;
+            let (w, h) = nimbus_viewer::DEFAULT_SIZE;
+            s.camera = nimbus_scene::Camera::new(
+                s.camera.origin,
+                s.camera.target(),
+                s.camera.up_hint(),
+                s.camera.vfov_deg(),
+                w,
+                h,
+            )?;
+            (s, Some((text.to_string(), std::env::current_dir()?)))
+        }
+    };
+    if let Some(size) = size {
+        let (w, h) = size
+            .split_once('x')
+            .and_then(|(w, h)| Some((w.parse::<usize>().ok()?, h.parse::<usize>().ok()?)))
+            .with_context(|| format!("--size: expected WIDTHxHEIGHT, got `{size}`"))?;
+        s.camera = nimbus_scene::Camera::new(
+            s.camera.origin,
+            s.camera.target(),
+            s.camera.up_hint(),
+            s.camera.vfov_deg(),
+            w,
+            h,
+        )
+        .map_err(|e| anyhow::anyhow!("--size: {e}"))?;
+    }
+    let method = match Method::parse(&method) {
+        Some(Method::Rpnn) => bail!("--method rpnn: RPNN rendering is not available yet"),
+        Some(m) => m,
+        None => bail!("--method: expected pm or pt, got `{method}`"),
+    };
+    if !(sun_speed.is_finite() && density_fps.is_finite() && density_fps > 0.0) {
+        bail!("--sun-speed must be finite and --density-fps positive");
+    }
+    if !(dt.is_finite() && dt >= 0.0) {
+        bail!("--dt must be finite and ≥ 0, got {dt}");
+    }
+    if let Some(e) = exposure
+        && !(e.is_finite() && e > 0.0)
+    {
+        bail!("--exposure must be positive, got {e}");
+    }
+    let density = density_sequence(&s, density_seq, evolve)?;
+    let animated = !matches!(density, nimbus_photon::animate::DensitySequence::Static);
+    let script = match &script {
+        Some(p) => Script::load(p)?,
+        None => Script::default(),
+    };
+    let opts = ViewerOptions {
+        pm: pm_args.settings(s.render.seed as u32)?,
+        half_res: pm_args.half_res,
+        impostors: (!no_impostors).then(Default::default),
+        density,
+        sun_speed_deg_s: sun_speed,
+        density_fps,
+        play_sun,
+        play_density: animated,
+        method,
+        exposure,
+    };
+    if headless {
+        let frames = frames.unwrap_or(pm_args.ring);
+        let gpu = nimbus_gpu::Gpu::new()?;
+        let h = nimbus_viewer::headless::HeadlessOptions {
+            frames,
+            dt,
+            script,
+            screenshot: screenshot.clone(),
+        };
+        let report = nimbus_viewer::headless::run(&gpu, s, source, opts, &h, |line| {
+            if log {
+                say!("{line}");
+            }
+        })?;
+        say!(
+            "nimbus view --headless on {}: {} frames, {:.1} ms per frame{}",
+            gpu.describe(),
+            report.frames,
+            report.mean_frame_ms,
+            screenshot
+                .map(|p| format!(", wrote {}", p.display()))
+                .unwrap_or_default()
+        );
+        return Ok(());
+    }
+    nimbus_viewer::window::run(
+        s,
+        source,
+        opts,
+        nimbus_viewer::window::WindowOptions {
+            script,
+            frames,
+            screenshot,
+            log,
+        },
+    )?;
+    Ok(())
+}
+
 fn mask_for(reference: &Path, mask: Option<PathBuf>) -> Option<PathBuf> {
     let auto = PathBuf::from(format!(
         "{}_tau.npy",

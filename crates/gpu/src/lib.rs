@@ -58,7 +58,17 @@ impl Gpu {
     /// when offered) and the adapter's own limits.
     pub fn new() -> Result<Self, GpuError> {
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
+        Ok(Self::for_surface(&instance, None)?.0)
+    }
+
+    /// Like [`Gpu::new`], restricted to adapters that can present to `surface` (a window);
+    /// also returns the adapter, which the surface configuration needs.
+    pub fn for_surface(
+        instance: &wgpu::Instance,
+        surface: Option<&wgpu::Surface<'_>>,
+    ) -> Result<(Self, wgpu::Adapter), GpuError> {
         let mut adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
+        adapters.retain(|a| surface.is_none_or(|s| a.is_surface_supported(s)));
         adapters.sort_by_key(|a| preference(a.get_info().device_type));
         let adapter = adapters.into_iter().next().ok_or(GpuError::NoAdapter)?;
         let info = adapter.get_info();
@@ -75,13 +85,16 @@ impl Gpu {
             adapter: info.name.clone(),
             msg: e.to_string(),
         })?;
-        Ok(Self {
-            device,
-            queue,
-            info,
-            limits,
-            features,
-        })
+        Ok((
+            Self {
+                device,
+                queue,
+                info,
+                limits,
+                features,
+            },
+            adapter,
+        ))
     }
 
     /// A one-line description of the adapter.

@@ -34,6 +34,11 @@ pub const SHADERS: &[(&str, &str, bool)] = &[
         include_str!("../../../shaders/rpnn_descriptor.wgsl"),
         false,
     ),
+    (
+        "blit.wgsl",
+        include_str!("../../../shaders/blit.wgsl"),
+        false,
+    ),
 ];
 
 /// Full source of a shader: `common.wgsl` (for the photon-mapping shaders) followed by the

@@ -6,6 +6,7 @@
 //! 4. animation — the density changed by more than a tunable relative L1 amount (default 2 %).
 
 use glam::DVec3;
+use nimbus_scene::{Camera, Image};
 
 /// Thresholds of the four criteria.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -120,9 +121,127 @@ impl ImpostorState {
     }
 }
 
+/// Shows an impostor rendered from camera `from` as seen from camera `to` (Elek §4.4: the
+/// impostor is a billboard). The billboard is the plane through the cloud centre `center`
+/// facing the impostor's camera; each pixel of `to` looks up where its ray meets that plane in
+/// the impostor image (bilinear). Rays that miss the plane (parallel or behind) get the
+/// impostor's corner pixel, the background.
+pub fn reproject(image: &Image, from: &Camera, to: &Camera, center: DVec3) -> Image {
+    use rayon::prelude::*;
+    let (w0, h0) = (from.width as f64, from.height as f64);
+    let (f0, r0, u0, t0) = from.basis();
+    let a0 = w0 / h0;
+    let n = (from.origin - center).normalize();
+    let background = image.get(0, 0);
+    let mut out = Image::new(to.width, to.height);
+    let sample = |px: f64, py: f64| -> [f32; 3] {
+        // Continuous pixel coordinates; pixel (i, j) has its centre at (i + ½, j + ½).
+        let x = (px - 0.5).clamp(0.0, w0 - 1.0);
+        let y = (py - 0.5).clamp(0.0, h0 - 1.0);
+        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(from.width - 1), (y0 + 1).min(from.height - 1));
+        let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+        let (a, b, c, d) = (
+            image.get(x0, y0),
+            image.get(x1, y0),
+            image.get(x0, y1),
+            image.get(x1, y1),
+        );
+        std::array::from_fn(|k| {
+            (a[k] * (1.0 - fx) + b[k] * fx) * (1.0 - fy) + (c[k] * (1.0 - fx) + d[k] * fx) * fy
+        })
+    };
+    out.pixels
+        .par_chunks_mut(to.width)
+        .enumerate()
+        .for_each(|(j, row)| {
+            for (i, px) in row.iter_mut().enumerate() {
+                let d = to.ray_dir(i as f64 + 0.5, j as f64 + 0.5);
+                let dn = d.dot(n);
+                let t = if dn.abs() > 1e-12 {
+                    (center - to.origin).dot(n) / dn
+                } else {
+                    -1.0
+                };
+                let v = to.origin + d * t - from.origin;
+                let z = v.dot(f0);
+                *px = if t > 0.0 && z > 0.0 {
+                    let x = v.dot(r0) / (z * t0 * a0);
+                    let y = v.dot(u0) / (z * t0);
+                    sample((x + 1.0) * 0.5 * w0, (1.0 - y) * 0.5 * h0)
+                } else {
+                    background
+                };
+            }
+        });
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn camera(origin: DVec3, w: usize, h: usize) -> Camera {
+        Camera::new(origin, DVec3::ZERO, DVec3::Y, 30.0, w, h).unwrap()
+    }
+
+    #[test]
+    fn reprojection_to_the_same_camera_is_the_identity() {
+        let cam = camera(DVec3::new(0.3, 0.2, 4.0), 40, 30);
+        let mut img = Image::new(40, 30);
+        for (k, p) in img.pixels.iter_mut().enumerate() {
+            *p = [k as f32, (k % 7) as f32, 1.0];
+        }
+        let out = reproject(&img, &cam, &cam, DVec3::ZERO);
+        for (a, b) in out.pixels.iter().zip(&img.pixels) {
+            for c in 0..3 {
+                // Pixel centres map to pixel centres up to f64 rounding of the projection.
+                assert!(
+                    (a[c] - b[c]).abs() < 1e-3 * b[c].abs().max(1.0),
+                    "{a:?} {b:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn reprojection_follows_a_pan_and_a_resize() {
+        // A bright pixel at the image centre (the cloud centre) stays at the centre of a camera
+        // that orbits by 3° and renders at twice the resolution.
+        let from = camera(DVec3::new(0.0, 0.0, 4.0), 41, 31);
+        let mut img = Image::new(41, 31);
+        img.pixels[15 * 41 + 20] = [1.0; 3];
+        let o = DVec3::new(
+            4.0 * 3f64.to_radians().sin(),
+            0.0,
+            4.0 * 3f64.to_radians().cos(),
+        );
+        let to = camera(o, 82, 62);
+        let out = reproject(&img, &from, &to, DVec3::ZERO);
+        let (mut best, mut at) = (0.0, 0);
+        for (k, p) in out.pixels.iter().enumerate() {
+            if p[0] > best {
+                (best, at) = (p[0], k);
+            }
+        }
+        let (x, y) = (at % 82, at / 82);
+        assert!(
+            (x as i64 - 41).abs() <= 1 && (y as i64 - 31).abs() <= 1,
+            "{x} {y}"
+        );
+        // Looking away from the billboard: background.
+        let away = Camera::new(
+            DVec3::new(0.0, 0.0, 4.0),
+            DVec3::new(0.0, 0.0, 8.0),
+            DVec3::Y,
+            30.0,
+            8,
+            8,
+        )
+        .unwrap();
+        let out = reproject(&img, &from, &away, DVec3::ZERO);
+        assert!(out.pixels.iter().all(|p| *p == img.get(0, 0)));
+    }
 
     #[test]
     fn four_criteria() {

@@ -695,6 +695,14 @@ impl<'g> PhotonMapper<'g> {
             .fold((0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
     }
 
+    /// (sun, sky) beams of the most recently traced generation.
+    pub fn last_generation_beams(&self) -> (u64, u64) {
+        if self.frame == 0 {
+            return (0, 0);
+        }
+        self.slot_beams[((self.frame - 1) % self.settings.ring) as usize]
+    }
+
     /// Converged render: fills the ring, upsamples, ray marches.
     pub fn render(&mut self, camera: &Camera) -> Result<Image, PmError> {
         self.converge();
