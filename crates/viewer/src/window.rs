@@ -366,11 +366,7 @@ impl App {
         }
         let t_present = Instant::now();
         let img = r.viewer.image();
-        let rgb = img.to_srgb8(r.viewer.exposure());
-        let mut rgba = Vec::with_capacity(rgb.len() / 3 * 4);
-        for p in rgb.chunks_exact(3) {
-            rgba.extend_from_slice(&[p[0], p[1], p[2], 255]);
-        }
+        let rgba = to_rgba8(img, r.viewer.exposure());
         r.blit
             .upload(r.gpu, &rgba, img.width as u32, img.height as u32);
         let frame = match r.surface.get_current_texture() {
@@ -480,6 +476,24 @@ impl App {
     }
 }
 
+/// Display encoding, in parallel rows: sRGB(clamp(exposure · L)) as 8-bit RGBA, the same
+/// mapping as the PNG writer.
+fn to_rgba8(img: &nimbus_scene::Image, exposure: f64) -> Vec<u8> {
+    use rayon::prelude::*;
+    let mut out = vec![255u8; img.pixels.len() * 4];
+    out.par_chunks_mut(4 * img.width)
+        .zip(img.pixels.par_chunks(img.width))
+        .for_each(|(row, px)| {
+            for (o, p) in row.chunks_exact_mut(4).zip(px) {
+                for c in 0..3 {
+                    let v = (p[c] as f64 * exposure).clamp(0.0, 1.0);
+                    o[c] = (nimbus_scene::image::srgb_oetf(v) * 255.0).round() as u8;
+                }
+            }
+        });
+    out
+}
+
 fn sun_move(az: f64, el: f64) -> Action {
     Action::MoveSun {
         azimuth_deg: az,
@@ -582,6 +596,25 @@ impl App {
         match self.running.as_mut() {
             Some(r) => r.viewer.apply(&a),
             None => Ok(()),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn display_encoding_matches_the_png_writer() {
+        let mut img = nimbus_scene::Image::new(7, 3);
+        for (k, p) in img.pixels.iter_mut().enumerate() {
+            *p = [k as f32 * 0.05, 0.001 * k as f32, 2.0 - k as f32 * 0.1];
+        }
+        let rgba = to_rgba8(&img, 1.3);
+        let rgb = img.to_srgb8(1.3);
+        for (a, b) in rgba.chunks_exact(4).zip(rgb.chunks_exact(3)) {
+            assert_eq!(&a[..3], b);
+            assert_eq!(a[3], 255);
         }
     }
 }
