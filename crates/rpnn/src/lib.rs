@@ -8,6 +8,8 @@ pub mod datagen;
 pub mod dataset;
 pub mod descriptor;
 pub mod gpu;
+pub mod model;
+pub mod ort_backend;
 pub mod pyramid;
 
 pub use descriptor::{Config, DESCRIPTOR_LEN, LEVELS, POINTS, descriptor, descriptors};

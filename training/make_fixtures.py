@@ -1,0 +1,51 @@
+#!/usr/bin/env python3
+"""Writes the ONNX test fixtures of `nimbus-rpnn` (crates/rpnn/tests/data/):
+
+- rpnn-tiny.onnx: an RPNN (10 levels, width 16, 3 head layers, 1 output) with random weights;
+- rpnn-tiny-io.npy: float32 [16, 2252], 16 random descriptors with torch's output appended;
+- not-rpnn.onnx: a vanilla MLP on the whole descriptor (the reader must refuse it);
+
+    training/.venv/bin/python training/make_fixtures.py
+"""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from rpnn import export  # noqa: E402
+from rpnn.model import DESCRIPTOR_LEN, RPNN  # noqa: E402
+
+out = Path(__file__).resolve().parents[1] / "crates/rpnn/tests/data"
+out.mkdir(parents=True, exist_ok=True)
+torch.manual_seed(42)
+m = RPNN(width=16).eval()
+with torch.no_grad():
+    for p in m.parameters():
+        p.uniform_(-0.3, 0.3)  # wide enough that no ReLU is dead for every input
+export.export_onnx(m, out / "rpnn-tiny.onnx", {"nimbus.rpnn.phase": "hg"})
+rng = np.random.default_rng(7)
+x = rng.gamma(1.5, 0.6, size=(16, DESCRIPTOR_LEN)).astype(np.float32)
+x[:, -1] = rng.uniform(0, np.pi, size=16)
+with torch.no_grad():
+    y = m(torch.from_numpy(x)).numpy()
+np.save(out / "rpnn-tiny-io.npy", np.concatenate([x, y], axis=1))
+
+
+class Vanilla(torch.nn.Module):
+    def __init__(self):
+        super().__init__()
+        self.a = torch.nn.Linear(DESCRIPTOR_LEN, 16)
+        self.b = torch.nn.Linear(16, 1)
+
+    def forward(self, x):
+        return torch.relu(self.b(torch.relu(self.a(x))))
+
+
+v = Vanilla().eval()
+v.input_len = DESCRIPTOR_LEN
+v.config = lambda: {"kind": "vanilla"}
+export.export_onnx(v, out / "not-rpnn.onnx")
+print(f"wrote fixtures to {out}")
