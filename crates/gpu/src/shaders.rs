@@ -39,6 +39,11 @@ pub const SHADERS: &[(&str, &str, bool)] = &[
         include_str!("../../../shaders/blit.wgsl"),
         false,
     ),
+    (
+        "rpnn_mlp.wgsl",
+        include_str!("../../../shaders/rpnn_mlp.wgsl"),
+        false,
+    ),
 ];
 
 /// Full source of a shader: `common.wgsl` (for the photon-mapping shaders) followed by the

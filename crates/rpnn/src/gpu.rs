@@ -87,6 +87,20 @@ impl<'g> GpuDescriptor<'g> {
         if configs.is_empty() {
             return Ok(Vec::new());
         }
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        let out = self.encode(&mut enc, configs, None)?;
+        self.gpu.queue.submit([enc.finish()]);
+        self.gpu.read(&out)
+    }
+
+    /// Records the descriptor pass for `configs` into `enc` and returns the buffer it fills
+    /// (`configs.len()` × [`DESCRIPTOR_LEN`] floats), for later passes to read on the GPU.
+    pub fn encode(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        configs: &[Config],
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) -> Result<wgpu::Buffer, GpuError> {
         let n = configs.len() as u64;
         self.gpu
             .check_storage("the descriptor batch", n * DESCRIPTOR_LEN as u64 * 4)?;
@@ -106,7 +120,7 @@ impl<'g> GpuDescriptor<'g> {
         let cbuf = self.gpu.storage("configs", &cfg);
         let out = self
             .gpu
-            .zeroed("descriptors", n * DESCRIPTOR_LEN as u64 * 4);
+            .zeroed("descriptors", (n * DESCRIPTOR_LEN as u64 * 4).max(4));
         let bind = self.gpu.bind(
             &self.pipeline,
             &[
@@ -117,9 +131,16 @@ impl<'g> GpuDescriptor<'g> {
                 (4, &out),
             ],
         );
-        self.gpu
-            .dispatch_1d(&self.pipeline, &bind, (n * DESCRIPTOR_LEN as u64) as u32);
-        self.gpu.read(&out)
+        let (x, y) = Gpu::workgroups_1d((n * DESCRIPTOR_LEN as u64) as u32);
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("rpnn descriptor"),
+            timestamp_writes: timestamps,
+        });
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, &bind, &[]);
+        pass.dispatch_workgroups(x, y, 1);
+        drop(pass);
+        Ok(out)
     }
 }
 

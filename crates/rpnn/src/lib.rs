@@ -8,6 +8,7 @@ pub mod datagen;
 pub mod dataset;
 pub mod descriptor;
 pub mod gpu;
+pub mod gpu_mlp;
 pub mod model;
 pub mod ort_backend;
 pub mod pyramid;

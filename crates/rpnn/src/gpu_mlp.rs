@@ -1,0 +1,364 @@
+//! The RPNN on the GPU (`shaders/rpnn_mlp.wgsl`): the weights read from the ONNX file
+//! ([`crate::model::Rpnn`]) are evaluated by tiled matrix products in workgroup memory, one
+//! dispatch per layer (2 per block + the head). [`GpuRpnn`] records the descriptor pass
+//! (`shaders/rpnn_descriptor.wgsl`) and the layers in one command buffer, so descriptors are
+//! written and read on the GPU only; just the predictions come back.
+//!
+//! The CPU reference is [`crate::model::Rpnn::forward`]; tests require agreement to 1e-4.
+
+use bytemuck::{Pod, Zeroable};
+use nimbus_gpu::timing::StageTimer;
+use nimbus_gpu::{Gpu, GpuError, shaders};
+
+use crate::descriptor::{Config, DESCRIPTOR_LEN};
+use crate::gpu::GpuDescriptor;
+use crate::model::{Dense, Rpnn};
+
+/// `struct Layer` of the shader.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, Default, PartialEq)]
+pub struct LayerParams {
+    pub rows: u32,
+    pub outputs: u32,
+    pub ka: u32,
+    pub kb: u32,
+    pub a_stride: u32,
+    pub a_offset: u32,
+    pub a_gamma_col: u32,
+    pub b_stride: u32,
+    pub wa_offset: u32,
+    pub wb_offset: u32,
+    pub bias_offset: u32,
+    pub out_stride: u32,
+    pub residual: u32,
+    pub res_stride: u32,
+    pub relu: u32,
+    pub _pad: u32,
+}
+
+const NO_GAMMA: u32 = u32::MAX;
+
+/// Where a layer reads its first input.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Src {
+    Descriptor,
+    Act(usize),
+}
+
+#[derive(Debug, Clone)]
+struct Step {
+    params: LayerParams,
+    a: Src,
+    b: Option<usize>,
+    res: Option<usize>,
+    /// Activation buffer written (`usize::MAX`: the output buffer).
+    out: usize,
+}
+
+const OUT: usize = usize::MAX;
+
+/// An RPNN uploaded to the GPU.
+pub struct GpuMlp<'g> {
+    gpu: &'g Gpu,
+    pipeline: wgpu::ComputePipeline,
+    weights: wgpu::Buffer,
+    steps: Vec<(Step, wgpu::Buffer)>,
+    pub outputs: usize,
+    pub input_len: usize,
+    /// Queries per dispatch (bounded by the storage-binding limit of the descriptor batch).
+    pub max_batch: usize,
+    acts: [wgpu::Buffer; 3],
+    out: wgpu::Buffer,
+    dummy: wgpu::Buffer,
+}
+
+impl<'g> GpuMlp<'g> {
+    pub fn new(gpu: &'g Gpu, model: &Rpnn, max_batch: usize) -> Result<Self, GpuError> {
+        let limit = gpu
+            .limits
+            .max_storage_buffer_binding_size
+            .min(gpu.limits.max_buffer_size) as usize;
+        let stride = model
+            .blocks
+            .iter()
+            .map(|b| b.v.outputs)
+            .chain(model.head.iter().map(|l| l.outputs))
+            .max()
+            .unwrap_or(1);
+        let max_batch = max_batch
+            .min(limit / (DESCRIPTOR_LEN.max(model.input_len()) * 4))
+            .min(limit / (stride * 4))
+            .clamp(1, 65535 * 64);
+        let mut weights: Vec<f32> = Vec::new();
+        let mut push = |d: &Dense| -> (u32, u32) {
+            let w = weights.len() as u32;
+            weights.extend_from_slice(&d.w);
+            let b = weights.len() as u32;
+            weights.extend_from_slice(&d.b);
+            (w, b)
+        };
+        let (p, levels) = (model.points, model.levels);
+        let mut steps = Vec::new();
+        // Activations: 0 and 1 alternate as o_k, 2 holds F1.
+        let mut prev: Option<usize> = None;
+        for (k, b) in model.blocks.iter().enumerate() {
+            let (wv, bv) = push(&b.v);
+            let w1 = b.w1.as_ref().map(&mut push);
+            let (ww2, bw2) = push(&b.w2);
+            steps.push(Step {
+                params: LayerParams {
+                    outputs: b.v.outputs as u32,
+                    ka: (p + 1) as u32,
+                    kb: w1.map_or(0, |_| b.w1.as_ref().unwrap().inputs as u32),
+                    a_stride: model.input_len() as u32,
+                    a_offset: (k * p) as u32,
+                    a_gamma_col: (levels * p) as u32,
+                    b_stride: stride as u32,
+                    wa_offset: wv,
+                    wb_offset: w1.map_or(0, |w| w.0),
+                    bias_offset: bv,
+                    out_stride: stride as u32,
+                    relu: 1,
+                    ..Default::default()
+                },
+                a: Src::Descriptor,
+                b: w1.and(prev),
+                res: None,
+                out: 2,
+            });
+            let next = match prev {
+                Some(0) => 1,
+                _ => 0,
+            };
+            steps.push(Step {
+                params: LayerParams {
+                    outputs: b.w2.outputs as u32,
+                    ka: b.w2.inputs as u32,
+                    a_stride: stride as u32,
+                    a_gamma_col: NO_GAMMA,
+                    wa_offset: ww2,
+                    bias_offset: bw2,
+                    out_stride: stride as u32,
+                    residual: prev.is_some() as u32,
+                    res_stride: stride as u32,
+                    relu: 1,
+                    ..Default::default()
+                },
+                a: Src::Act(2),
+                b: None,
+                res: prev,
+                out: next,
+            });
+            prev = Some(next);
+        }
+        let n_head = model.head.len();
+        for (i, l) in model.head.iter().enumerate() {
+            let (w, b) = push(l);
+            let cur = prev.expect("at least one block");
+            let last = i + 1 == n_head;
+            let next = if last { OUT } else { 1 - cur };
+            steps.push(Step {
+                params: LayerParams {
+                    outputs: l.outputs as u32,
+                    ka: l.inputs as u32,
+                    a_stride: stride as u32,
+                    a_gamma_col: NO_GAMMA,
+                    wa_offset: w,
+                    bias_offset: b,
+                    out_stride: if last {
+                        l.outputs as u32
+                    } else {
+                        stride as u32
+                    },
+                    relu: 1,
+                    ..Default::default()
+                },
+                a: Src::Act(cur),
+                b: None,
+                res: None,
+                out: next,
+            });
+            prev = Some(next);
+        }
+        gpu.check_storage("the network weights", weights.len() as u64 * 4)?;
+        let act_bytes = (max_batch * stride * 4) as u64;
+        gpu.check_storage("an activation batch", act_bytes)?;
+        let steps = steps
+            .into_iter()
+            .map(|s| {
+                let u = gpu.uniform("rpnn layer", &s.params);
+                (s, u)
+            })
+            .collect();
+        Ok(Self {
+            gpu,
+            pipeline: gpu.pipeline("rpnn mlp", &shaders::source("rpnn_mlp.wgsl"), "dense"),
+            weights: gpu.storage("rpnn weights", &weights),
+            steps,
+            outputs: model.outputs,
+            input_len: model.input_len(),
+            max_batch,
+            acts: [0, 1, 2].map(|_| gpu.zeroed("rpnn activations", act_bytes)),
+            out: gpu.zeroed("rpnn output", (max_batch * model.outputs * 4) as u64),
+            dummy: gpu.zeroed("rpnn unused input", 16),
+        })
+    }
+
+    /// Records the layer passes for `rows` ≤ `max_batch` descriptors in `desc` (rows of
+    /// `input_len` floats); the predictions land in [`GpuMlp::output`].
+    pub fn encode(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        desc: &wgpu::Buffer,
+        rows: usize,
+        mut timer: Option<&mut StageTimer>,
+    ) {
+        assert!(rows <= self.max_batch, "batch larger than max_batch");
+        let buf = |i: usize| if i == OUT { &self.out } else { &self.acts[i] };
+        for (s, u) in &self.steps {
+            let params = LayerParams {
+                rows: rows as u32,
+                ..s.params
+            };
+            self.gpu
+                .queue
+                .write_buffer(u, 0, bytemuck::bytes_of(&params));
+            let a = match s.a {
+                Src::Descriptor => desc,
+                Src::Act(i) => buf(i),
+            };
+            let bind = self.gpu.bind(
+                &self.pipeline,
+                &[
+                    (0, u),
+                    (1, &self.weights),
+                    (2, a),
+                    (3, s.b.map_or(&self.dummy, buf)),
+                    (4, s.res.map_or(&self.dummy, buf)),
+                    (5, buf(s.out)),
+                ],
+            );
+            let tw = timer.as_mut().and_then(|t| t.pass("inference"));
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("rpnn layer"),
+                timestamp_writes: tw,
+            });
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.dispatch_workgroups(
+                params.outputs.div_ceil(64),
+                (rows as u32).div_ceil(64).max(1),
+                1,
+            );
+        }
+    }
+
+    /// The buffer holding the last batch's predictions (`rows × outputs`).
+    pub fn output(&self) -> &wgpu::Buffer {
+        &self.out
+    }
+
+    /// Predictions for `n` descriptors `x` (row-major), uploaded from the CPU (tests, and any
+    /// caller with CPU descriptors).
+    pub fn predict(&self, x: &[f32], n: usize) -> Result<Vec<f32>, GpuError> {
+        let mut out = Vec::with_capacity(n * self.outputs);
+        for lo in (0..n).step_by(self.max_batch) {
+            let hi = (lo + self.max_batch).min(n);
+            let desc = self
+                .gpu
+                .storage("descriptors", &x[lo * self.input_len..hi * self.input_len]);
+            let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+            self.encode(&mut enc, &desc, hi - lo, None);
+            self.gpu.queue.submit([enc.finish()]);
+            let y: Vec<f32> = self.gpu.read(&self.out)?;
+            out.extend_from_slice(&y[..(hi - lo) * self.outputs]);
+        }
+        Ok(out)
+    }
+}
+
+/// Descriptor construction and network on the GPU in one command buffer per batch.
+pub struct GpuRpnn<'g> {
+    gpu: &'g Gpu,
+    pub desc: GpuDescriptor<'g>,
+    pub mlp: GpuMlp<'g>,
+    timer: StageTimer,
+    /// GPU milliseconds of the last [`GpuRpnn::predict`]: (descriptor, inference); zero without
+    /// timestamp support.
+    pub last_ms: (f64, f64),
+}
+
+impl<'g> GpuRpnn<'g> {
+    pub fn new(
+        gpu: &'g Gpu,
+        pyr: &crate::pyramid::Pyramid,
+        model: &Rpnn,
+        max_batch: usize,
+    ) -> Result<Self, GpuError> {
+        Ok(Self {
+            gpu,
+            desc: GpuDescriptor::new(gpu, pyr)?,
+            mlp: GpuMlp::new(gpu, model, max_batch)?,
+            timer: StageTimer::new(gpu, 1 + 64),
+            last_ms: (0.0, 0.0),
+        })
+    }
+
+    /// Network predictions (`configs.len() × outputs`) for shading configurations.
+    pub fn predict(&mut self, configs: &[Config]) -> Result<Vec<f32>, GpuError> {
+        let mut out = Vec::with_capacity(configs.len() * self.mlp.outputs);
+        self.last_ms = (0.0, 0.0);
+        for chunk in configs.chunks(self.mlp.max_batch) {
+            let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+            let desc = self
+                .desc
+                .encode(&mut enc, chunk, self.timer.pass("descriptor"))?;
+            self.mlp
+                .encode(&mut enc, &desc, chunk.len(), Some(&mut self.timer));
+            self.timer.resolve(&mut enc);
+            self.gpu.queue.submit([enc.finish()]);
+            let y: Vec<f32> = self.gpu.read(self.mlp.output())?;
+            out.extend_from_slice(&y[..chunk.len() * self.mlp.outputs]);
+            for (name, ms) in self.timer.read(self.gpu) {
+                match name {
+                    "descriptor" => self.last_ms.0 += ms,
+                    _ => self.last_ms.1 += ms,
+                }
+            }
+        }
+        Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn layer_struct_matches_wgsl() {
+        let (members, size) = shaders::struct_layout("rpnn_mlp.wgsl", "Layer");
+        assert_eq!(size as usize, std::mem::size_of::<LayerParams>());
+        let names = [
+            "rows",
+            "outputs",
+            "ka",
+            "kb",
+            "a_stride",
+            "a_offset",
+            "a_gamma_col",
+            "b_stride",
+            "wa_offset",
+            "wb_offset",
+            "bias_offset",
+            "out_stride",
+            "residual",
+            "res_stride",
+            "relu",
+            "_pad",
+        ];
+        for (i, (name, off)) in members.iter().enumerate() {
+            assert_eq!(name, names[i]);
+            assert_eq!(*off as usize, 4 * i);
+        }
+    }
+}
