@@ -40,6 +40,34 @@ enum Method {
     Pt,
     /// Temporally-coherent photon mapping on the GPU (Elek et al. 2012), converged ring.
     Pm,
+    /// Radiance-predicting neural network (Kallweit et al. 2017): MC direct light, network
+    /// indirect light.
+    Rpnn,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum NetBackend {
+    /// wgpu on a hardware GPU, ort when the only adapter is a software rasteriser (lavapipe
+    /// runs the network ≈ 30× slower than ONNX Runtime on the same CPU).
+    Auto,
+    /// Descriptors and network in WGSL compute shaders (any GPU or lavapipe).
+    Wgpu,
+    /// Descriptors on the CPU, network in ONNX Runtime (PyPI onnxruntime, found at run time).
+    Ort,
+}
+
+/// RPNN settings of `render --method rpnn`.
+#[derive(clap::Args)]
+struct RpnnArgs {
+    /// RPNN: the ONNX model (default: the shipped models/rpnn-hg.onnx).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// RPNN: where the network runs.
+    #[arg(long, value_enum, default_value = "auto")]
+    backend: NetBackend,
+    /// RPNN: sky directions per shading point and sample (network queries for sky light).
+    #[arg(long, default_value_t = 4)]
+    sky_dirs: u32,
 }
 
 /// Photon-mapping settings shared by `render --method pm` and `animate`.
@@ -116,11 +144,13 @@ enum Command {
         /// No progress bar.
         #[arg(long, short)]
         quiet: bool,
-        /// Print GPU time per stage (photon mapping).
+        /// Print time per stage (photon mapping: GPU; RPNN: descriptor, inference, rest).
         #[arg(long)]
         timings: bool,
         #[command(flatten)]
         pm: PmArgs,
+        #[command(flatten)]
+        rpnn: RpnnArgs,
     },
     /// Render an animation with photon mapping: moving sun and/or evolving density; numbered
     /// PNG frames and per-frame timings (CSV).
@@ -301,6 +331,7 @@ fn run(cli: Cli) -> Result<()> {
             quiet,
             timings,
             pm: pm_args,
+            rpnn: rpnn_args,
         } => {
             if let Some(n) = threads {
                 rayon::ThreadPoolBuilder::new()
@@ -405,6 +436,11 @@ fn run(cli: Cli) -> Result<()> {
                         }
                     }
                     image
+                }
+                Method::Rpnn => {
+                    let out = render_rpnn(&s, &scene, &opts, &rpnn_args, timings)?;
+                    out.image.write_exr(&exr, Some(&out.variance))?;
+                    out.image
                 }
             };
             let e = exposure.unwrap_or_else(|| image.auto_exposure());
@@ -683,6 +719,67 @@ fn run(cli: Cli) -> Result<()> {
 }
 
 /// The cloud mask to use: the given one, else `<reference>_tau.npy` when it exists.
+/// `render --method rpnn`.
+fn render_rpnn(
+    s: &Scene,
+    scene: &Path,
+    opts: &RenderOptions,
+    args: &RpnnArgs,
+    timings: bool,
+) -> Result<nimbus_rpnn::render::RpnnOutput> {
+    use nimbus_rpnn::render::{Backend, RpnnOptions};
+    let model_path = args
+        .model
+        .clone()
+        .unwrap_or_else(nimbus_rpnn::model::default_model_path);
+    let model = nimbus_rpnn::model::Rpnn::load(&model_path)?;
+    if let Some(w) = nimbus_rpnn::render::phase_mismatch(s, &model.phase) {
+        say!("{w}");
+    }
+    let pyr = nimbus_rpnn::Pyramid::new(&s.volume)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", scene.display()))?;
+    let gpu = match args.backend {
+        NetBackend::Ort => None,
+        NetBackend::Wgpu => Some(nimbus_gpu::Gpu::new()?),
+        NetBackend::Auto => nimbus_gpu::Gpu::new().ok().filter(|g| !g.is_software()),
+    };
+    let mut backend = match &gpu {
+        None => Backend::Ort(nimbus_rpnn::ort_backend::OrtModel::load(&model_path, 0)?),
+        Some(gpu) => Backend::Wgpu(Box::new(nimbus_rpnn::gpu_mlp::GpuRpnn::new(
+            gpu,
+            &pyr,
+            &model,
+            1 << 16,
+        )?)),
+    };
+    let ro = RpnnOptions {
+        spp: opts.spp,
+        seed: opts.seed,
+        sky_dirs: args.sky_dirs,
+    };
+    let out = nimbus_rpnn::render::render(s, &pyr, &mut backend, &ro)?;
+    let t = &out.times;
+    say!(
+        "{}: RPNN ({}, {}) {}x{} at {} spp in {:.2} s — {:.1} ms per spp, {} network queries",
+        scene.display(),
+        model_path.display(),
+        backend.name(),
+        s.camera.width,
+        s.camera.height,
+        opts.spp,
+        t.total_ms / 1e3,
+        t.total_ms / opts.spp as f64,
+        t.queries
+    );
+    if timings {
+        let n = opts.spp as f64;
+        say!("  descriptor {:9.2} ms per spp", t.descriptor_ms / n);
+        say!("  inference  {:9.2} ms per spp", t.inference_ms / n);
+        say!("  rest       {:9.2} ms per spp", t.rest_ms / n);
+    }
+    Ok(out)
+}
+
 /// The density animation asked for by `--density-seq` / `--evolve`.
 fn density_sequence(
     s: &Scene,

@@ -270,3 +270,51 @@ fn datagen_end_to_end() {
         text(&o)
     );
 }
+
+#[test]
+fn rpnn_render_and_missing_model() {
+    let d = tmp();
+    let out = d.join("rpnn.exr");
+    let o = Command::new(env!("CARGO_BIN_EXE_nimbus"))
+        .current_dir(root())
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .args([
+            "render",
+            "scenes/demo-cumulus.toml",
+            "--method",
+            "rpnn",
+            "--backend",
+            "ort",
+        ])
+        .args(["--spp", "1", "--timings", "-q", "-o", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(
+        t.contains("models/rpnn-hg.onnx") && t.contains("inference"),
+        "{t}"
+    );
+    let img = nimbus_scene::Image::read_exr(&out).unwrap();
+    assert!(
+        img.pixels
+            .iter()
+            .flatten()
+            .all(|v| v.is_finite() && *v >= 0.0)
+    );
+    let scene = root().join("scenes/demo-cumulus.toml");
+    let o = nimbus(&[
+        "render",
+        scene.to_str().unwrap(),
+        "--method",
+        "rpnn",
+        "--model",
+        "no/such/model.onnx",
+    ]);
+    assert!(!o.status.success());
+    let t = text(&o);
+    assert!(
+        t.contains("no/such/model.onnx") && t.contains("not found"),
+        "{t}"
+    );
+}

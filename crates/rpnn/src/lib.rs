@@ -12,6 +12,7 @@ pub mod gpu_mlp;
 pub mod model;
 pub mod ort_backend;
 pub mod pyramid;
+pub mod render;
 
 pub use descriptor::{Config, DESCRIPTOR_LEN, LEVELS, POINTS, descriptor, descriptors};
 pub use pyramid::{Pyramid, PyramidError};

@@ -15,6 +15,23 @@ use std::path::Path;
 use onnx_protobuf::{ModelProto, NodeProto, TensorProto};
 use protobuf::Message;
 
+/// The shipped model, `models/rpnn-hg.onnx`: looked up from the current folder and its parents,
+/// then from the executable's folder and its parents; the plain relative path if not found (the
+/// error then names it).
+pub fn default_model_path() -> std::path::PathBuf {
+    let rel = Path::new("models/rpnn-hg.onnx");
+    let starts = [std::env::current_dir().ok(), std::env::current_exe().ok()];
+    for s in starts.into_iter().flatten() {
+        for dir in s.ancestors() {
+            let p = dir.join(rel);
+            if p.is_file() {
+                return p;
+            }
+        }
+    }
+    rel.to_path_buf()
+}
+
 /// Errors reading a model; every message names the file.
 #[derive(Debug, thiserror::Error)]
 #[error("{file}: {msg}")]

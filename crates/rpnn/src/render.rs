@@ -1,0 +1,322 @@
+//! Rendering with the network (Kallweit 2017 §4.4).
+//!
+//! Per sample and pixel: delta tracking along the camera ray to the first real collision x
+//! (density of the first segment as in the path tracer); there the in-scattered radiance is
+//! albedo × (direct + indirect):
+//! - **direct** (single scattering) by Monte Carlo: next-event estimation to the sun (a delta
+//!   light, or a disc sampled in its cone) with a ratio-tracked shadow ray; the sky's single
+//!   scattering by one phase-sampled direction (p / pdf = 1) with its transmittance;
+//! - **indirect** predicted by the network: for the sun, E_sun · g(z(x, ω, ω_sun)); for the sky,
+//!   the predictions are integrated over the sphere with `sky_dirs` directions per sample —
+//!   uniform on the sphere for a constant sky (weight 4π L_sky / N), importance-sampled from
+//!   the map for an environment map (weight L(ω_j) / (N pdf(ω_j))). The network predicts
+//!   indirect radiance per unit irradiance from one direction (the training data's definition,
+//!   `crate::datagen`), so integrating L_sky(ω) g dω gives the sky's indirect part.
+//!   No sky → no sky directions are queried.
+//!
+//! Rays that leave the volume see the sky and the sun disc. All queries of one sample pass are
+//! batched: descriptors and network on the GPU ([`Backend::Wgpu`], only predictions come
+//! back) or descriptors on the CPU and ONNX Runtime ([`Backend::Ort`]).
+
+use std::time::Instant;
+
+use glam::DVec3;
+use nimbus_scene::frame::uniform_sphere;
+use nimbus_scene::volume::MajorantGrid;
+use nimbus_scene::{Image, Scene, Sky};
+use nimbus_trace::Pcg32;
+use nimbus_trace::tracking::Tracker;
+use rayon::prelude::*;
+
+use crate::descriptor::{Config, descriptors};
+use crate::gpu_mlp::GpuRpnn;
+use crate::ort_backend::OrtModel;
+use crate::pyramid::Pyramid;
+
+/// Where the network runs.
+pub enum Backend<'g> {
+    /// Descriptors on the CPU, network in ONNX Runtime.
+    Ort(OrtModel),
+    /// Descriptors and network in WGSL compute shaders.
+    Wgpu(Box<GpuRpnn<'g>>),
+}
+
+impl Backend<'_> {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Backend::Ort(_) => "ort",
+            Backend::Wgpu(_) => "wgpu",
+        }
+    }
+}
+
+/// Render settings.
+#[derive(Debug, Clone)]
+pub struct RpnnOptions {
+    pub spp: u32,
+    pub seed: u64,
+    /// Sky directions per shading point and sample (ignored without a sky).
+    pub sky_dirs: u32,
+}
+
+/// Milliseconds per stage, summed over the samples.
+#[derive(Debug, Clone, Default)]
+pub struct StageTimes {
+    pub descriptor_ms: f64,
+    pub inference_ms: f64,
+    /// Everything else: camera rays, delta tracking, direct lighting, accumulation.
+    pub rest_ms: f64,
+    pub total_ms: f64,
+    /// Network queries (shading points × light directions).
+    pub queries: u64,
+}
+
+/// A rendered image, per-pixel variance of the mean luminance, and timings.
+pub struct RpnnOutput {
+    pub image: Image,
+    pub variance: Vec<f32>,
+    pub times: StageTimes,
+}
+
+/// Errors of the renderer.
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    #[error(transparent)]
+    Ort(#[from] crate::ort_backend::OrtError),
+    #[error(transparent)]
+    Gpu(#[from] nimbus_gpu::GpuError),
+    #[error("{0}")]
+    Setting(String),
+}
+
+/// What one camera sample found before the network is asked.
+struct Shade {
+    pixel: usize,
+    /// Radiance known without the network (background, or albedo × direct).
+    known: DVec3,
+    /// Queries: (configuration, RGB weight including the albedo).
+    queries: Vec<(Config, DVec3)>,
+}
+
+/// Renders `scene` with the network. `pyr` is the scene volume's density pyramid.
+pub fn render(
+    scene: &Scene,
+    pyr: &Pyramid,
+    backend: &mut Backend,
+    opts: &RpnnOptions,
+) -> Result<RpnnOutput, RenderError> {
+    if opts.spp == 0 {
+        return Err(RenderError::Setting("spp must be at least 1".into()));
+    }
+    let t_all = Instant::now();
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let majorants =
+        MajorantGrid::with_block(&scene.volume, nimbus_trace::integrator::MAJORANT_BLOCK);
+    let tracker = Tracker::new(&scene.volume, &majorants);
+    let mut sum = vec![DVec3::ZERO; w * h];
+    let mut sum_l2 = vec![0.0f64; w * h];
+    let mut times = StageTimes::default();
+    for s in 0..opts.spp {
+        let shades: Vec<Shade> = (0..w * h)
+            .into_par_iter()
+            .map(|p| {
+                let mut rng = Pcg32::for_sample(opts.seed, p as u64, s as u64);
+                shade(scene, &tracker, p, opts, &mut rng)
+            })
+            .collect();
+        let configs: Vec<Config> = shades
+            .iter()
+            .flat_map(|sh| sh.queries.iter().map(|q| q.0))
+            .collect();
+        times.queries += configs.len() as u64;
+        let y = match backend {
+            Backend::Ort(m) => {
+                let t = Instant::now();
+                let d = descriptors(pyr, &configs);
+                times.descriptor_ms += t.elapsed().as_secs_f64() * 1e3;
+                let t = Instant::now();
+                let y = m.predict(&d, configs.len())?;
+                times.inference_ms += t.elapsed().as_secs_f64() * 1e3;
+                y
+            }
+            Backend::Wgpu(g) => {
+                let t = Instant::now();
+                let y = g.predict(&configs)?;
+                let wall = t.elapsed().as_secs_f64() * 1e3;
+                let (dm, im) = g.last_ms;
+                if dm + im > 0.0 {
+                    // GPU timestamps split the GPU part; transfers count as inference.
+                    times.descriptor_ms += dm;
+                    times.inference_ms += wall - dm;
+                } else {
+                    times.inference_ms += wall;
+                }
+                y
+            }
+        };
+        let outputs = if configs.is_empty() {
+            1
+        } else {
+            y.len() / configs.len()
+        };
+        let mut k = 0;
+        for sh in &shades {
+            let mut l = sh.known;
+            for (_, wgt) in &sh.queries {
+                let pred = if outputs >= 3 {
+                    DVec3::new(
+                        y[k * outputs] as f64,
+                        y[k * outputs + 1] as f64,
+                        y[k * outputs + 2] as f64,
+                    )
+                } else {
+                    DVec3::splat(y[k * outputs] as f64)
+                };
+                l += *wgt * pred;
+                k += 1;
+            }
+            if !l.is_finite() {
+                l = DVec3::ZERO;
+            }
+            sum[sh.pixel] += l;
+            let lum = (l.x + l.y + l.z) / 3.0;
+            sum_l2[sh.pixel] += lum * lum;
+        }
+    }
+    let n = opts.spp as f64;
+    let mut image = Image::new(w, h);
+    let mut variance = vec![0.0f32; w * h];
+    for p in 0..w * h {
+        let m = sum[p] / n;
+        image.pixels[p] = [m.x as f32, m.y as f32, m.z as f32];
+        if opts.spp > 1 {
+            let ml = (m.x + m.y + m.z) / 3.0;
+            variance[p] = ((sum_l2[p] / n - ml * ml).max(0.0) / (n - 1.0)) as f32;
+        }
+    }
+    times.total_ms = t_all.elapsed().as_secs_f64() * 1e3;
+    times.rest_ms = (times.total_ms - times.descriptor_ms - times.inference_ms).max(0.0);
+    Ok(RpnnOutput {
+        image,
+        variance,
+        times,
+    })
+}
+
+/// Sky radiance seen along `d` (no sun).
+fn sky_radiance(scene: &Scene, d: DVec3) -> DVec3 {
+    match &scene.sky {
+        Some(Sky::Constant(c)) => *c,
+        Some(Sky::Env(env)) => env.radiance(d),
+        None => DVec3::ZERO,
+    }
+}
+
+fn shade(
+    scene: &Scene,
+    tracker: &Tracker,
+    pixel: usize,
+    opts: &RpnnOptions,
+    rng: &mut Pcg32,
+) -> Shade {
+    let cam = &scene.camera;
+    let (px, py) = (pixel % cam.width, pixel / cam.width);
+    let u = rng.next2();
+    let d = cam.ray_dir(px as f64 + u[0], py as f64 + u[1]);
+    let o = cam.origin;
+    let aabb = scene.volume.aabb();
+    let medium = &scene.medium;
+    let collision = aabb
+        .intersect(o, d)
+        .and_then(|(t0, t1)| tracker.sample_collision(o, d, t0, t1, medium.density_factor(0), rng));
+    let Some(t) = collision else {
+        let mut bg = sky_radiance(scene, d);
+        if let Some(sun) = &scene.sun
+            && !sun.is_delta()
+            && sun.contains(d)
+        {
+            bg += sun.radiance();
+        }
+        return Shade {
+            pixel,
+            known: bg,
+            queries: Vec::new(),
+        };
+    };
+    let x = o + d * t;
+    let (albedo, phase) = medium.vertex(1);
+    let shadow_factor = medium.density_factor(1);
+    let shadow = |wi: DVec3, rng: &mut Pcg32| -> f64 {
+        match aabb.intersect(x, wi) {
+            Some((t0, t1)) => tracker.transmittance(x, wi, t0, t1, shadow_factor, rng),
+            None => 1.0,
+        }
+    };
+    let mut direct = DVec3::ZERO;
+    let mut queries = Vec::new();
+    let cfg = |to_light: DVec3| Config {
+        x: x.as_vec3(),
+        view: d.as_vec3(),
+        to_light: to_light.as_vec3(),
+    };
+    if let Some(sun) = &scene.sun {
+        if sun.is_delta() {
+            direct += phase.eval(d.dot(sun.dir)) * shadow(sun.dir, rng) * sun.irradiance;
+        } else {
+            // Only light sampling reaches the disc (the sky term below excludes it): weight 1.
+            let (wi, pdf) = sun.sample_cone(rng.next2());
+            direct += phase.eval(d.dot(wi)) / pdf * shadow(wi, rng) * sun.radiance();
+        }
+        if sun.irradiance.max_element() > 0.0 {
+            queries.push((cfg(sun.dir), albedo * sun.irradiance));
+        }
+    }
+    if let Some(sky) = &scene.sky {
+        // Single scattering of sky light: one phase-sampled direction.
+        let smp = phase.sample(d, rng.next2());
+        let l = sky_radiance(scene, smp.dir);
+        if l.max_element() > 0.0 {
+            direct += shadow(smp.dir, rng) * l;
+        }
+        // Multiple scattering of sky light: network predictions integrated over the sphere.
+        let n = opts.sky_dirs.max(1) as f64;
+        for _ in 0..opts.sky_dirs {
+            let (wi, weight) = match sky {
+                Sky::Constant(c) => (
+                    uniform_sphere(rng.next2()),
+                    *c * (4.0 * std::f64::consts::PI),
+                ),
+                Sky::Env(env) => match env.sample(rng.next2()) {
+                    Some((wi, pdf)) if pdf > 0.0 => (wi, env.radiance(wi) / pdf),
+                    _ => continue,
+                },
+            };
+            if weight.max_element() > 0.0 {
+                queries.push((cfg(wi), albedo * weight / n));
+            }
+        }
+    }
+    Shade {
+        pixel,
+        known: albedo * direct,
+        queries,
+    }
+}
+
+/// Whether the scene's phase function matches the model's training phase function
+/// (`nimbus.rpnn.phase` metadata: `hg` = HG g = 0.857, `mie` = chopped Mie); the message to
+/// show when it does not.
+pub fn phase_mismatch(scene: &Scene, model_phase: &str) -> Option<String> {
+    let ok = match model_phase {
+        "hg" => matches!(scene.medium.vertex(1).1,
+            nimbus_scene::Phase::HenyeyGreenstein(hg) if (hg.g() - 0.857).abs() < 1e-6),
+        "mie" => scene.phase_desc.starts_with("mie"),
+        _ => false,
+    };
+    (!ok).then(|| {
+        format!(
+            "warning: the model was trained for phase function `{model_phase}` (hg = HG g 0.857), the scene uses `{}`; predictions may be biased",
+            scene.phase_desc
+        )
+    })
+}

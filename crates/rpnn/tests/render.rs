@@ -1,0 +1,188 @@
+//! Rendering with the network (Kallweit 2017 §4.4): the two backends give the same image, sky
+//! directions are queried only with a sky, and the shipped model against the path tracer.
+
+use std::path::Path;
+
+use nimbus_rpnn::Pyramid;
+use nimbus_rpnn::gpu_mlp::GpuRpnn;
+use nimbus_rpnn::model::Rpnn;
+use nimbus_rpnn::ort_backend::OrtModel;
+use nimbus_rpnn::render::{Backend, RpnnOptions, render};
+use nimbus_scene::Scene;
+
+fn scene(sky: bool, w: usize, h: usize, seed: u64) -> Scene {
+    let text = format!(
+        r#"
+[volume]
+generator = {{ kind = "cumulus", seed = {seed}, resolution = [48, 36, 48] }}
+density_scale = 30.0
+phase = {{ kind = "hg", g = 0.857 }}
+[sun]
+direction = [0.5, 0.7, 0.5]
+irradiance = [1.0, 1.0, 1.0]
+{sky}
+[camera]
+origin = [0.0, 0.2, 3.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+vfov_deg = 30.0
+width = {w}
+height = {h}
+[render]
+seed = 3
+"#,
+        sky = if sky {
+            "[sky]\nradiance = [0.1, 0.15, 0.3]"
+        } else {
+            ""
+        }
+    );
+    Scene::from_toml_str(&text, Path::new("."), Path::new("rpnn-test.toml")).unwrap()
+}
+
+fn data(name: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
+}
+
+#[test]
+fn wgpu_and_ort_backends_render_the_same_image() {
+    let s = scene(true, 24, 16, 5);
+    let pyr = Pyramid::new(&s.volume).unwrap();
+    let path = data("rpnn-tiny.onnx");
+    let model = Rpnn::load(&path).unwrap();
+    let opts = RpnnOptions {
+        spp: 2,
+        seed: 1,
+        sky_dirs: 3,
+    };
+    let gpu = nimbus_gpu::Gpu::new().unwrap();
+    let mut g = Backend::Wgpu(Box::new(GpuRpnn::new(&gpu, &pyr, &model, 256).unwrap()));
+    let a = render(&s, &pyr, &mut g, &opts).unwrap();
+    let mut o = Backend::Ort(OrtModel::load(&path, 1).unwrap());
+    let b = render(&s, &pyr, &mut o, &opts).unwrap();
+    // Same random numbers for everything but the network; descriptors (1e-5) and network
+    // (1e-4) agree, so pixels agree to 1e-4 of the mean.
+    let mean = b
+        .image
+        .pixels
+        .iter()
+        .flatten()
+        .map(|v| *v as f64)
+        .sum::<f64>()
+        / (3 * b.image.pixels.len()) as f64;
+    for (p, q) in a
+        .image
+        .pixels
+        .iter()
+        .flatten()
+        .zip(b.image.pixels.iter().flatten())
+    {
+        assert!(
+            ((p - q) as f64).abs() <= 1e-4 * mean.max(q.abs() as f64),
+            "{p} vs {q}"
+        );
+    }
+    assert_eq!(a.times.queries, b.times.queries);
+    // Sun + 3 sky directions per shading point.
+    assert_eq!(a.times.queries % 4, 0);
+}
+
+#[test]
+fn no_sky_means_no_sky_queries() {
+    let s = scene(false, 16, 12, 5);
+    let pyr = Pyramid::new(&s.volume).unwrap();
+    let mut o = Backend::Ort(OrtModel::load(&data("rpnn-tiny.onnx"), 1).unwrap());
+    let out = render(
+        &s,
+        &pyr,
+        &mut o,
+        &RpnnOptions {
+            spp: 1,
+            seed: 1,
+            sky_dirs: 8,
+        },
+    )
+    .unwrap();
+    // One query (the sun) per camera ray that hits the cloud, never more.
+    assert!(out.times.queries > 0 && out.times.queries <= 16 * 12);
+    assert!(
+        out.image
+            .pixels
+            .iter()
+            .flatten()
+            .all(|v| v.is_finite() && *v >= 0.0)
+    );
+}
+
+#[test]
+fn shipped_model_against_the_path_tracer() {
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rpnn-hg.onnx");
+    // A generated cumulus not in the training set (seed 901), sun and sky.
+    let s = scene(true, 48, 32, 901);
+    let pyr = Pyramid::new(&s.volume).unwrap();
+    let mut o = Backend::Ort(OrtModel::load(&model, 0).unwrap());
+    let rp = render(
+        &s,
+        &pyr,
+        &mut o,
+        &RpnnOptions {
+            spp: 32,
+            seed: 1,
+            sky_dirs: 4,
+        },
+    )
+    .unwrap();
+    let pt = nimbus_trace::render(
+        &s,
+        &nimbus_trace::RenderOptions {
+            spp: 512,
+            seed: 2,
+            progress: false,
+        },
+    );
+    let m = nimbus_trace::compare::compare(&rp.image, &pt.image, None);
+    eprintln!(
+        "shipped RPNN vs path tracer: rel RMSE {:.3} (4x4 {:.3}), mean ratio {:.3}",
+        m.rel_rmse_cloud, m.rel_rmse_cloud_4x4, m.mean_lum_ratio
+    );
+    assert_eq!(m.nonfinite, 0);
+    // The network carries the multiple scattering: without it (single scattering only) the
+    // cloud is far too dark.
+    let mut single = s.clone();
+    single.render.max_depth = Some(1);
+    let ss = nimbus_trace::render(
+        &single,
+        &nimbus_trace::RenderOptions {
+            spp: 128,
+            seed: 2,
+            progress: false,
+        },
+    );
+    let m1 = nimbus_trace::compare::compare(&ss.image, &pt.image, None);
+    eprintln!(
+        "single scattering vs path tracer: mean ratio {:.3}",
+        m1.mean_lum_ratio
+    );
+    assert!(m1.mean_lum_ratio < 1.0 - 2.0 * MEAN_BOUND);
+    // Bounds from the measured bias of the shipped model (see models/rpnn-hg.md): the 4×4
+    // error is network bias plus the noise of 32 spp RPNN / 512 spp PT (≈ 3 %).
+    assert!(
+        (m.mean_lum_ratio - 1.0).abs() < MEAN_BOUND,
+        "{}",
+        m.mean_lum_ratio
+    );
+    assert!(
+        m.rel_rmse_cloud_4x4 < RMSE_BOUND,
+        "{}",
+        m.rel_rmse_cloud_4x4
+    );
+}
+
+/// Mean-luminance bias allowed for the shipped model on this unseen cloud (measured: see
+/// models/rpnn-hg.md); the single-scattering image is 30 % too dark, far outside it.
+const MEAN_BOUND: f64 = 0.06;
+/// 4×4-block relative RMSE allowed: the model's bias plus the noise of 32 spp RPNN and 512 spp
+/// path tracing (≈ 3 % at this size).
+const RMSE_BOUND: f64 = 0.10;
