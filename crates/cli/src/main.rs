@@ -202,9 +202,12 @@ enum Command {
         /// Image size WIDTHxHEIGHT (default: the scene camera's).
         #[arg(long)]
         size: Option<String>,
-        /// Estimator at start: pm or pt.
+        /// Estimator at start: pm, pt or rpnn.
         #[arg(long, default_value = "pm")]
         method: String,
+        /// RPNN model for RPNN mode (default: the shipped models/rpnn-hg.onnx).
+        #[arg(long)]
+        model: Option<PathBuf>,
         /// Start with the sun moving.
         #[arg(long)]
         play_sun: bool,
@@ -458,6 +461,7 @@ fn run(cli: Cli) -> Result<()> {
             screenshot,
             size,
             method,
+            model,
             play_sun,
             sun_speed,
             density_seq,
@@ -475,7 +479,7 @@ fn run(cli: Cli) -> Result<()> {
             script,
             screenshot,
             size,
-            method,
+            (method, model),
             play_sun,
             sun_speed,
             density_seq,
@@ -809,7 +813,7 @@ fn view(
     script: Option<PathBuf>,
     screenshot: Option<PathBuf>,
     size: Option<String>,
-    method: String,
+    (method, model): (String, Option<PathBuf>),
     play_sun: bool,
     sun_speed: f64,
     density_seq: Option<PathBuf>,
@@ -867,11 +871,8 @@ fn view(
         )
         .map_err(|e| anyhow::anyhow!("--size: {e}"))?;
     }
-    let method = match Method::parse(&method) {
-        Some(Method::Rpnn) => bail!("--method rpnn: RPNN rendering is not available yet"),
-        Some(m) => m,
-        None => bail!("--method: expected pm or pt, got `{method}`"),
-    };
+    let method = Method::parse(&method)
+        .with_context(|| format!("--method: expected pm, pt or rpnn, got `{method}`"))?;
     if !(sun_speed.is_finite() && density_fps.is_finite() && density_fps > 0.0) {
         bail!("--sun-speed must be finite and --density-fps positive");
     }
@@ -898,9 +899,21 @@ fn view(
         density_fps,
         play_sun,
         play_density: animated,
-        method,
+        method: nimbus_viewer::Method::Pm,
         exposure,
+        rpnn_model: model.unwrap_or_else(nimbus_rpnn::model::default_model_path),
     };
+    // Start in photon mapping and switch, so RPNN mode loads its model the same way as the key.
+    let mut script = script;
+    if method != nimbus_viewer::Method::Pm {
+        script.actions.insert(
+            0,
+            nimbus_viewer::script::Timed {
+                frame: 0,
+                action: nimbus_viewer::Action::Method(method),
+            },
+        );
+    }
     if headless {
         let frames = frames.unwrap_or(pm_args.ring);
         let gpu = nimbus_gpu::Gpu::new()?;

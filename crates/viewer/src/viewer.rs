@@ -12,8 +12,9 @@
 //!    one as a billboard re-projected to the current camera.
 //!
 //! In path-tracing mode every frame adds one sample per pixel (the GPU path tracer where it
-//! supports the scene, else the CPU one); any change of camera, sun, density or size restarts the
-//! accumulation.
+//! supports the scene, else the CPU one); in RPNN mode one sample of the network renderer
+//! (Kallweit §4.4; the model is loaded when the mode is first chosen). Any change of camera,
+//! sun, density or size restarts the accumulation.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -63,6 +64,8 @@ pub struct ViewerOptions {
     pub method: Method,
     /// Display exposure; `None`: fixed from the first image (99th percentile → 0.9).
     pub exposure: Option<f64>,
+    /// The RPNN model for RPNN mode (loaded only when that mode is chosen).
+    pub rpnn_model: PathBuf,
 }
 
 impl Default for ViewerOptions {
@@ -78,6 +81,7 @@ impl Default for ViewerOptions {
             play_density: false,
             method: Method::Pm,
             exposure: None,
+            rpnn_model: nimbus_rpnn::model::default_model_path(),
         }
     }
 }
@@ -114,6 +118,14 @@ struct Progressive<'g> {
     spp: u32,
 }
 
+/// Progressive RPNN state (Kallweit §4.4): the network and the scene's density pyramid.
+struct RpnnView<'g> {
+    backend: nimbus_rpnn::render::Backend<'g>,
+    pyr: nimbus_rpnn::Pyramid,
+    sum: Vec<[f64; 3]>,
+    spp: u32,
+}
+
 /// The viewer.
 pub struct Viewer<'g> {
     gpu: &'g Gpu,
@@ -136,6 +148,7 @@ pub struct Viewer<'g> {
     stale: u32,
     dirty: Dirty,
     pt: Option<Progressive<'g>>,
+    rpnn: Option<RpnnView<'g>>,
     image: Image,
     exposure: Option<f64>,
     frame: u32,
@@ -176,6 +189,7 @@ impl<'g> Viewer<'g> {
             stale: 0,
             dirty: Dirty::default(),
             pt: None,
+            rpnn: None,
             exposure: opts.exposure,
             frame: 0,
             stats: FrameStats::default(),
@@ -311,22 +325,26 @@ impl<'g> Viewer<'g> {
                     self.play_density = !self.play_density;
                 }
             }
-            Action::Method(m) => match m {
-                Method::Rpnn => {
-                    self.note = Some(
-                        "RPNN rendering is not available yet; staying with the current method"
-                            .into(),
-                    );
-                }
-                m => {
-                    if *m != self.method {
-                        self.method = *m;
-                        self.pt = None;
-                        self.impostor_image = None;
-                        self.impostor = self.opts.impostors.map(ImpostorState::new);
+            Action::Method(m) => {
+                if *m == Method::Rpnn && self.method != Method::Rpnn {
+                    match self.start_rpnn() {
+                        Ok(r) => self.rpnn = Some(r),
+                        Err(e) => {
+                            self.note = Some(format!("RPNN unavailable ({e}); method unchanged"));
+                            return Ok(());
+                        }
                     }
                 }
-            },
+                if *m != self.method {
+                    self.method = *m;
+                    self.pt = None;
+                    if *m != Method::Rpnn {
+                        self.rpnn = None;
+                    }
+                    self.impostor_image = None;
+                    self.impostor = self.opts.impostors.map(ImpostorState::new);
+                }
+            }
             Action::Resize { width, height } => {
                 let (w, h) = (*width as usize, *height as usize);
                 if w > 0 && h > 0 && (w, h) != (self.camera.width, self.camera.height) {
@@ -428,8 +446,9 @@ impl<'g> Viewer<'g> {
             ..Default::default()
         };
         match self.method {
-            Method::Pm | Method::Rpnn => self.frame_pm(&mut stats)?,
+            Method::Pm => self.frame_pm(&mut stats)?,
             Method::Pt => self.frame_pt(&mut stats)?,
+            Method::Rpnn => self.frame_rpnn(&mut stats)?,
         }
         if self.exposure.is_none() {
             self.exposure = Some(self.image.auto_exposure());
@@ -607,6 +626,73 @@ impl<'g> Viewer<'g> {
         Ok(())
     }
 
+    /// Loads the model and builds the backend: WGSL on a hardware GPU, ONNX Runtime on a
+    /// software rasteriser.
+    fn start_rpnn(&self) -> Result<RpnnView<'g>, String> {
+        let model =
+            nimbus_rpnn::model::Rpnn::load(&self.opts.rpnn_model).map_err(|e| e.to_string())?;
+        let pyr = nimbus_rpnn::Pyramid::new(&self.scene.volume).map_err(|e| e.to_string())?;
+        let backend = if self.gpu.is_software() {
+            nimbus_rpnn::render::Backend::Ort(
+                nimbus_rpnn::ort_backend::OrtModel::load(&self.opts.rpnn_model, 0)
+                    .map_err(|e| e.to_string())?,
+            )
+        } else {
+            nimbus_rpnn::render::Backend::Wgpu(Box::new(
+                nimbus_rpnn::gpu_mlp::GpuRpnn::new(self.gpu, &pyr, &model, 1 << 16)
+                    .map_err(|e| e.to_string())?,
+            ))
+        };
+        Ok(RpnnView {
+            backend,
+            pyr,
+            sum: Vec::new(),
+            spp: 0,
+        })
+    }
+
+    fn frame_rpnn(&mut self, stats: &mut FrameStats) -> Result<(), ViewerError> {
+        let restart = self.dirty.light || self.dirty.density || self.dirty.view;
+        if self.dirty.density {
+            // New density: new pyramid (and GPU descriptor state).
+            self.rpnn = Some(self.start_rpnn().map_err(ViewerError::Other)?);
+        }
+        let (w, h) = (self.camera.width, self.camera.height);
+        self.scene.camera = self.camera.clone();
+        let r = self.rpnn.as_mut().expect("RPNN mode has its state");
+        if restart || r.sum.len() != w * h {
+            r.sum = vec![[0.0; 3]; w * h];
+            r.spp = 0;
+        }
+        let opts = nimbus_rpnn::render::RpnnOptions {
+            spp: 1,
+            seed: self.scene.render.seed.wrapping_add(r.spp as u64 * 0x9E37),
+            sky_dirs: 4,
+        };
+        let out = nimbus_rpnn::render::render(&self.scene, &r.pyr, &mut r.backend, &opts)
+            .map_err(|e| ViewerError::Other(e.to_string()))?;
+        for (s, v) in r.sum.iter_mut().zip(&out.image.pixels) {
+            for c in 0..3 {
+                s[c] += v[c] as f64;
+            }
+        }
+        r.spp += 1;
+        let n = r.spp as f64;
+        let mut img = Image::new(w, h);
+        for (o, s) in img.pixels.iter_mut().zip(&r.sum) {
+            *o = s.map(|v| (v / n) as f32);
+        }
+        self.image = img;
+        let t = &out.times;
+        stats.stages = vec![
+            ("descriptor", t.descriptor_ms),
+            ("inference", t.inference_ms),
+            ("rest", t.rest_ms),
+        ];
+        stats.spp = r.spp;
+        Ok(())
+    }
+
     /// One line for the window title or a log: method, frame time per stage, photons per frame,
     /// ring fill and the impostor criteria's counts.
     pub fn status_line(&self) -> String {
@@ -621,7 +707,7 @@ impl<'g> Viewer<'g> {
             line += &format!(" ({})", parts.join(", "));
         }
         match self.method {
-            Method::Pt => line += &format!(" | {} spp", s.spp),
+            Method::Pt | Method::Rpnn => line += &format!(" | {} spp", s.spp),
             _ => {
                 line += &format!(
                     " | {} photon beams this frame (sun {}, sky {}) | ring {}/{}",

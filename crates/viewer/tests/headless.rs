@@ -149,11 +149,46 @@ fn path_tracing_accumulates_and_restarts_on_change() {
     frames(&mut v, 1);
     assert_eq!(v.stats().spp, 1);
     assert!(v.image().pixels.iter().flatten().all(|c| c.is_finite()));
-    // RPNN is refused with a note, the method stays.
+    // RPNN without a model: a note, the method stays.
+    let mut opts = options();
+    opts.rpnn_model = "no/such/model.onnx".into();
+    let mut v = Viewer::new(&gpu, scene(), None, opts).unwrap();
     v.apply(&Action::Method(Method::Rpnn)).unwrap();
     frames(&mut v, 1);
-    assert_eq!(v.method(), Method::Pt);
-    assert!(v.stats().note.as_deref().unwrap().contains("RPNN"));
+    assert_eq!(v.method(), Method::Pm);
+    let note = v.stats().note.clone().unwrap();
+    assert!(
+        note.contains("RPNN unavailable") && note.contains("no/such/model.onnx"),
+        "{note}"
+    );
+}
+
+#[test]
+fn rpnn_mode_accumulates_and_restarts() {
+    let gpu = Gpu::new().unwrap();
+    let mut opts = options();
+    opts.rpnn_model =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../rpnn/tests/data/rpnn-tiny.onnx");
+    let mut v = Viewer::new(&gpu, scene(), None, opts).unwrap();
+    v.apply(&Action::Method(Method::Rpnn)).unwrap();
+    frames(&mut v, 2);
+    assert_eq!(v.method(), Method::Rpnn);
+    assert_eq!(v.stats().spp, 2);
+    assert!(v.status_line().contains("inference"));
+    v.apply(&Action::Orbit {
+        yaw_deg: 5.0,
+        pitch_deg: 0.0,
+    })
+    .unwrap();
+    frames(&mut v, 1);
+    assert_eq!(v.stats().spp, 1);
+    assert!(
+        v.image()
+            .pixels
+            .iter()
+            .flatten()
+            .all(|c| c.is_finite() && *c >= 0.0)
+    );
 }
 
 #[test]
