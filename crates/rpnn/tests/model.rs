@@ -238,14 +238,19 @@ fn gpu_descriptor_and_network_equal_cpu_descriptor_and_onnx_runtime() {
             to_light: dir(),
         })
         .collect();
-    let model_path = data("rpnn-tiny.onnx");
-    let model = Rpnn::load(&model_path).unwrap();
-    let mut g = GpuRpnn::new(&gpu, &pyr, &model, 64).unwrap();
-    let got = g.predict(&configs).unwrap();
-    let desc = descriptors(&pyr, &configs);
-    let mut ort = OrtModel::load(&model_path, 1).unwrap();
-    let want = ort.predict(&desc, configs.len()).unwrap();
-    // Descriptors agree to 1e-5 (tests/descriptor.rs) and the network to 1e-4: together 1e-4
-    // relative to the output scale is the bound the issue sets for the two backends.
-    assert!(max_rel(&got, &want) <= 1e-4, "{}", max_rel(&got, &want));
+    // The test fixture and the shipped model (paper size, trained).
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rpnn-hg.onnx");
+    for model_path in [data("rpnn-tiny.onnx"), shipped] {
+        let model = Rpnn::load(&model_path).unwrap();
+        let mut g = GpuRpnn::new(&gpu, &pyr, &model, 64).unwrap();
+        let got = g.predict(&configs).unwrap();
+        let desc = descriptors(&pyr, &configs);
+        let mut ort = OrtModel::load(&model_path, 1).unwrap();
+        let want = ort.predict(&desc, configs.len()).unwrap();
+        // Descriptors agree to 1e-5 (tests/descriptor.rs) and the network to 1e-4: together
+        // 1e-4 relative to the output scale is the bound the issue sets for the two backends.
+        let d = max_rel(&got, &want);
+        assert!(d <= 1e-4, "{}: {d}", model_path.display());
+        assert!(want.iter().any(|v| *v > 0.0));
+    }
 }
