@@ -40,6 +40,7 @@ fn scene(sun: DVec3) -> Scene {
         )
         .unwrap(),
         render: RenderSettings::default(),
+        atmosphere: None,
     }
 }
 

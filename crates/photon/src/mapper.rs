@@ -466,6 +466,29 @@ impl<'g> PhotonMapper<'g> {
         self.params.sigma_max = (self.params.density_scale * max_value).max(1e-30);
     }
 
+    /// Changes the sun irradiance and the constant sky radiance (e.g. an atmosphere recolouring
+    /// a moving sun). J stores flux per unit irradiance, so the cached generations stay valid;
+    /// the split of the beam budget between sun and sky follows the new powers.
+    pub fn set_lighting(&mut self, sun_irradiance: DVec3, sky_radiance: DVec3) {
+        let lum = |v: DVec3| (v.x + v.y + v.z) / 3.0;
+        let r = self.params.bound_radius as f64;
+        let had_sun =
+            self.sun_fraction > 0.0 || self.params.sun_irradiance.iter().any(|&v| v > 0.0);
+        let p_sun = if had_sun {
+            lum(sun_irradiance) * PI * r * r
+        } else {
+            0.0
+        };
+        let p_sky = lum(sky_radiance) * 4.0 * PI * PI * r * r;
+        self.sun_fraction = if p_sun + p_sky > 0.0 {
+            p_sun / (p_sun + p_sky)
+        } else {
+            0.0
+        };
+        self.params.sun_irradiance = f3(sun_irradiance);
+        self.params.sky_radiance = f3(sky_radiance);
+    }
+
     /// Changes the sun direction (unit vector towards the sun) for the following frames.
     pub fn set_sun_dir(&mut self, dir: DVec3) {
         self.params.sun_dir = f3(dir.normalize());

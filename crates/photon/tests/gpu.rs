@@ -38,6 +38,7 @@ fn scene(
         sky,
         camera,
         render: RenderSettings::default(),
+        atmosphere: None,
     }
 }
 

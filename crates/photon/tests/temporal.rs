@@ -37,6 +37,7 @@ fn scene(sun_dir: DVec3) -> Scene {
         )
         .unwrap(),
         render: RenderSettings::default(),
+        atmosphere: None,
     }
 }
 

@@ -138,6 +138,7 @@ impl CloudData {
             sky: None,
             camera,
             render: RenderSettings::default(),
+            atmosphere: None,
         };
         let majorants = nimbus_scene::MajorantGrid::with_block(&scene.volume, 8);
         Ok(Self {

@@ -39,5 +39,5 @@ pub use image::Image;
 pub use light::{EnvMap, Sky, Sun};
 pub use medium::Medium;
 pub use phase::Phase;
-pub use scene::{RenderSettings, Scene, VolumeSource};
+pub use scene::{AtmosphereTop, RenderSettings, Scene, VolumeSource};
 pub use volume::{Aabb, MajorantGrid, Volume};

@@ -97,6 +97,35 @@ pub struct Scene {
     pub sky: Option<Sky>,
     pub camera: Camera,
     pub render: RenderSettings,
+    /// With `[sun] atmosphere = true`: the sun irradiance and constant sky radiance above the
+    /// atmosphere, so a moving sun can be recoloured ([`Scene::set_sun_dir`]).
+    pub atmosphere: Option<AtmosphereTop>,
+}
+
+/// Light above the atmosphere (before the elevation-dependent attenuation).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AtmosphereTop {
+    pub sun_irradiance: DVec3,
+    /// The constant sky's radiance × scale; `None` without a constant sky.
+    pub sky_radiance: Option<DVec3>,
+}
+
+impl Scene {
+    /// Points the sun towards `dir` (normalised); with an atmosphere the sun and constant-sky
+    /// colours follow the new elevation (crate::atmosphere).
+    pub fn set_sun_dir(&mut self, dir: DVec3) {
+        let Some(sun) = self.sun.as_mut() else {
+            return;
+        };
+        sun.dir = dir.normalize();
+        if let Some(top) = self.atmosphere {
+            let h = crate::atmosphere::elevation_deg(sun.dir);
+            sun.irradiance = top.sun_irradiance * crate::atmosphere::sun_transmittance(h);
+            if let (Some(c), Some(Sky::Constant(sky))) = (top.sky_radiance, self.sky.as_mut()) {
+                *sky = c * crate::atmosphere::sky_factor(h);
+            }
+        }
+    }
 }
 
 #[derive(Deserialize)]
@@ -491,6 +520,17 @@ impl Scene {
             sky,
             camera,
             render,
+            atmosphere: raw
+                .sun
+                .as_ref()
+                .filter(|s| s.atmosphere)
+                .map(|s| AtmosphereTop {
+                    sun_irradiance: s.irradiance.vec(),
+                    sky_radiance: raw
+                        .sky
+                        .as_ref()
+                        .and_then(|k| k.radiance.as_ref().map(|r| r.vec() * k.scale)),
+                }),
         })
     }
 }

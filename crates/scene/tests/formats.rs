@@ -228,3 +228,32 @@ fn atmosphere_reddens_a_low_sun() {
     );
     assert!(l.x / l.z > h.x / h.z && l.y < h.y);
 }
+
+#[test]
+fn moving_the_sun_recolours_it_like_a_scene_written_that_way() {
+    let with = |dir: &str| {
+        parse(
+            &GOOD
+                .replace("irradiance = 2.0", "irradiance = 2.0\natmosphere = true")
+                .replace("direction = [1.0, 1.0, 0.0]", dir),
+        )
+        .unwrap()
+    };
+    let mut moved = with("direction = [1.0, 1.0, 0.0]");
+    moved.set_sun_dir(glam::DVec3::new(1.0, 0.05, 0.0));
+    let low = with("direction = [1.0, 0.05, 0.0]");
+    let (a, b) = (moved.sun.as_ref().unwrap(), low.sun.as_ref().unwrap());
+    assert!((a.dir - b.dir).length() < 1e-12);
+    assert!((a.irradiance - b.irradiance).length() < 1e-12);
+    match (&moved.sky, &low.sky) {
+        (Some(nimbus_scene::Sky::Constant(x)), Some(nimbus_scene::Sky::Constant(y))) => {
+            assert!((*x - *y).length() < 1e-12)
+        }
+        _ => panic!("constant skies expected"),
+    }
+    // Without an atmosphere only the direction changes.
+    let mut plain = parse(GOOD).unwrap();
+    let e = plain.sun.as_ref().unwrap().irradiance;
+    plain.set_sun_dir(glam::DVec3::new(1.0, 0.05, 0.0));
+    assert_eq!(plain.sun.as_ref().unwrap().irradiance, e);
+}

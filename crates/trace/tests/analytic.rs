@@ -27,6 +27,7 @@ fn scene(
         sky,
         camera,
         render: RenderSettings::default(),
+        atmosphere: None,
     }
 }
 

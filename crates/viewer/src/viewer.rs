@@ -251,11 +251,20 @@ impl<'g> Viewer<'g> {
     }
 
     fn set_sun_dir(&mut self, dir: DVec3) {
-        if let Some(sun) = self.scene.sun.as_mut() {
-            sun.dir = dir.normalize();
-            self.pm.set_sun_dir(sun.dir);
-            self.dirty.light = true;
+        if self.scene.sun.is_none() {
+            return;
         }
+        self.scene.set_sun_dir(dir);
+        let sun = self.scene.sun.as_ref().expect("checked");
+        self.pm.set_sun_dir(sun.dir);
+        if self.scene.atmosphere.is_some() {
+            let sky = match &self.scene.sky {
+                Some(nimbus_scene::Sky::Constant(c)) => *c,
+                _ => DVec3::ZERO,
+            };
+            self.pm.set_lighting(sun.irradiance, sky);
+        }
+        self.dirty.light = true;
     }
 
     fn set_sun_angles(&mut self, azimuth_deg: f64, elevation_deg: f64) {
