@@ -7,9 +7,9 @@
 #   RECORDS=50000 DEVICE=gpu bash training/reproduce.sh   # bigger, with the GPU path tracer
 set -euo pipefail
 cd "$(dirname "$0")/.."
-RECORDS=${RECORDS:-3000}
+RECORDS=${RECORDS:-7250}
 TEST_RECORDS=${TEST_RECORDS:-500}
-EPOCHS=${EPOCHS:-300}
+EPOCHS=${EPOCHS:-400}
 DEVICE=${DEVICE:-cpu}          # datagen: cpu (the shipped set) or gpu (different random streams)
 DATA=${DATA:-out/rpnn-hg}
 RUN=${RUN:-out/train-rpnn-hg}
