@@ -112,6 +112,62 @@ impl PmArgs {
     }
 }
 
+/// Arguments of `nimbus view`.
+#[derive(clap::Args)]
+struct ViewArgs {
+    /// Scene TOML (default: the demo cumulus at 960×600).
+    scene: Option<PathBuf>,
+    /// Run without a window for --frames frames (default: the ring size m, i.e. converged).
+    #[arg(long)]
+    headless: bool,
+    /// Stop after this many frames (windowed: close the window).
+    #[arg(long)]
+    frames: Option<u32>,
+    /// Timed actions, one `FRAME ACTION [ARGS]` per line (see `nimbus_viewer::script`).
+    #[arg(long)]
+    script: Option<PathBuf>,
+    /// Save the last frame here when the viewer stops (`.exr`: linear; else PNG).
+    #[arg(long)]
+    screenshot: Option<PathBuf>,
+    /// Image size WIDTHxHEIGHT (default: the scene camera's).
+    #[arg(long)]
+    size: Option<String>,
+    /// Estimator at start: pm, pt or rpnn.
+    #[arg(long, default_value = "pm")]
+    method: String,
+    /// RPNN model for RPNN mode (default: the shipped models/rpnn-hg.onnx).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// Start with the sun moving.
+    #[arg(long)]
+    play_sun: bool,
+    /// Sun angular speed about +y while playing, degrees per second.
+    #[arg(long, default_value_t = 10.0)]
+    sun_speed: f64,
+    /// Folder of volume files, one per frame (same resolution as the scene's volume).
+    #[arg(long)]
+    density_seq: Option<PathBuf>,
+    /// Morph the scene's generated cloud into the next seed and back over N frames.
+    #[arg(long)]
+    evolve: Option<u32>,
+    /// Density-animation frames per second (the animation starts playing when given).
+    #[arg(long, default_value_t = 10.0)]
+    density_fps: f64,
+    /// Ray march every frame instead of re-projecting the impostor (Elek §4.4).
+    #[arg(long)]
+    no_impostors: bool,
+    /// Headless: simulated seconds per frame.
+    #[arg(long, default_value_t = 1.0 / 30.0)]
+    dt: f64,
+    /// Print every frame's status line (stages, photons, impostor criteria).
+    #[arg(long)]
+    log: bool,
+    #[arg(long)]
+    exposure: Option<f64>,
+    #[command(flatten)]
+    pm: PmArgs,
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Render a scene to linear EXR (+ per-pixel variance) and a tone-mapped PNG.
@@ -182,61 +238,9 @@ enum Command {
         exposure: Option<f64>,
     },
     /// Interactive viewer: the photon-mapped cloud in a window, following sun, camera and
-    /// density changes (Elek 2012); progressive path tracing on key 2. Without a scene: a
+    /// density changes (Elek 2012); progressive path tracing and RPNN on keys 2 and 3. Without a scene: a
     /// generated cumulus. `--headless` runs the same loop without a window.
-    View {
-        /// Scene TOML (default: the demo cumulus at 960×600).
-        scene: Option<PathBuf>,
-        /// Run without a window for --frames frames (default: the ring size m, i.e. converged).
-        #[arg(long)]
-        headless: bool,
-        /// Stop after this many frames (windowed: close the window).
-        #[arg(long)]
-        frames: Option<u32>,
-        /// Timed actions, one `FRAME ACTION [ARGS]` per line (see `nimbus_viewer::script`).
-        #[arg(long)]
-        script: Option<PathBuf>,
-        /// Save the last frame here when the viewer stops (`.exr`: linear; else PNG).
-        #[arg(long)]
-        screenshot: Option<PathBuf>,
-        /// Image size WIDTHxHEIGHT (default: the scene camera's).
-        #[arg(long)]
-        size: Option<String>,
-        /// Estimator at start: pm, pt or rpnn.
-        #[arg(long, default_value = "pm")]
-        method: String,
-        /// RPNN model for RPNN mode (default: the shipped models/rpnn-hg.onnx).
-        #[arg(long)]
-        model: Option<PathBuf>,
-        /// Start with the sun moving.
-        #[arg(long)]
-        play_sun: bool,
-        /// Sun angular speed about +y while playing, degrees per second.
-        #[arg(long, default_value_t = 10.0)]
-        sun_speed: f64,
-        /// Folder of volume files, one per frame (same resolution as the scene's volume).
-        #[arg(long)]
-        density_seq: Option<PathBuf>,
-        /// Morph the scene's generated cloud into the next seed and back over N frames.
-        #[arg(long)]
-        evolve: Option<u32>,
-        /// Density-animation frames per second (the animation starts playing when given).
-        #[arg(long, default_value_t = 10.0)]
-        density_fps: f64,
-        /// Ray march every frame instead of re-projecting the impostor (Elek §4.4).
-        #[arg(long)]
-        no_impostors: bool,
-        /// Headless: simulated seconds per frame.
-        #[arg(long, default_value_t = 1.0 / 30.0)]
-        dt: f64,
-        /// Print every frame's status line (stages, photons, impostor criteria).
-        #[arg(long)]
-        log: bool,
-        #[arg(long)]
-        exposure: Option<f64>,
-        #[command(flatten)]
-        pm: PmArgs,
-    },
+    View(ViewArgs),
     /// Generate RPNN training records (Kallweit 2017 §5.1): descriptors and path-traced indirect
     /// radiance, sharded .npy files and manifest.json; resumable.
     Datagen {
@@ -453,44 +457,7 @@ fn run(cli: Cli) -> Result<()> {
                 print_metrics(&exr, &r, None)?;
             }
         }
-        Command::View {
-            scene,
-            headless,
-            frames,
-            script,
-            screenshot,
-            size,
-            method,
-            model,
-            play_sun,
-            sun_speed,
-            density_seq,
-            evolve,
-            density_fps,
-            no_impostors,
-            dt,
-            log,
-            exposure,
-            pm,
-        } => view(
-            scene,
-            headless,
-            frames,
-            script,
-            screenshot,
-            size,
-            (method, model),
-            play_sun,
-            sun_speed,
-            density_seq,
-            evolve,
-            density_fps,
-            no_impostors,
-            dt,
-            log,
-            exposure,
-            pm,
-        )?,
+        Command::View(args) => view(args)?,
         Command::Animate {
             scene,
             frames,
@@ -805,26 +772,27 @@ fn density_sequence(
 }
 
 /// `nimbus view`.
-#[allow(clippy::too_many_arguments)]
-fn view(
-    scene: Option<PathBuf>,
-    headless: bool,
-    frames: Option<u32>,
-    script: Option<PathBuf>,
-    screenshot: Option<PathBuf>,
-    size: Option<String>,
-    (method, model): (String, Option<PathBuf>),
-    play_sun: bool,
-    sun_speed: f64,
-    density_seq: Option<PathBuf>,
-    evolve: Option<u32>,
-    density_fps: f64,
-    no_impostors: bool,
-    dt: f64,
-    log: bool,
-    exposure: Option<f64>,
-    pm_args: PmArgs,
-) -> Result<()> {
+fn view(args: ViewArgs) -> Result<()> {
+    let ViewArgs {
+        scene,
+        headless,
+        frames,
+        script,
+        screenshot,
+        size,
+        method,
+        model,
+        play_sun,
+        sun_speed,
+        density_seq,
+        evolve,
+        density_fps,
+        no_impostors,
+        dt,
+        log,
+        exposure,
+        pm: pm_args,
+    } = args;
     use nimbus_viewer::{Method, Script, ViewerOptions};
     let (mut s, source) = match &scene {
         Some(p) => {

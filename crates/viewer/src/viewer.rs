@@ -111,19 +111,49 @@ struct Dirty {
     view: bool,
 }
 
+/// A running mean of images (progressive estimators).
+#[derive(Default)]
+struct Accumulator {
+    sum: Vec<[f64; 3]>,
+    spp: u32,
+}
+
+impl Accumulator {
+    fn new(pixels: usize) -> Self {
+        Self {
+            sum: vec![[0.0; 3]; pixels],
+            spp: 0,
+        }
+    }
+
+    /// Adds one sample image; returns the mean so far.
+    fn add(&mut self, img: &Image) -> Image {
+        for (s, v) in self.sum.iter_mut().zip(&img.pixels) {
+            for c in 0..3 {
+                s[c] += v[c] as f64;
+            }
+        }
+        self.spp += 1;
+        let n = self.spp as f64;
+        let mut out = Image::new(img.width, img.height);
+        for (o, s) in out.pixels.iter_mut().zip(&self.sum) {
+            *o = s.map(|v| (v / n) as f32);
+        }
+        out
+    }
+}
+
 /// Progressive path tracing state.
 struct Progressive<'g> {
     gpu_pt: Option<nimbus_trace::gpu::GpuPathTracer<'g>>,
-    sum: Vec<[f64; 3]>,
-    spp: u32,
+    acc: Accumulator,
 }
 
 /// Progressive RPNN state (Kallweit §4.4): the network and the scene's density pyramid.
 struct RpnnView<'g> {
     backend: nimbus_rpnn::render::Backend<'g>,
     pyr: nimbus_rpnn::Pyramid,
-    sum: Vec<[f64; 3]>,
-    spp: u32,
+    acc: Accumulator,
 }
 
 /// The viewer.
@@ -587,18 +617,17 @@ impl<'g> Viewer<'g> {
     fn frame_pt(&mut self, stats: &mut FrameStats) -> Result<(), ViewerError> {
         let restart = self.dirty.light || self.dirty.density || self.dirty.view;
         let (w, h) = (self.camera.width, self.camera.height);
-        if restart || self.pt.as_ref().is_none_or(|p| p.sum.len() != w * h) {
+        if restart || self.pt.as_ref().is_none_or(|p| p.acc.sum.len() != w * h) {
             self.scene.camera = self.camera.clone();
             let gpu_pt = nimbus_trace::gpu::GpuPathTracer::new(self.gpu, &self.scene).ok();
             self.pt = Some(Progressive {
                 gpu_pt,
-                sum: vec![[0.0; 3]; w * h],
-                spp: 0,
+                acc: Accumulator::new(w * h),
             });
         }
         let p = self.pt.as_mut().expect("set above");
         let t = Instant::now();
-        let seed = self.scene.render.seed.wrapping_add(p.spp as u64);
+        let seed = self.scene.render.seed.wrapping_add(p.acc.spp as u64);
         let (img, stage) = match p.gpu_pt.as_mut() {
             Some(g) => (
                 g.render(1, seed)
@@ -618,20 +647,9 @@ impl<'g> Viewer<'g> {
                 )
             }
         };
-        for (s, v) in p.sum.iter_mut().zip(&img.pixels) {
-            for c in 0..3 {
-                s[c] += v[c] as f64;
-            }
-        }
-        p.spp += 1;
-        let n = p.spp as f64;
-        let mut out = Image::new(w, h);
-        for (o, s) in out.pixels.iter_mut().zip(&p.sum) {
-            *o = s.map(|v| (v / n) as f32);
-        }
-        self.image = out;
+        self.image = p.acc.add(&img);
         stats.stages = vec![(stage, t.elapsed().as_secs_f64() * 1e3)];
-        stats.spp = p.spp;
+        stats.spp = p.acc.spp;
         Ok(())
     }
 
@@ -655,8 +673,7 @@ impl<'g> Viewer<'g> {
         Ok(RpnnView {
             backend,
             pyr,
-            sum: Vec::new(),
-            spp: 0,
+            acc: Accumulator::default(),
         })
     }
 
@@ -669,36 +686,28 @@ impl<'g> Viewer<'g> {
         let (w, h) = (self.camera.width, self.camera.height);
         self.scene.camera = self.camera.clone();
         let r = self.rpnn.as_mut().expect("RPNN mode has its state");
-        if restart || r.sum.len() != w * h {
-            r.sum = vec![[0.0; 3]; w * h];
-            r.spp = 0;
+        if restart || r.acc.sum.len() != w * h {
+            r.acc = Accumulator::new(w * h);
         }
         let opts = nimbus_rpnn::render::RpnnOptions {
             spp: 1,
-            seed: self.scene.render.seed.wrapping_add(r.spp as u64 * 0x9E37),
+            seed: self
+                .scene
+                .render
+                .seed
+                .wrapping_add(r.acc.spp as u64 * 0x9E37),
             sky_dirs: 4,
         };
         let out = nimbus_rpnn::render::render(&self.scene, &r.pyr, &mut r.backend, &opts)
             .map_err(|e| ViewerError::Other(e.to_string()))?;
-        for (s, v) in r.sum.iter_mut().zip(&out.image.pixels) {
-            for c in 0..3 {
-                s[c] += v[c] as f64;
-            }
-        }
-        r.spp += 1;
-        let n = r.spp as f64;
-        let mut img = Image::new(w, h);
-        for (o, s) in img.pixels.iter_mut().zip(&r.sum) {
-            *o = s.map(|v| (v / n) as f32);
-        }
-        self.image = img;
+        self.image = r.acc.add(&out.image);
         let t = &out.times;
         stats.stages = vec![
             ("descriptor", t.descriptor_ms),
             ("inference", t.inference_ms),
             ("rest", t.rest_ms),
         ];
-        stats.spp = r.spp;
+        stats.spp = r.acc.spp;
         Ok(())
     }
 
