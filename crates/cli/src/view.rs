@@ -1,0 +1,214 @@
+//! `nimbus view`: scene and options for the interactive viewer.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use nimbus_scene::Scene;
+
+use crate::{PmArgs, density_sequence};
+
+/// Arguments of `nimbus view`.
+#[derive(clap::Args)]
+pub(crate) struct ViewArgs {
+    /// Scene TOML (default: the demo cumulus at 960×600).
+    scene: Option<PathBuf>,
+    /// Run without a window for --frames frames (default: the ring size m, i.e. converged).
+    #[arg(long)]
+    headless: bool,
+    /// Stop after this many frames (windowed: close the window).
+    #[arg(long)]
+    frames: Option<u32>,
+    /// Timed actions, one `FRAME ACTION [ARGS]` per line (see `nimbus_viewer::script`).
+    #[arg(long)]
+    script: Option<PathBuf>,
+    /// Save the last frame here when the viewer stops (`.exr`: linear; else PNG).
+    #[arg(long)]
+    screenshot: Option<PathBuf>,
+    /// Image size WIDTHxHEIGHT (default: the scene camera's).
+    #[arg(long)]
+    size: Option<String>,
+    /// Estimator at start: pm, pt or rpnn.
+    #[arg(long, default_value = "pm")]
+    method: String,
+    /// RPNN model for RPNN mode (default: the shipped models/rpnn-hg.onnx).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// Start with the sun moving.
+    #[arg(long)]
+    play_sun: bool,
+    /// Sun angular speed about +y while playing, degrees per second.
+    #[arg(long, default_value_t = 10.0)]
+    sun_speed: f64,
+    /// Folder of volume files, one per frame (same resolution as the scene's volume).
+    #[arg(long)]
+    density_seq: Option<PathBuf>,
+    /// Morph the scene's generated cloud into the next seed and back over N frames.
+    #[arg(long)]
+    evolve: Option<u32>,
+    /// Density-animation frames per second (the animation starts playing when given).
+    #[arg(long, default_value_t = 10.0)]
+    density_fps: f64,
+    /// Ray march every frame instead of re-projecting the impostor (Elek §4.4).
+    #[arg(long)]
+    no_impostors: bool,
+    /// Headless: simulated seconds per frame.
+    #[arg(long, default_value_t = 1.0 / 30.0)]
+    dt: f64,
+    /// Print every frame's status line (stages, photons, impostor criteria).
+    #[arg(long)]
+    log: bool,
+    #[arg(long)]
+    exposure: Option<f64>,
+    #[command(flatten)]
+    pm: PmArgs,
+}
+
+/// `nimbus view`.
+pub(crate) fn view(args: ViewArgs) -> Result<()> {
+    let ViewArgs {
+        scene,
+        headless,
+        frames,
+        script,
+        screenshot,
+        size,
+        method,
+        model,
+        play_sun,
+        sun_speed,
+        density_seq,
+        evolve,
+        density_fps,
+        no_impostors,
+        dt,
+        log,
+        exposure,
+        pm: pm_args,
+    } = args;
+    use nimbus_viewer::{Method, Script, ViewerOptions};
+    let (mut s, source) = match &scene {
+        Some(p) => {
+            let s = Scene::load(p)?;
+            let text = std::fs::read_to_string(p)
+                .with_context(|| format!("cannot read {}", p.display()))?;
+            let dir = p.parent().map(|d| d.to_path_buf()).unwrap_or_default();
+            let dir = std::fs::canonicalize(if dir.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                &dir
+            })
+            .unwrap_or(dir);
+            (s, Some((text, dir)))
+        }
+        None => {
+            let text = nimbus_viewer::DEFAULT_SCENE;
+            let label = Path::new("scenes/demo-cumulus.toml");
+            let mut s = Scene::from_toml_str(text, Path::new("."), label)?;
+            let (w, h) = nimbus_viewer::DEFAULT_SIZE;
+            s.camera = nimbus_scene::Camera::new(
+                s.camera.origin,
+                s.camera.target(),
+                s.camera.up_hint(),
+                s.camera.vfov_deg(),
+                w,
+                h,
+            )?;
+            (s, Some((text.to_string(), std::env::current_dir()?)))
+        }
+    };
+    if let Some(size) = size {
+        let (w, h) = size
+            .split_once('x')
+            .and_then(|(w, h)| Some((w.parse::<usize>().ok()?, h.parse::<usize>().ok()?)))
+            .with_context(|| format!("--size: expected WIDTHxHEIGHT, got `{size}`"))?;
+        s.camera = nimbus_scene::Camera::new(
+            s.camera.origin,
+            s.camera.target(),
+            s.camera.up_hint(),
+            s.camera.vfov_deg(),
+            w,
+            h,
+        )
+        .map_err(|e| anyhow::anyhow!("--size: {e}"))?;
+    }
+    let method = Method::parse(&method)
+        .with_context(|| format!("--method: expected pm, pt or rpnn, got `{method}`"))?;
+    if !(sun_speed.is_finite() && density_fps.is_finite() && density_fps > 0.0) {
+        bail!("--sun-speed must be finite and --density-fps positive");
+    }
+    if !(dt.is_finite() && dt >= 0.0) {
+        bail!("--dt must be finite and ≥ 0, got {dt}");
+    }
+    if let Some(e) = exposure
+        && !(e.is_finite() && e > 0.0)
+    {
+        bail!("--exposure must be positive, got {e}");
+    }
+    let density = density_sequence(&s, density_seq, evolve)?;
+    let animated = !matches!(density, nimbus_photon::animate::DensitySequence::Static);
+    let script = match &script {
+        Some(p) => Script::load(p)?,
+        None => Script::default(),
+    };
+    let opts = ViewerOptions {
+        pm: pm_args.settings(s.render.seed as u32)?,
+        half_res: pm_args.half_res,
+        impostors: (!no_impostors).then(Default::default),
+        density,
+        sun_speed_deg_s: sun_speed,
+        density_fps,
+        play_sun,
+        play_density: animated,
+        method: nimbus_viewer::Method::Pm,
+        exposure,
+        rpnn_model: model.unwrap_or_else(nimbus_rpnn::model::default_model_path),
+    };
+    // Start in photon mapping and switch, so RPNN mode loads its model the same way as the key.
+    let mut script = script;
+    if method != nimbus_viewer::Method::Pm {
+        script.actions.insert(
+            0,
+            nimbus_viewer::script::Timed {
+                frame: 0,
+                action: nimbus_viewer::Action::Method(method),
+            },
+        );
+    }
+    if headless {
+        let frames = frames.unwrap_or(pm_args.ring);
+        let gpu = nimbus_gpu::Gpu::new()?;
+        let h = nimbus_viewer::headless::HeadlessOptions {
+            frames,
+            dt,
+            script,
+            screenshot: screenshot.clone(),
+        };
+        let report = nimbus_viewer::headless::run(&gpu, s, source, opts, &h, |line| {
+            if log {
+                say!("{line}");
+            }
+        })?;
+        say!(
+            "nimbus view --headless on {}: {} frames, {:.1} ms per frame{}",
+            gpu.describe(),
+            report.frames,
+            report.mean_frame_ms,
+            screenshot
+                .map(|p| format!(", wrote {}", p.display()))
+                .unwrap_or_default()
+        );
+        return Ok(());
+    }
+    nimbus_viewer::window::run(
+        s,
+        source,
+        opts,
+        nimbus_viewer::window::WindowOptions {
+            script,
+            frames,
+            screenshot,
+            log,
+        },
+    )?;
+    Ok(())
+}
