@@ -41,6 +41,12 @@ pub(crate) fn render_rpnn(
     timings: bool,
 ) -> Result<nimbus_rpnn::render::RpnnOutput> {
     use nimbus_rpnn::render::{Backend, RpnnOptions};
+    if s.sky.is_some() && !(1..=1024).contains(&args.sky_dirs) {
+        anyhow::bail!(
+            "--sky-dirs must lie in 1..=1024 for a scene with a sky (0 would drop the sky's multiple scattering), got {}",
+            args.sky_dirs
+        );
+    }
     let model_path = args
         .model
         .clone()

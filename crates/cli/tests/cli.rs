@@ -317,4 +317,18 @@ fn rpnn_render_and_missing_model() {
         t.contains("no/such/model.onnx") && t.contains("not found"),
         "{t}"
     );
+    let o = nimbus(&[
+        "render",
+        scene.to_str().unwrap(),
+        "--method",
+        "rpnn",
+        "--sky-dirs",
+        "0",
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("--sky-dirs must lie in 1..=1024"),
+        "{}",
+        text(&o)
+    );
 }
