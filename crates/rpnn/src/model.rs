@@ -201,6 +201,7 @@ impl Rpnn {
             tensors,
             values: HashMap::new(),
             input,
+            denses: Vec::new(),
         };
         for n in &graph.node {
             if n.op_type != "Constant" {
@@ -217,7 +218,7 @@ impl Rpnn {
                     graph.output[0].name
                 )
             })?;
-        let mut rpnn = structure(out)?;
+        let mut rpnn = structure(out, m.denses)?;
         rpnn.phase = meta
             .get("nimbus.rpnn.phase")
             .map_or("unknown".into(), |s| s.to_string());
@@ -251,8 +252,9 @@ enum Sym {
     Cols(usize, usize),
     /// Concatenated column ranges.
     Cat(Vec<(usize, usize)>),
-    /// `W · src + b` (W `[out][in]`).
-    Lin(Box<Sym>, Dense),
+    /// `W · src + b` with the layer's index in [`Matcher::denses`] (weights are kept out of
+    /// the tree: residual blocks share subtrees, so cloning weights would be exponential).
+    Lin(Box<Sym>, usize),
     Add(Box<Sym>, Box<Sym>),
     Relu(Box<Sym>),
 }
@@ -261,6 +263,7 @@ struct Matcher<'a> {
     tensors: HashMap<&'a str, &'a TensorProto>,
     values: HashMap<String, Sym>,
     input: &'a str,
+    denses: Vec<Dense>,
 }
 
 fn floats(t: &TensorProto) -> Result<Vec<f32>, String> {
@@ -442,15 +445,13 @@ impl<'a> Matcher<'a> {
                 } else {
                     vec![0.0; outputs]
                 };
-                Sym::Lin(
-                    Box::new(src),
-                    Dense {
-                        inputs,
-                        outputs,
-                        w,
-                        b,
-                    },
-                )
+                self.denses.push(Dense {
+                    inputs,
+                    outputs,
+                    w,
+                    b,
+                });
+                Sym::Lin(Box::new(src), self.denses.len() - 1)
             }
             "Add" => Sym::Add(Box::new(self.value(n, 0)?), Box::new(self.value(n, 1)?)),
             "Relu" => Sym::Relu(Box::new(self.value(n, 0)?)),
@@ -468,7 +469,14 @@ fn not_rpnn(msg: &str) -> String {
 }
 
 /// Matches the output's expression against the architecture, innermost block first.
-fn structure(out: Sym) -> Result<Rpnn, String> {
+fn structure(out: Sym, denses: Vec<Dense>) -> Result<Rpnn, String> {
+    let mut arena: Vec<Option<Dense>> = denses.into_iter().map(Some).collect();
+    let mut take = |i: usize| -> Result<Dense, String> {
+        arena
+            .get_mut(i)
+            .and_then(Option::take)
+            .ok_or_else(|| not_rpnn("a layer is used twice"))
+    };
     // Head: Relu(Lin(…)) layers down to the last block's output.
     let mut head = Vec::new();
     let mut cur = out;
@@ -476,7 +484,7 @@ fn structure(out: Sym) -> Result<Rpnn, String> {
         match cur {
             Sym::Relu(inner) => match *inner {
                 Sym::Lin(src, d) => {
-                    head.push(d);
+                    head.push(take(d)?);
                     cur = *src;
                 }
                 _ => return Err(not_rpnn("a head layer is not ReLU(W x + b)")),
@@ -541,9 +549,9 @@ fn structure(out: Sym) -> Result<Rpnn, String> {
             }
         }
         blocks.push(Block {
-            v,
-            w1: w1.map(|(_, d)| d),
-            w2,
+            v: take(v)?,
+            w1: w1.map(|(_, d)| take(d)).transpose()?,
+            w2: take(w2)?,
         });
         match prev {
             Some(p) => cur = p,
