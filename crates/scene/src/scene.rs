@@ -35,7 +35,7 @@
 //! [render]                       # optional
 //! spp = 64
 //! seed = 0
-//! max_depth = -1                 # scattering events per path; −1 = unbounded
+//! max_depth = -1                 # scattering events per path; −1 = no limit but a 2¹⁸ safety cap
 //! ```
 
 use std::path::{Path, PathBuf};

@@ -217,12 +217,14 @@ impl MajorantGrid {
         }
     }
 
-    /// A majorant grid with about `cells_per_voxel_block`-voxel blocks: `ceil(res / block)` cells
-    /// per axis, capped at 64 per axis.
+    /// A majorant grid with about `block`-voxel blocks: `ceil(res / block)` cells per axis, at
+    /// least `min(res, 16)` (small grids would otherwise get one or two cells whose majorant is
+    /// the dense core's, and tracking through their thin fringes would take σ̄ · length tentative
+    /// steps: minutes for very dense media), capped at 64 per axis.
     pub fn with_block(volume: &Volume, block: usize) -> Self {
         let r = volume.grid().res();
         let b = block.max(1);
-        Self::new(volume, r.map(|n| n.div_ceil(b).clamp(1, 64)))
+        Self::new(volume, r.map(|n| n.div_ceil(b).max(n.min(16)).clamp(1, 64)))
     }
 
     pub fn res(&self) -> [usize; 3] {

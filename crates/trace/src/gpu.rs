@@ -129,7 +129,8 @@ impl<'g> GpuPathTracer<'g> {
             max_depth: scene
                 .render
                 .max_depth
-                .map_or(-1, |d| d.min(i32::MAX as u32) as i32),
+                .unwrap_or(crate::integrator::MAX_SCATTERINGS)
+                .min(i32::MAX as u32) as i32,
         })
     }
 

@@ -12,7 +12,12 @@
 //!   a finite sun disc with its MIS weight (power heuristic);
 //! - Russian roulette on the throughput after [`RR_DEPTH`] scatterings, only where the
 //!   throughput has fallen below 1 (α < 1): unbiased, and albedo-1 paths are never cut; they end
-//!   by leaving the medium, or at `max_depth` scatterings when one is set.
+//!   by leaving the medium, or at `max_depth` scatterings when one is set, else at the safety cap
+//!   [`MAX_SCATTERINGS`]. In an albedo-1 medium of optical depth τ a random walk may take up to
+//!   ~τ² scatterings (10¹² for τ = 10⁶, `nimbus stress`); the cap keeps such renders finite. For
+//!   clouds (τ ≲ 10³ with g ≈ 0.86, transport depth ≲ 150) paths surviving 2¹⁸ scatterings
+//!   have negligible probability (diffusion decay ~e^(−n π² / 3τ_tr²): e^(−38) at n = 2¹⁸), so the
+//!   cap does not change the image.
 //!
 //! With a chopped Mie phase function the first vertex uses the full function and the later
 //! segments the reduced density (Kallweit 2017 §3.1), see [`nimbus_scene::Medium`].
@@ -25,6 +30,9 @@ use crate::tracking::Tracker;
 
 /// Scatterings after which Russian roulette may end low-throughput paths.
 pub const RR_DEPTH: u32 = 8;
+
+/// Scatterings after which a path ends when the scene sets no `max_depth`.
+pub const MAX_SCATTERINGS: u32 = 1 << 18;
 
 /// Block size (voxels per majorant cell and axis) of the majorant grid.
 pub const MAJORANT_BLOCK: usize = 8;
@@ -101,9 +109,7 @@ impl<'a> PathTracer<'a> {
                 l += beta * self.escaped(d, prev_pdf);
                 break;
             };
-            if let Some(max) = scene.render.max_depth
-                && scatterings >= max
-            {
+            if scatterings >= scene.render.max_depth.unwrap_or(MAX_SCATTERINGS) {
                 break;
             }
             let x = o + d * t;
