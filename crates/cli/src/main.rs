@@ -17,8 +17,11 @@ macro_rules! say {
     }};
 }
 
+mod eval;
 mod rpnn;
 mod view;
+
+use eval::{EvalArgs, StressArgs, SuiteArgs, bench_suite, compare_scene, stress};
 
 use rpnn::{RpnnArgs, render_rpnn};
 use view::{ViewArgs, view};
@@ -213,6 +216,13 @@ enum Command {
         #[arg(long, short)]
         out: PathBuf,
     },
+    /// Kallweit 2017 Table 1 analogue: held-out generated clouds × front/side/back light ×
+    /// (sun, sun + sky), every method against the path-traced reference; writes
+    /// OUT/results.md and OUT/results/.
+    BenchSuite(SuiteArgs),
+    /// Stiff and extreme inputs (phase asymmetry, density, albedo, sun placement, degenerate
+    /// grids, invalid voxels) × every method, each under a time limit; writes OUT/stability.md.
+    Stress(StressArgs),
     /// Print statistics of a volume file.
     Info {
         file: PathBuf,
@@ -225,10 +235,19 @@ enum Command {
         #[arg(long, value_delimiter = ',')]
         aabb_max: Option<Vec<f64>>,
     },
-    /// Compare a rendered EXR with a reference EXR (metrics of shared/refs/compare.py).
+    /// `compare scene.toml --methods pt,pm,rpnn --out report/`: error against render time of
+    /// each method's budget sweep versus a cached high-spp path-traced reference (report.csv,
+    /// .json, .md, error_vs_time.png/.svg, strip.png). `compare test.exr reference.exr`: the
+    /// metrics of shared/refs/compare.py for two images.
     Compare {
-        test: PathBuf,
-        reference: PathBuf,
+        /// A scene (.toml), or a test EXR followed by a reference EXR.
+        #[arg(required = true, num_args = 1..=2)]
+        inputs: Vec<PathBuf>,
+        /// Scene mode: report folder.
+        #[arg(long, short, default_value = "report")]
+        out: PathBuf,
+        #[command(flatten)]
+        eval: EvalArgs,
         /// Optical-depth mask (.npy, cloud = τ ≥ 0.1); default: <reference>_tau.npy if present.
         #[arg(long)]
         mask: Option<PathBuf>,
@@ -383,6 +402,8 @@ fn run(cli: Cli) -> Result<()> {
             }
         }
         Command::View(args) => view(args)?,
+        Command::BenchSuite(args) => bench_suite(&args)?,
+        Command::Stress(args) => stress(&args)?,
         Command::Animate {
             scene,
             frames,
@@ -584,12 +605,23 @@ fn run(cli: Cli) -> Result<()> {
             );
         }
         Command::Compare {
-            test,
-            reference,
+            inputs,
+            out,
+            eval,
             mask,
             png,
             range,
         } => {
+            if inputs[0].extension().is_some_and(|e| e == "toml") {
+                if inputs.len() > 1 {
+                    bail!("compare with a scene takes one input, got {}", inputs.len());
+                }
+                return compare_scene(&inputs[0], &eval, &out);
+            }
+            let [test, reference] = inputs.as_slice() else {
+                bail!("compare needs a scene (.toml), or a test EXR and a reference EXR");
+            };
+            let (test, reference) = (test.clone(), reference.clone());
             print_metrics(&test, &reference, mask.clone())?;
             if let Some(out) = png {
                 if !(range.is_finite() && range > 0.0) {

@@ -127,18 +127,15 @@ pub fn compare(test: &Image, reference: &Image, mask: Option<&[bool]>) -> Metric
     }
 }
 
-/// The three-panel comparison image of `shared/refs/compare.py`: reference | test | signed
-/// relative difference (test − ref) / max(ref, 0.05 · mean ref over cloud pixels) in false colour
-/// (blue: test darker, white: equal, red: test brighter; saturated at ±`range`), pixels outside
-/// the cloud mask dimmed to 35 %. The first two panels are linear radiance times `exposure`
-/// (write with exposure 1 and the sRGB curve of [`Image::write_png`]); the third is already
-/// display-referred. Panels are separated by 2 white columns.
-pub fn diff_panels(
+/// The signed relative difference (test − ref) / max(ref, 0.05 · mean ref over cloud pixels)
+/// in false colour (blue: test darker, white: equal, red: test brighter; saturated at
+/// ±`range`), pixels outside the cloud mask dimmed to 35 %. The values are display-referred,
+/// stored pre-linearised so that [`Image::write_png`] with exposure 1 reproduces them.
+pub fn diff_false_colour(
     test: &Image,
     reference: &Image,
     mask: Option<&[bool]>,
     range: f64,
-    exposure: f64,
 ) -> Image {
     let (w, h) = (reference.width, reference.height);
     let lum = |img: &Image, i: usize| {
@@ -156,9 +153,7 @@ pub fn diff_panels(
     };
     let cloud: Vec<usize> = (0..w * h).filter(|&i| mask[i]).collect();
     let mref = cloud.iter().map(|&i| lum(reference, i)).sum::<f64>() / cloud.len().max(1) as f64;
-    let mut out = Image::new(3 * w + 4, h);
-    // Display-referred values are stored pre-linearised so that write_png's sRGB curve with
-    // exposure 1 reproduces them: invert the sRGB transfer function.
+    // Invert the sRGB transfer function so write_png's curve gives back the display value.
     let linear = |v: f64| {
         let v = v.clamp(0.0, 1.0);
         if v <= 0.04045 {
@@ -167,23 +162,46 @@ pub fn diff_panels(
             ((v + 0.055) / 1.055).powf(2.4)
         }
     };
+    let mut out = Image::new(w, h);
+    for (i, px) in out.pixels.iter_mut().enumerate() {
+        let t = lum(test, i);
+        let t = if t.is_finite() { t } else { f64::INFINITY };
+        let rel = (t - lum(reference, i)) / lum(reference, i).max(0.05 * mref).max(1e-30);
+        let t = (rel / range).clamp(-1.0, 1.0);
+        let (white, red, blue) = ([1.0, 1.0, 1.0], [0.80, 0.05, 0.05], [0.05, 0.20, 0.85]);
+        let target = if t >= 0.0 { red } else { blue };
+        let a = t.abs();
+        let dim = if mask[i] { 1.0 } else { 0.35 };
+        let mut c = [0.0f32; 3];
+        for k in 0..3 {
+            c[k] = linear(dim * (white[k] + a * (target[k] - white[k]))) as f32;
+        }
+        *px = c;
+    }
+    out
+}
+
+/// The three-panel comparison image of `shared/refs/compare.py`: reference | test |
+/// [`diff_false_colour`]. The first two panels are linear radiance times `exposure` (write with
+/// exposure 1 and the sRGB curve of [`Image::write_png`]). Panels are separated by 2 white
+/// columns.
+pub fn diff_panels(
+    test: &Image,
+    reference: &Image,
+    mask: Option<&[bool]>,
+    range: f64,
+    exposure: f64,
+) -> Image {
+    let (w, h) = (reference.width, reference.height);
+    let diff = diff_false_colour(test, reference, mask, range);
+    let mut out = Image::new(3 * w + 4, h);
     for y in 0..h {
         for x in 0..w {
             let i = y * w + x;
             let o = y * out.width;
             out.pixels[o + x] = reference.pixels[i].map(|c| (c as f64 * exposure) as f32);
             out.pixels[o + w + 2 + x] = test.pixels[i].map(|c| (c as f64 * exposure) as f32);
-            let rel = (lum(test, i) - lum(reference, i)) / lum(reference, i).max(0.05 * mref);
-            let t = (rel / range).clamp(-1.0, 1.0);
-            let (white, red, blue) = ([1.0, 1.0, 1.0], [0.80, 0.05, 0.05], [0.05, 0.20, 0.85]);
-            let target = if t >= 0.0 { red } else { blue };
-            let a = t.abs();
-            let dim = if mask[i] { 1.0 } else { 0.35 };
-            let mut c = [0.0f32; 3];
-            for k in 0..3 {
-                c[k] = linear(dim * (white[k] + a * (target[k] - white[k]))) as f32;
-            }
-            out.pixels[o + 2 * w + 4 + x] = c;
+            out.pixels[o + 2 * w + 4 + x] = diff.pixels[i];
         }
         for k in [w, w + 1, 2 * w + 2, 2 * w + 3] {
             out.pixels[y * out.width + k] = [1.0; 3];

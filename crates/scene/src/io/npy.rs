@@ -114,6 +114,25 @@ pub fn to_bytes(grid: &DensityGrid) -> Vec<u8> {
     out
 }
 
+/// Writes a float32 C-order array of any shape (e.g. per-pixel variances `[height, width]`).
+pub fn write_array(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
+    assert_eq!(shape.iter().product::<usize>(), data.len());
+    let mut out = Vec::new();
+    {
+        let shape: Vec<u64> = shape.iter().map(|&v| v as u64).collect();
+        let mut w = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(&shape)
+            .writer(&mut out)
+            .begin_nd()
+            .expect("writing to memory cannot fail");
+        w.extend(data.iter().copied())
+            .expect("writing to memory cannot fail");
+        w.finish().expect("writing to memory cannot fail");
+    }
+    std::fs::write(path, out).map_err(|e| Error::io(path, e))
+}
+
 pub fn write(path: &Path, grid: &DensityGrid) -> Result<()> {
     std::fs::write(path, to_bytes(grid)).map_err(|e| Error::io(path, e))
 }

@@ -1,0 +1,287 @@
+//! `compare scene.toml`, `bench-suite` and `stress`: argument parsing over `nimbus-eval`.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use clap::ValueEnum;
+use nimbus_eval::{CompareOptions, GpuSlot, RefDevice, ReferenceSettings, RunSettings};
+
+use crate::rpnn::NetBackend;
+
+#[derive(Clone, Copy, ValueEnum)]
+pub(crate) enum RefDeviceArg {
+    /// The GPU path tracer on a hardware GPU when it supports the scene, else the CPU one.
+    Auto,
+    Cpu,
+    Gpu,
+}
+
+/// Settings of the method runs and the reference, shared by `compare` and `bench-suite`.
+#[derive(clap::Args)]
+pub(crate) struct EvalArgs {
+    /// Methods to compare: pt, pt-gpu, pm, rpnn (comma-separated).
+    #[arg(long, default_value = "pt,pm,rpnn")]
+    methods: String,
+    /// Budget sweep of one method, METHOD=B1,B2,… (spp for pt/pt-gpu/rpnn, ring frames for pm);
+    /// repeat for several methods. Defaults: pt=1,4,16,64 pt-gpu=4,16,64,256 pm=4,16,100
+    /// rpnn=1,4,16.
+    #[arg(long)]
+    budgets: Vec<String>,
+    /// Reference samples per pixel.
+    #[arg(long, default_value_t = 1024)]
+    ref_spp: u32,
+    /// Which path tracer renders the reference.
+    #[arg(long, value_enum, default_value = "auto")]
+    ref_device: RefDeviceArg,
+    /// Reference cache folder (keyed by a hash of scene content and settings).
+    #[arg(long, default_value = "out/cache/reference")]
+    cache: PathBuf,
+    /// Render the reference even when a cached one exists, and do not store it.
+    #[arg(long)]
+    no_cache: bool,
+    /// Seed of the method runs (default: the scene's `render.seed`).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Photon mapping: beams per frame (n_g).
+    #[arg(long, default_value_t = 8192)]
+    beams: u32,
+    /// RPNN: the ONNX model (default: the shipped models/rpnn-hg.onnx).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// RPNN: where the network runs.
+    #[arg(long, value_enum, default_value = "auto")]
+    backend: NetBackend,
+    /// RPNN: sky directions per shading point and sample.
+    #[arg(long, default_value_t = 4)]
+    sky_dirs: u32,
+}
+
+impl EvalArgs {
+    pub(crate) fn options(&self, scene_seed: u64) -> Result<CompareOptions> {
+        let methods = nimbus_eval::method::parse_methods(&self.methods)?;
+        let mut budgets = BTreeMap::new();
+        for b in &self.budgets {
+            let (m, list) = nimbus_eval::method::parse_budgets(b)?;
+            if !methods.contains(&m) {
+                bail!("--budgets names `{m}`, which --methods does not list");
+            }
+            budgets.insert(m, list);
+        }
+        if !(1..=1 << 20).contains(&self.ref_spp) {
+            bail!("--ref-spp must lie in 1..=1048576, got {}", self.ref_spp);
+        }
+        if !(1..=1 << 24).contains(&self.beams) {
+            bail!("--beams must lie in 1..=16777216, got {}", self.beams);
+        }
+        if !(1..=1024).contains(&self.sky_dirs) {
+            bail!("--sky-dirs must lie in 1..=1024, got {}", self.sky_dirs);
+        }
+        let seed = self.seed.unwrap_or(scene_seed);
+        Ok(CompareOptions {
+            methods,
+            budgets,
+            run: RunSettings {
+                seed,
+                pm_beams: self.beams,
+                model: self.model.clone(),
+                rpnn_gpu: match self.backend {
+                    NetBackend::Auto => None,
+                    NetBackend::Wgpu => Some(true),
+                    NetBackend::Ort => Some(false),
+                },
+                sky_dirs: self.sky_dirs,
+            },
+            reference: ReferenceSettings {
+                spp: self.ref_spp,
+                seed: CompareOptions::reference_seed(seed),
+                device: match self.ref_device {
+                    RefDeviceArg::Auto => RefDevice::Auto,
+                    RefDeviceArg::Cpu => RefDevice::Cpu,
+                    RefDeviceArg::Gpu => RefDevice::Gpu,
+                },
+                cache_dir: (!self.no_cache).then(|| self.cache.clone()),
+            },
+        })
+    }
+}
+
+fn log(line: String) {
+    say!("{line}");
+}
+
+/// `nimbus compare scene.toml --methods … --out DIR`.
+pub(crate) fn compare_scene(scene: &Path, args: &EvalArgs, out: &Path) -> Result<()> {
+    let s = nimbus_scene::Scene::load(scene)?;
+    let opts = args.options(s.render.seed)?;
+    let name = scene
+        .file_stem()
+        .unwrap_or_default()
+        .to_string_lossy()
+        .into_owned();
+    let mut gpu = GpuSlot::default();
+    let c = nimbus_eval::compare_scene(&s, &name, &opts, out, &mut gpu, &mut log)?;
+    say!(
+        "{}",
+        nimbus_eval::report::markdown_table(&c.report.rows, false)
+    );
+    for f in &c.files {
+        say!("wrote {}", f.display());
+    }
+    Ok(())
+}
+
+/// `nimbus bench-suite`.
+#[derive(clap::Args)]
+pub(crate) struct SuiteArgs {
+    /// Held-out clouds (1..=8: the test split of the 40-cloud training set).
+    #[arg(long, default_value_t = 3)]
+    clouds: usize,
+    /// Sun placements: front (behind the camera), side, back (behind the cloud).
+    #[arg(long, default_value = "front,side,back")]
+    lights: String,
+    /// Lighting conditions: sun (sun only), sun+sky.
+    #[arg(long, default_value = "sun,sun+sky")]
+    skies: String,
+    /// Image size WxH.
+    #[arg(long, default_value = "128x72")]
+    size: String,
+    /// Writes OUT/results.md and OUT/results/ (clouds, scenes, per-scene reports, figure).
+    #[arg(long, short, default_value = "docs")]
+    out: PathBuf,
+    #[command(flatten)]
+    eval: EvalArgs,
+}
+
+/// Parses `WxH`.
+fn parse_size(s: &str) -> Result<(usize, usize)> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| anyhow::anyhow!("--size `{s}`: expected WxH, e.g. 128x72"))?;
+    let p = |v: &str| {
+        v.trim()
+            .parse::<usize>()
+            .map_err(|_| anyhow::anyhow!("--size `{s}`: `{v}` is not a whole number"))
+    };
+    Ok((p(w)?, p(h)?))
+}
+
+pub(crate) fn bench_suite(args: &SuiteArgs) -> Result<()> {
+    use nimbus_eval::suite::{Lighting, SuiteOptions, run};
+    let (width, height) = parse_size(&args.size)?;
+    let lightings = args
+        .lights
+        .split(',')
+        .map(Lighting::parse)
+        .collect::<Result<Vec<_>>>()?;
+    let skies = args
+        .skies
+        .split(',')
+        .map(|s| match s.trim() {
+            "sun" => Ok(false),
+            "sun+sky" => Ok(true),
+            o => bail!("--skies: unknown condition `{o}` (expected sun or sun+sky)"),
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let opts = SuiteOptions {
+        clouds: args.clouds,
+        lightings,
+        skies,
+        width,
+        height,
+        compare: args.eval.options(1)?,
+    };
+    let rows = run(&opts, &args.out, &mut log)?;
+    say!("{} runs", rows.len());
+    Ok(())
+}
+
+/// `nimbus stress`.
+#[derive(clap::Args)]
+pub(crate) struct StressArgs {
+    /// Methods: pt, pt-gpu, pm, rpnn (comma-separated).
+    #[arg(long, default_value = "pt,pt-gpu,pm,rpnn")]
+    methods: String,
+    /// `all`, `subset` (the one stiffest case per axis that the tests run), or case ids.
+    #[arg(long, default_value = "all")]
+    cases: String,
+    /// Seconds one method may take on one case before it counts as a hang.
+    #[arg(long, default_value_t = 120)]
+    time_limit: u64,
+    /// Writes OUT/stability.md and the case scenes to OUT/stability/cases/.
+    #[arg(long, short, default_value = "docs")]
+    out: PathBuf,
+    /// Internal: run one method on one case scene and print a JSON report.
+    #[arg(long, hide = true)]
+    child: Option<PathBuf>,
+    #[arg(long, hide = true, default_value = "pt")]
+    method: String,
+}
+
+pub(crate) fn stress(args: &StressArgs) -> Result<()> {
+    use nimbus_eval::stress;
+    if let Some(scene) = &args.child {
+        let m: nimbus_eval::Method = args.method.parse()?;
+        let r = stress::run_child(scene, m);
+        say!("{}", serde_json::to_string(&r)?);
+        return Ok(());
+    }
+    let methods = nimbus_eval::method::parse_methods(&args.methods)?;
+    if !(1..=86_400).contains(&args.time_limit) {
+        bail!(
+            "--time-limit must lie in 1..=86400 s, got {}",
+            args.time_limit
+        );
+    }
+    let cases = match args.cases.as_str() {
+        "all" => stress::cases(),
+        "subset" => stress::subset(),
+        list => {
+            let all = stress::cases();
+            list.split(',')
+                .map(|id| {
+                    all.iter()
+                        .find(|c| c.id == id.trim())
+                        .cloned()
+                        .ok_or_else(|| anyhow::anyhow!("--cases: no case `{id}`"))
+                })
+                .collect::<Result<Vec<_>>>()?
+        }
+    };
+    let exe = std::env::current_exe()?;
+    let limit = std::time::Duration::from_secs(args.time_limit);
+    let dir = args.out.join("stability").join("cases");
+    let outcomes = stress::run_matrix(&exe, &cases, &methods, &dir, limit, &mut |o| {
+        say!(
+            "{:38} {:7} {} {} ({:.1} s) {}",
+            o.case,
+            o.method.name(),
+            if o.pass { "pass" } else { "FAIL" },
+            o.verdict,
+            o.time_s,
+            o.detail.lines().next().unwrap_or("")
+        )
+    })?;
+    let machine = format!(
+        "{} cores{}",
+        std::thread::available_parallelism().map_or(1, |n| n.get()),
+        match nimbus_gpu::Gpu::new() {
+            Ok(g) => format!(", GPU: {}", g.describe()),
+            Err(_) => String::new(),
+        }
+    );
+    let md = stress::markdown(&outcomes, &methods, limit, &machine);
+    let p = args.out.join("stability.md");
+    std::fs::write(&p, md).with_context(|| format!("cannot write {}", p.display()))?;
+    let fails = outcomes.iter().filter(|o| !o.pass).count();
+    say!(
+        "{} of {} runs pass -> {}",
+        outcomes.len() - fails,
+        outcomes.len(),
+        p.display()
+    );
+    if fails > 0 {
+        bail!("{fails} stress runs failed (see {})", p.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,86 @@
+//! `nimbus compare scene.toml --methods …`: reference, budget sweeps, metrics, report files.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use nimbus_scene::Scene;
+
+use crate::method::{GpuSlot, Method, Run, RunSettings, sweep};
+use crate::metrics::{evaluate, ref_stats};
+use crate::reference::{Reference, ReferenceSettings, reference};
+use crate::report::{RefInfo, Report, write};
+
+/// What to compare.
+#[derive(Debug, Clone)]
+pub struct CompareOptions {
+    pub methods: Vec<Method>,
+    /// Budgets per method (methods not listed use [`Method::default_budgets`]).
+    pub budgets: BTreeMap<Method, Vec<u32>>,
+    pub run: RunSettings,
+    pub reference: ReferenceSettings,
+}
+
+impl CompareOptions {
+    pub fn budgets_of(&self, m: Method) -> Vec<u32> {
+        self.budgets
+            .get(&m)
+            .cloned()
+            .unwrap_or_else(|| m.default_budgets())
+    }
+
+    /// The reference seed: an independent stream from the runs' (sharing the seed would
+    /// correlate the path tracer's first samples with the reference's).
+    pub fn reference_seed(run_seed: u64) -> u64 {
+        run_seed ^ 0x9e37_79b9_7f4a_7c15
+    }
+}
+
+/// Everything one comparison produced.
+pub struct Comparison {
+    pub report: Report,
+    pub reference: Reference,
+    pub runs: Vec<Run>,
+    pub files: Vec<PathBuf>,
+}
+
+/// Renders the reference and every method's sweep on `scene`, writes the report into `out`.
+pub fn compare_scene(
+    scene: &Scene,
+    name: &str,
+    opts: &CompareOptions,
+    out: &Path,
+    gpu: &mut GpuSlot,
+    log: &mut dyn FnMut(String),
+) -> Result<Comparison> {
+    let reference = reference(scene, &opts.reference, gpu, log)?;
+    let mut runs = Vec::new();
+    for &m in &opts.methods {
+        let budgets = opts.budgets_of(m);
+        let mut each = |r: &Run| {
+            log(format!(
+                "{name}: {} {} {} in {:.3} s",
+                r.method,
+                r.budget,
+                r.method.budget_unit(),
+                r.time_s
+            ))
+        };
+        runs.extend(sweep(scene, m, &budgets, &opts.run, gpu, &mut each)?);
+    }
+    let rows = evaluate(name, &runs, &reference);
+    let report = Report {
+        scene: name.to_string(),
+        width: scene.camera.width,
+        height: scene.camera.height,
+        reference: RefInfo::new(&reference, ref_stats(&reference)),
+        rows,
+    };
+    let files = write(out, &report, &reference.image, &runs, log)?;
+    Ok(Comparison {
+        report,
+        reference,
+        runs,
+        files,
+    })
+}

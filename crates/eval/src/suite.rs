@@ -1,0 +1,343 @@
+//! `nimbus bench-suite`: the analogue of Kallweit 2017 Table 1 (§6) — held-out generated
+//! clouds (the test split of `nimbus datagen --clouds gen:40`, never seen in training) under
+//! front, side and back light, with the sun alone and with sun and sky; every method against
+//! the path-traced reference; bias of converged images and speed-ups in `docs/results.md`.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use nimbus_rpnn::dataset::{build_volume, generated_set};
+use nimbus_scene::{Scene, io};
+
+use crate::compare::{CompareOptions, compare_scene};
+use crate::method::{GpuSlot, Method};
+use crate::metrics::Row;
+use crate::plot::{Series, error_vs_time};
+
+/// Light placements relative to the camera (which looks along −z from +z, 20° above).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Lighting {
+    /// Sun behind the camera.
+    Front,
+    /// Sun from the right.
+    Side,
+    /// Sun behind the cloud.
+    Back,
+}
+
+impl Lighting {
+    pub const ALL: [Lighting; 3] = [Lighting::Front, Lighting::Side, Lighting::Back];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Lighting::Front => "front",
+            Lighting::Side => "side",
+            Lighting::Back => "back",
+        }
+    }
+
+    /// Direction towards the sun (elevation ≈ 26°).
+    pub fn sun_dir(self) -> [f64; 3] {
+        match self {
+            Lighting::Front => [0.25, 0.5, 1.0],
+            Lighting::Side => [1.0, 0.5, 0.0],
+            Lighting::Back => [-0.25, 0.5, -1.0],
+        }
+    }
+
+    pub fn parse(s: &str) -> Result<Self> {
+        Lighting::ALL
+            .into_iter()
+            .find(|l| l.name() == s.trim())
+            .with_context(|| format!("unknown lighting `{s}` (expected front, side or back)"))
+    }
+}
+
+/// Suite settings.
+#[derive(Debug, Clone)]
+pub struct SuiteOptions {
+    /// Held-out clouds (1 ..= 8, the test split of the 40-cloud training set).
+    pub clouds: usize,
+    pub lightings: Vec<Lighting>,
+    /// `false`: sun only; `true`: sun and sky. Each entry is one condition.
+    pub skies: Vec<bool>,
+    pub width: usize,
+    pub height: usize,
+    pub compare: CompareOptions,
+}
+
+/// One scene of the suite.
+pub struct SuiteScene {
+    pub name: String,
+    pub cloud: String,
+    pub lighting: Lighting,
+    pub sky: bool,
+    pub toml: String,
+}
+
+/// A held-out cloud written to disk.
+pub struct HeldOut {
+    pub name: String,
+    pub path: PathBuf,
+    /// σ_t per unit grid value (the training set's value for this cloud).
+    pub density_scale: f64,
+}
+
+/// The held-out clouds written as `.vol` files into `dir`.
+pub fn held_out_clouds(n: usize, dir: &Path) -> Result<Vec<HeldOut>> {
+    if !(1..=8).contains(&n) {
+        bail!("--clouds must lie in 1..=8 (the held-out clouds of the 40-cloud set), got {n}");
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let mut out = Vec::new();
+    for spec in generated_set(40, 0)
+        .into_iter()
+        .filter(|c| c.split == "test")
+        .take(n)
+    {
+        let vol = build_volume(&spec)?;
+        let path = dir.join(format!("{}.vol", spec.name));
+        let (lo, hi) = (vol.aabb().min, vol.aabb().max);
+        io::write_grid(&path, vol.grid(), (lo, hi))?;
+        // Scene files resolve relative paths from their own folder: store an absolute one.
+        let path = path
+            .canonicalize()
+            .with_context(|| format!("cannot resolve {}", path.display()))?;
+        out.push(HeldOut {
+            name: spec.name.clone(),
+            path,
+            density_scale: vol.density_scale(),
+        });
+    }
+    Ok(out)
+}
+
+/// The scene description of one suite case.
+pub fn scene_toml(
+    vol: &Path,
+    density_scale: f64,
+    lighting: Lighting,
+    sky: bool,
+    w: usize,
+    h: usize,
+    seed: u64,
+) -> String {
+    let d = lighting.sun_dir();
+    let sky = if sky {
+        "[sky]\nradiance = [0.12, 0.2, 0.38]\n"
+    } else {
+        ""
+    };
+    format!(
+        "[volume]\nfile = {:?}\ndensity_scale = {density_scale}\nalbedo = 1.0\nphase = {{ kind = \"hg\", g = 0.857 }}\n\n\
+         [sun]\ndirection = [{}, {}, {}]\nirradiance = [3.0, 2.85, 2.6]\nangular_radius_deg = 0.27\n\n{sky}\n\
+         [camera]\norigin = [0.0, 1.25, 3.45]\ntarget = [0.0, 0.0, 0.0]\nvfov_deg = 38.0\nwidth = {w}\nheight = {h}\n\n\
+         [render]\nspp = 16\nseed = {seed}\n",
+        vol.display().to_string(),
+        d[0],
+        d[1],
+        d[2]
+    )
+}
+
+/// Runs the suite; per-scene reports go to `out/scenes/<name>/`, the summary to
+/// `out/results.md` with `out/results/error_vs_time.{png,svg}`.
+pub fn run(opts: &SuiteOptions, out: &Path, log: &mut dyn FnMut(String)) -> Result<Vec<Row>> {
+    if opts.width == 0 || opts.height == 0 || opts.width > 4096 || opts.height > 4096 {
+        bail!(
+            "--size must lie in 1..=4096 per side, got {}x{}",
+            opts.width,
+            opts.height
+        );
+    }
+    let work = out.join("results");
+    let clouds = held_out_clouds(opts.clouds, &work.join("clouds"))?;
+    let mut gpu = GpuSlot::default();
+    let mut rows = Vec::new();
+    for cloud in &clouds {
+        for &l in &opts.lightings {
+            for &sky in &opts.skies {
+                let name = format!(
+                    "{}_{}_{}",
+                    cloud.name,
+                    l.name(),
+                    if sky { "sunsky" } else { "sun" }
+                );
+                let text = scene_toml(
+                    &cloud.path,
+                    cloud.density_scale,
+                    l,
+                    sky,
+                    opts.width,
+                    opts.height,
+                    opts.compare.run.seed,
+                );
+                let toml_path = work.join("scenes").join(format!("{name}.toml"));
+                std::fs::create_dir_all(toml_path.parent().expect("has a parent"))?;
+                std::fs::write(&toml_path, &text)
+                    .with_context(|| format!("cannot write {}", toml_path.display()))?;
+                let scene = Scene::load(&toml_path)?;
+                let c = compare_scene(
+                    &scene,
+                    &name,
+                    &opts.compare,
+                    &work.join("scenes").join(&name),
+                    &mut gpu,
+                    log,
+                )?;
+                rows.extend(c.report.rows);
+            }
+        }
+    }
+    let md = results_markdown(opts, &rows, &clouds);
+    let fig = error_vs_time(
+        &work.join("error_vs_time"),
+        "held-out clouds: median over scenes",
+        "relative RMSE over cloud pixels (median)",
+        &median_series(&rows),
+        None,
+    );
+    let mut md = md;
+    match fig {
+        Ok(_) => md += "\n![error against time](results/error_vs_time.png)\n",
+        Err(e) => log(format!("plot skipped: {e:#}")),
+    }
+    let p = out.join("results.md");
+    std::fs::write(&p, md).with_context(|| format!("cannot write {}", p.display()))?;
+    log(format!("wrote {}", p.display()));
+    Ok(rows)
+}
+
+fn condition(scene: &str) -> &'static str {
+    if scene.ends_with("_sunsky") {
+        "sun+sky"
+    } else {
+        "sun"
+    }
+}
+
+/// Per method and sky condition, the median time and median relative RMSE of each budget.
+pub fn median_series(rows: &[Row]) -> Vec<Series> {
+    let mut out = Vec::new();
+    for m in Method::ALL {
+        for cond in ["sun", "sun+sky"] {
+            let sel: Vec<&Row> = rows
+                .iter()
+                .filter(|r| r.method == m && condition(&r.scene) == cond)
+                .collect();
+            let mut budgets: Vec<u32> = sel.iter().map(|r| r.budget).collect();
+            budgets.sort_unstable();
+            budgets.dedup();
+            let points: Vec<(f64, f64)> = budgets
+                .iter()
+                .map(|&b| {
+                    let t: Vec<f64> = sel
+                        .iter()
+                        .filter(|r| r.budget == b)
+                        .map(|r| r.time_s)
+                        .collect();
+                    let e: Vec<f64> = sel
+                        .iter()
+                        .filter(|r| r.budget == b)
+                        .map(|r| r.rel_rmse)
+                        .collect();
+                    (med(t), med(e))
+                })
+                .collect();
+            if !points.is_empty() {
+                out.push(Series {
+                    label: format!("{m} ({cond})"),
+                    points,
+                });
+            }
+        }
+    }
+    out
+}
+
+fn med(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() {
+        f64::NAN
+    } else {
+        v[v.len() / 2]
+    }
+}
+
+fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> String {
+    let c = &opts.compare;
+    let methods: Vec<Method> = c.methods.clone();
+    let mut s = String::from("# Results: error, bias and speed-up on held-out clouds\n\n");
+    let _ = writeln!(
+        s,
+        "The analogue of Kallweit et al. 2017, Table 1: {} held-out generated clouds ({}) — the \
+         test split of the training set, never seen by the shipped network — under front, side \
+         and back light, sun only and sun + sky; {}×{} pixels; reference: path tracer at {} spp. \
+         Regenerate with `nimbus bench-suite` (see BENCHMARKS.md for the exact command).\n",
+        clouds.len(),
+        clouds
+            .iter()
+            .map(|c| c.name.as_str())
+            .collect::<Vec<_>>()
+            .join(", "),
+        opts.width,
+        opts.height,
+        c.reference.spp
+    );
+    // Table 1 analogue: bias (converged) and speed-up per cloud × lighting × condition.
+    s += "## Bias of converged images and speed-up over path tracing\n\n";
+    s += "| cloud | light | sky |";
+    for m in methods.iter().filter(|m| **m != Method::Pt) {
+        let _ = write!(s, " bias {m} | speed-up {m} |");
+    }
+    s += " bias pt |\n|---|---|---|";
+    for _ in methods.iter().filter(|m| **m != Method::Pt) {
+        s += "---:|---:|";
+    }
+    s += "---:|\n";
+    let mut scenes: Vec<&str> = rows.iter().map(|r| r.scene.as_str()).collect();
+    scenes.dedup();
+    for sc in &scenes {
+        let parts: Vec<&str> = sc.rsplitn(3, '_').collect();
+        let (cloud, light) = (parts.get(2).copied().unwrap_or(sc), parts[1]);
+        let _ = write!(s, "| {cloud} | {light} | {} |", condition(sc));
+        let top = |m: Method| {
+            rows.iter()
+                .rfind(|r| r.scene == *sc && r.method == m && r.bias.is_some())
+        };
+        for m in methods.iter().filter(|m| **m != Method::Pt) {
+            match top(*m) {
+                Some(r) => {
+                    let sp = if m.has_variance() {
+                        r.speedup_ttuv
+                    } else {
+                        r.speedup_error
+                    };
+                    let _ = write!(
+                        s,
+                        " {:.4} | {} |",
+                        r.bias.unwrap_or(f64::NAN),
+                        sp.map_or("–".into(), |x| format!("{x:.1}×"))
+                    );
+                }
+                None => s += " – | – |",
+            }
+        }
+        match top(Method::Pt) {
+            Some(r) => {
+                let _ = write!(s, " {:.4} |", r.bias.unwrap_or(f64::NAN));
+            }
+            None => s += " – |",
+        }
+        s += "\n";
+    }
+    s += "\nBias: relative RMSE of each method's largest budget after the estimated noise of run \
+          and reference is removed (`pm` keeps its own noise: an upper bound); the path tracer's \
+          own value shows the floor of this estimate. Speed-up: TTUV ratio (Kallweit §6) for the \
+          Monte Carlo methods; for `pm`, the time the path tracer needs to reach the photon map's \
+          error divided by the photon map's time.\n\n";
+    s += "## All runs\n\n";
+    s += &crate::report::markdown_table(rows, true);
+    s
+}
