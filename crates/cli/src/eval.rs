@@ -7,7 +7,7 @@ use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use nimbus_eval::{CompareOptions, GpuSlot, RefDevice, ReferenceSettings, RunSettings};
 
-use crate::rpnn::NetBackend;
+use crate::rpnn::{NetBackend, RpnnArgs};
 
 #[derive(Clone, Copy, ValueEnum)]
 pub(crate) enum RefDeviceArg {
@@ -46,15 +46,8 @@ pub(crate) struct EvalArgs {
     /// Photon mapping: beams per frame (n_g).
     #[arg(long, default_value_t = 8192)]
     beams: u32,
-    /// RPNN: the ONNX model (default: the shipped models/rpnn-hg.onnx).
-    #[arg(long)]
-    model: Option<PathBuf>,
-    /// RPNN: where the network runs.
-    #[arg(long, value_enum, default_value = "auto")]
-    backend: NetBackend,
-    /// RPNN: sky directions per shading point and sample.
-    #[arg(long, default_value_t = 4)]
-    sky_dirs: u32,
+    #[command(flatten)]
+    rpnn: RpnnArgs,
 }
 
 impl EvalArgs {
@@ -74,8 +67,11 @@ impl EvalArgs {
         if !(1..=1 << 24).contains(&self.beams) {
             bail!("--beams must lie in 1..=16777216, got {}", self.beams);
         }
-        if !(1..=1024).contains(&self.sky_dirs) {
-            bail!("--sky-dirs must lie in 1..=1024, got {}", self.sky_dirs);
+        if !(1..=1024).contains(&self.rpnn.sky_dirs) {
+            bail!(
+                "--sky-dirs must lie in 1..=1024, got {}",
+                self.rpnn.sky_dirs
+            );
         }
         let seed = self.seed.unwrap_or(scene_seed);
         Ok(CompareOptions {
@@ -84,13 +80,13 @@ impl EvalArgs {
             run: RunSettings {
                 seed,
                 pm_beams: self.beams,
-                model: self.model.clone(),
-                rpnn_gpu: match self.backend {
+                model: self.rpnn.model.clone(),
+                rpnn_gpu: match self.rpnn.backend {
                     NetBackend::Auto => None,
                     NetBackend::Wgpu => Some(true),
                     NetBackend::Ort => Some(false),
                 },
-                sky_dirs: self.sky_dirs,
+                sky_dirs: self.rpnn.sky_dirs,
             },
             reference: ReferenceSettings {
                 spp: self.ref_spp,

@@ -23,13 +23,13 @@ pub(crate) enum NetBackend {
 pub(crate) struct RpnnArgs {
     /// RPNN: the ONNX model (default: the shipped models/rpnn-hg.onnx).
     #[arg(long)]
-    model: Option<PathBuf>,
+    pub(crate) model: Option<PathBuf>,
     /// RPNN: where the network runs.
     #[arg(long, value_enum, default_value = "auto")]
-    backend: NetBackend,
+    pub(crate) backend: NetBackend,
     /// RPNN: sky directions per shading point and sample (network queries for sky light).
     #[arg(long, default_value_t = 4)]
-    sky_dirs: u32,
+    pub(crate) sky_dirs: u32,
 }
 
 /// `render --method rpnn`.

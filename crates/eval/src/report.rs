@@ -92,7 +92,8 @@ pub fn csv(rows: &[Row]) -> String {
     s
 }
 
-fn fmt_x(v: Option<f64>) -> String {
+/// A speed-up factor: `123×`, `4.5×`, `0.067×`, or `–`.
+pub fn fmt_x(v: Option<f64>) -> String {
     match v {
         Some(x) if x >= 100.0 => format!("{x:.0}×"),
         Some(x) if x >= 1.0 => format!("{x:.1}×"),

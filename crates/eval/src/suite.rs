@@ -285,6 +285,56 @@ fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> St
         opts.height,
         c.reference.spp
     );
+    // Summary: converged runs per method and condition.
+    s += "## Summary (largest budget of each method, all clouds and sun placements)\n\n";
+    s += "| method | condition | mean ratio median [min, max] | bias median [min, max] | speed-up median [min, max] |\n|---|---|---|---|---|\n";
+    for m in &methods {
+        for cond in ["sun", "sun+sky"] {
+            let top: Vec<&Row> = rows
+                .iter()
+                .filter(|r| r.method == *m && r.bias.is_some() && condition(&r.scene) == cond)
+                .collect();
+            if top.is_empty() {
+                continue;
+            }
+            let stat = |v: Vec<f64>, f: &dyn Fn(f64) -> String| {
+                let v: Vec<f64> = v.into_iter().filter(|x| x.is_finite()).collect();
+                if v.is_empty() {
+                    return "–".to_string();
+                }
+                let lo = v.iter().cloned().fold(f64::MAX, f64::min);
+                let hi = v.iter().cloned().fold(f64::MIN, f64::max);
+                format!("{} [{}, {}]", f(med(v)), f(lo), f(hi))
+            };
+            let speed: Vec<f64> = top
+                .iter()
+                .filter_map(|r| {
+                    if m.has_variance() {
+                        r.speedup_ttuv
+                    } else {
+                        r.speedup_error
+                    }
+                })
+                .collect();
+            let _ = writeln!(
+                s,
+                "| {m} | {cond} | {} | {} | {} |",
+                stat(top.iter().map(|r| r.mean_ratio).collect(), &|x| format!(
+                    "{x:.3}"
+                )),
+                stat(
+                    top.iter().map(|r| r.bias.unwrap_or(f64::NAN)).collect(),
+                    &|x| format!("{x:.3}")
+                ),
+                if *m == Method::Pt {
+                    "1× (baseline)".to_string()
+                } else {
+                    stat(speed, &|x| crate::report::fmt_x(Some(x)))
+                }
+            );
+        }
+    }
+    s += "\n";
     // Table 1 analogue: bias (converged) and speed-up per cloud × lighting × condition.
     s += "## Bias of converged images and speed-up over path tracing\n\n";
     s += "| cloud | light | sky |";
@@ -318,7 +368,7 @@ fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> St
                         s,
                         " {:.4} | {} |",
                         r.bias.unwrap_or(f64::NAN),
-                        sp.map_or("–".into(), |x| format!("{x:.1}×"))
+                        crate::report::fmt_x(sp)
                     );
                 }
                 None => s += " – | – |",

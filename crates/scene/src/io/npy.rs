@@ -10,9 +10,48 @@ use npyz::{Order, WriterBuilder};
 use crate::error::{Error, Result};
 use crate::grid::{DensityGrid, check_resolution};
 
+/// Refuses headers whose brackets nest deeper than a plain array header needs (`{… (z, y, x)}`:
+/// depth 2; structured dtypes reach 3–4) before `npyz` parses them: its header parser
+/// backtracks exponentially on deep nesting (found by `cargo fuzz run npy`: 100 `[` took
+/// longer than 10 s).
+fn check_header_nesting(bytes: &[u8], path: &Path) -> Result<()> {
+    const MAX_DEPTH: usize = 8;
+    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
+        return Ok(()); // npyz reports the bad magic number
+    }
+    let (len, start): (usize, usize) = match bytes[6] {
+        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
+        _ if bytes.len() >= 12 => (
+            u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+            12,
+        ),
+        _ => return Ok(()),
+    };
+    let header = &bytes[start..bytes.len().min(start.saturating_add(len))];
+    let mut depth = 0usize;
+    for &c in header {
+        match c {
+            b'(' | b'[' | b'{' => {
+                depth += 1;
+                if depth > MAX_DEPTH {
+                    return Err(Error::invalid(
+                        path,
+                        "header",
+                        format!("brackets nested deeper than {MAX_DEPTH}: not an array header"),
+                    ));
+                }
+            }
+            b')' | b']' | b'}' => depth = depth.saturating_sub(1),
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
 /// Parses any little-endian float32/float64 C-order array as (shape, f32 values). The data
 /// size must match the header's shape exactly, so nothing is allocated beyond the file's size.
 fn parse_array(bytes: &[u8], path: &Path) -> Result<(Vec<u64>, Vec<f32>)> {
+    check_header_nesting(bytes, path)?;
     let mut cursor = Cursor::new(bytes);
     let header = npyz::NpyHeader::from_reader(&mut cursor)
         .map_err(|e| Error::invalid(path, "header", format!("not a valid .npy header: {e}")))?;
@@ -140,6 +179,22 @@ pub fn write(path: &Path, grid: &DensityGrid) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn deeply_nested_header_is_refused_quickly() {
+        // The fuzzer's input: 100 nested `[` in the shape field.
+        let mut h = b"{'descr': '<f4', 'fortran_order': False, 'shape': ".to_vec();
+        h.extend(std::iter::repeat_n(b'[', 100));
+        h.extend(b"(6, 6), }\n");
+        let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+        bytes.extend((h.len() as u16).to_le_bytes());
+        bytes.extend(&h);
+        // Before the check this call did not return within 10 s.
+        let e = parse(&bytes, Path::new("deep.npy"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("deep.npy") && e.contains("nested"), "{e}");
+    }
 
     #[test]
     fn round_trip_and_errors() {
