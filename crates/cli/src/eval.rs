@@ -142,9 +142,12 @@ pub(crate) struct SuiteArgs {
     /// Image size WxH.
     #[arg(long, default_value = "128x72")]
     size: String,
-    /// Writes OUT/results.md and OUT/results/ (clouds, scenes, per-scene reports, figure).
+    /// Writes OUT/results.md and OUT/results/ (per-scene reports, figure).
     #[arg(long, short, default_value = "docs")]
     out: PathBuf,
+    /// Folder for the held-out clouds and the generated scene files.
+    #[arg(long, default_value = "out/bench-suite")]
+    work: PathBuf,
     #[command(flatten)]
     eval: EvalArgs,
 }
@@ -186,6 +189,7 @@ pub(crate) fn bench_suite(args: &SuiteArgs) -> Result<()> {
         width,
         height,
         compare: args.eval.options(1)?,
+        work_dir: args.work.clone(),
     };
     let rows = run(&opts, &args.out, &mut log)?;
     say!("{} runs", rows.len());

@@ -261,8 +261,11 @@ fn bench_suite_writes_the_table() {
         d.join("cache").to_str().unwrap(),
         "--out",
         d.to_str().unwrap(),
+        "--work",
+        d.join("work").to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", text(&o));
+    assert!(d.join("work/clouds/cumulus_004.vol").is_file());
     let md = std::fs::read_to_string(d.join("results.md")).unwrap();
     // The first held-out cloud of the 40-cloud set, back-lit, sun + sky.
     assert!(md.contains("| cumulus_004 | back | sun+sky |"), "{md}");

@@ -65,6 +65,9 @@ pub struct SuiteOptions {
     pub width: usize,
     pub height: usize,
     pub compare: CompareOptions,
+    /// Where the held-out clouds (`.vol`) and the generated scene files go (not the report:
+    /// the scenes name the clouds by absolute path).
+    pub work_dir: PathBuf,
 }
 
 /// One scene of the suite.
@@ -141,7 +144,7 @@ pub fn scene_toml(
     )
 }
 
-/// Runs the suite; per-scene reports go to `out/scenes/<name>/`, the summary to
+/// Runs the suite; per-scene reports go to `out/results/scenes/<name>/`, the summary to
 /// `out/results.md` with `out/results/error_vs_time.{png,svg}`.
 pub fn run(opts: &SuiteOptions, out: &Path, log: &mut dyn FnMut(String)) -> Result<Vec<Row>> {
     if opts.width == 0 || opts.height == 0 || opts.width > 4096 || opts.height > 4096 {
@@ -152,7 +155,7 @@ pub fn run(opts: &SuiteOptions, out: &Path, log: &mut dyn FnMut(String)) -> Resu
         );
     }
     let work = out.join("results");
-    let clouds = held_out_clouds(opts.clouds, &work.join("clouds"))?;
+    let clouds = held_out_clouds(opts.clouds, &opts.work_dir.join("clouds"))?;
     let mut gpu = GpuSlot::default();
     let mut rows = Vec::new();
     for cloud in &clouds {
@@ -173,7 +176,7 @@ pub fn run(opts: &SuiteOptions, out: &Path, log: &mut dyn FnMut(String)) -> Resu
                     opts.height,
                     opts.compare.run.seed,
                 );
-                let toml_path = work.join("scenes").join(format!("{name}.toml"));
+                let toml_path = opts.work_dir.join("scenes").join(format!("{name}.toml"));
                 std::fs::create_dir_all(toml_path.parent().expect("has a parent"))?;
                 std::fs::write(&toml_path, &text)
                     .with_context(|| format!("cannot write {}", toml_path.display()))?;

@@ -69,6 +69,14 @@ fn vdb_errors_are_clear() {
     let p = tmp("garbage.vdb");
     std::fs::write(&p, b"this is not a vdb file at all").unwrap();
     assert!(io::read_grid(&p).unwrap_err().to_string().contains("magic"));
+    // Found by `cargo fuzz run vdb`: a transform type vdb-rs does not know (it panics).
+    let e = io::read_grid(data("fuzz-transform-not-supported.vdb"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("fuzz-transform-not-supported.vdb") && e.contains("malformed or unsupported"),
+        "{e}"
+    );
 }
 
 #[test]

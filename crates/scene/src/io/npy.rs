@@ -10,7 +10,7 @@ use npyz::{Order, WriterBuilder};
 use crate::error::{Error, Result};
 use crate::grid::{DensityGrid, check_resolution};
 
-/// Refuses headers whose brackets nest deeper than a plain array header needs (`{… (z, y, x)}`:
+/// Refuses headers longer than the file, and headers whose brackets nest deeper than a plain array header needs (`{… (z, y, x)}`:
 /// depth 2; structured dtypes reach 3–4) before `npyz` parses them: its header parser
 /// backtracks exponentially on deep nesting (found by `cargo fuzz run npy`: 100 `[` took
 /// longer than 10 s).
@@ -27,7 +27,18 @@ fn check_header_nesting(bytes: &[u8], path: &Path) -> Result<()> {
         ),
         _ => return Ok(()),
     };
-    let header = &bytes[start..bytes.len().min(start.saturating_add(len))];
+    if start.saturating_add(len) > bytes.len() {
+        // npyz would allocate the stated length first (up to 4 GiB; found by `cargo fuzz`).
+        return Err(Error::invalid(
+            path,
+            "header.length",
+            format!(
+                "header of {len} bytes does not fit in the file ({} bytes)",
+                bytes.len()
+            ),
+        ));
+    }
+    let header = &bytes[start..start + len];
     let mut depth = 0usize;
     for &c in header {
         match c {
@@ -194,6 +205,12 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("deep.npy") && e.contains("nested"), "{e}");
+        // A version-2 header claiming 3.9 GB: refused before anything is allocated.
+        let mut big = b"\x93NUMPY\x02\x00".to_vec();
+        big.extend(3_890_734_966u32.to_le_bytes());
+        big.extend(b"{'descr': '<f4'");
+        let e = parse(&big, Path::new("big.npy")).unwrap_err().to_string();
+        assert!(e.contains("big.npy") && e.contains("header.length"), "{e}");
     }
 
     #[test]

@@ -27,7 +27,14 @@ pub const GRID_NAME: &str = "density";
 /// Parses `.vdb` bytes; `path` only labels errors.
 pub fn parse(bytes: &[u8], path: &Path) -> Result<GridFile> {
     let owned = bytes.to_vec();
+    // vdb-rs panics on malformed input ("Not supported", index errors — found by
+    // `cargo fuzz run vdb`); the panic becomes an error naming the file. The default hook would
+    // print the panic and a backtrace before that error, so a silent hook stands in meanwhile
+    // (process-wide: a panic on another thread in this window would go unprinted).
+    let hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
     let result = std::panic::catch_unwind(move || parse_inner(&owned));
+    std::panic::set_hook(hook);
     match result {
         Ok(Ok(v)) => {
             let (res, data, bounds) = v;
