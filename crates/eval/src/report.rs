@@ -157,7 +157,7 @@ pub fn series(rows: &[Row]) -> Vec<Series> {
 }
 
 /// reference | each method's largest budget (top row); each method's false-colour relative
-/// difference, ±`range` (bottom row, under its image). Linear panels use the reference's
+/// difference, ±`range` (bottom row, under its image; white under the reference). Linear panels use the reference's
 /// auto exposure. Written with `Image::write_png(path, 1.0)`.
 pub fn strip(reference: &Image, best: &[&Run], range: f64) -> Image {
     let (w, h) = (reference.width, reference.height);
@@ -178,7 +178,6 @@ pub fn strip(reference: &Image, best: &[&Run], range: f64) -> Image {
         }
     };
     put(reference, 0, 0, e);
-    put(&Image::new(w, h), 0, 1, 1.0);
     for (k, r) in best.iter().enumerate() {
         put(&r.image, k + 1, 0, e);
         let d = nimbus_trace::compare::diff_false_colour(&r.image, reference, None, range);
