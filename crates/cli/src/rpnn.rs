@@ -55,8 +55,7 @@ pub(crate) fn render_rpnn(
     if let Some(w) = nimbus_rpnn::render::phase_mismatch(s, &model.phase) {
         say!("{w}");
     }
-    let pyr = nimbus_rpnn::Pyramid::new(&s.volume)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", scene.display()))?;
+    let pyr = nimbus_rpnn::Pyramid::for_rendering(&s.volume);
     let gpu = match args.backend {
         NetBackend::Ort => None,
         NetBackend::Wgpu => Some(nimbus_gpu::Gpu::new()?),

@@ -133,17 +133,37 @@ fn downsample(data: &[f32], res: [usize; 3]) -> (Vec<f32>, [usize; 3]) {
 }
 
 impl Pyramid {
+    /// The pyramid of a cloud; an empty cloud is an error (training records need a mean free
+    /// path to normalise by).
     pub fn new(volume: &Volume) -> Result<Self, PyramidError> {
-        let g = volume.grid();
-        let (sum, count) = g
-            .data()
-            .iter()
-            .filter(|v| **v > 0.0)
-            .fold((0.0f64, 0usize), |a, v| (a.0 + *v as f64, a.1 + 1));
+        let (sum, count) = Self::nonzero(volume);
         if count == 0 || volume.density_scale() <= 0.0 {
             return Err(PyramidError::Empty);
         }
-        let mean_sigma = volume.density_scale() * sum / count as f64;
+        Ok(Self::build(
+            volume,
+            volume.density_scale() * sum / count as f64,
+        ))
+    }
+
+    /// For rendering: like [`Pyramid::new`], but an empty cloud gets a unit normalisation
+    /// instead of an error — a renderer never finds a collision in it, so no descriptor is
+    /// ever taken, and the image is the sky (found by `nimbus stress`).
+    pub fn for_rendering(volume: &Volume) -> Self {
+        Self::new(volume).unwrap_or_else(|_| Self::build(volume, 1.0))
+    }
+
+    fn nonzero(volume: &Volume) -> (f64, usize) {
+        volume
+            .grid()
+            .data()
+            .iter()
+            .filter(|v| **v > 0.0)
+            .fold((0.0f64, 0usize), |a, v| (a.0 + *v as f64, a.1 + 1))
+    }
+
+    fn build(volume: &Volume, mean_sigma: f64) -> Self {
+        let g = volume.grid();
         let scale = (volume.density_scale() / mean_sigma) as f32;
         let raw: Vec<f32> = g.data().iter().map(|v| v * scale).collect();
         let mut res = g.res();
@@ -167,13 +187,13 @@ impl Pyramid {
             });
         }
         let cell = volume.cell_size();
-        Ok(Self {
+        Self {
             levels,
             aabb_min: volume.aabb().min,
             aabb_max: volume.aabb().max,
             mean_sigma,
             voxel: cell.min_element(),
-        })
+        }
     }
 
     /// Pyramid level used by stencil level `k` (1-based): the stencil's point spacing is
