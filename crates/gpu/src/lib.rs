@@ -42,14 +42,56 @@ pub struct Gpu {
     pub features: wgpu::Features,
 }
 
-fn preference(t: wgpu::DeviceType) -> u32 {
-    match t {
+/// Adapter order: hardware before software, and within a kind the native APIs (Vulkan, Metal,
+/// DX12) before OpenGL (Mesa's GL llvmpipe is ≈ 3× slower than Vulkan lavapipe on the same CPU).
+fn preference(info: &wgpu::AdapterInfo) -> (u32, u32) {
+    let kind = match info.device_type {
         wgpu::DeviceType::DiscreteGpu => 0,
         wgpu::DeviceType::IntegratedGpu => 1,
         wgpu::DeviceType::VirtualGpu => 2,
         wgpu::DeviceType::Other => 3,
         wgpu::DeviceType::Cpu => 4,
-    }
+    };
+    let api = match info.backend {
+        wgpu::Backend::Gl => 1,
+        _ => 0,
+    };
+    (kind, api)
+}
+
+/// One line for the user when the chosen adapter is slow for a reason they can fix: OpenGL
+/// (wgpu falls back to it when no Vulkan driver is installed). Software Vulkan (lavapipe) gets
+/// no hint: it is the expected adapter on machines without a GPU.
+pub fn adapter_hint(info: &wgpu::AdapterInfo) -> Option<String> {
+    (info.backend == wgpu::Backend::Gl).then(|| {
+        let soft = if info.device_type == wgpu::DeviceType::Cpu {
+            " (software, on the CPU)"
+        } else {
+            ""
+        };
+        format!(
+            "note: the GPU work runs on OpenGL: {}{soft}; a Vulkan driver is faster — install \
+             your GPU's Vulkan driver, or Mesa's lavapipe on machines without a GPU \
+             (`apt-get install mesa-vulkan-drivers`); `nimbus info --gpu` lists the adapters",
+            info.name
+        )
+    })
+}
+
+/// Every adapter wgpu sees, best first (the first is the one [`Gpu::new`] opens), as
+/// "name (type, backend)" lines.
+pub fn list_adapters() -> Vec<String> {
+    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
+    let mut infos: Vec<wgpu::AdapterInfo> =
+        pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()))
+            .iter()
+            .map(|a| a.get_info())
+            .collect();
+    infos.sort_by_key(preference);
+    infos
+        .iter()
+        .map(|i| format!("{} ({:?}, {:?})", i.name, i.device_type, i.backend))
+        .collect()
 }
 
 impl Gpu {
@@ -69,9 +111,13 @@ impl Gpu {
     ) -> Result<(Self, wgpu::Adapter), GpuError> {
         let mut adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
         adapters.retain(|a| surface.is_none_or(|s| a.is_surface_supported(s)));
-        adapters.sort_by_key(|a| preference(a.get_info().device_type));
+        adapters.sort_by_key(|a| preference(&a.get_info()));
         let adapter = adapters.into_iter().next().ok_or(GpuError::NoAdapter)?;
         let info = adapter.get_info();
+        if let Some(hint) = adapter_hint(&info) {
+            static ONCE: std::sync::Once = std::sync::Once::new();
+            ONCE.call_once(|| eprintln!("{hint}"));
+        }
         let wanted = wgpu::Features::TIMESTAMP_QUERY;
         let features = adapter.features() & wanted;
         let limits = adapter.limits();
@@ -290,5 +336,43 @@ impl Gpu {
     /// Waits until all submitted work is done.
     pub fn wait(&self) {
         let _ = self.device.poll(wgpu::PollType::wait_indefinitely());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn info(
+        name: &str,
+        device_type: wgpu::DeviceType,
+        backend: wgpu::Backend,
+    ) -> wgpu::AdapterInfo {
+        let mut i = wgpu::AdapterInfo::new(device_type, backend);
+        i.name = name.into();
+        i
+    }
+
+    #[test]
+    fn vulkan_lavapipe_is_preferred_over_gl_llvmpipe_and_hardware_over_both() {
+        use wgpu::{Backend, DeviceType};
+        let mut v = [
+            info("llvmpipe", DeviceType::Cpu, Backend::Gl),
+            info("lavapipe", DeviceType::Cpu, Backend::Vulkan),
+            info("gpu-gl", DeviceType::DiscreteGpu, Backend::Gl),
+            info("gpu", DeviceType::DiscreteGpu, Backend::Vulkan),
+        ];
+        v.sort_by_key(preference);
+        let names: Vec<&str> = v.iter().map(|i| i.name.as_str()).collect();
+        assert_eq!(names, ["gpu", "gpu-gl", "lavapipe", "llvmpipe"]);
+    }
+
+    #[test]
+    fn hint_only_for_opengl() {
+        use wgpu::{Backend, DeviceType};
+        let gl = adapter_hint(&info("llvmpipe", DeviceType::Cpu, Backend::Gl)).unwrap();
+        assert!(gl.contains("llvmpipe") && gl.contains("apt-get install mesa-vulkan-drivers"));
+        assert!(adapter_hint(&info("lavapipe", DeviceType::Cpu, Backend::Vulkan)).is_none());
+        assert!(adapter_hint(&info("gpu", DeviceType::DiscreteGpu, Backend::Vulkan)).is_none());
     }
 }
