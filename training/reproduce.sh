@@ -1,24 +1,45 @@
 #!/usr/bin/env bash
 # Rebuilds models/rpnn-hg.onnx (+ card) from nothing: generated clouds, path-traced records,
-# training, ONNX export and its onnxruntime check. Deterministic for the given counts on the CPU
-# (records are seeded by index, so a larger RECORDS extends the same set).
+# training, ONNX export and its onnxruntime check. Every step resumes after an interruption
+# (finished shards are kept, training continues from <run>/last.pt): run it again.
 #
-#   bash training/reproduce.sh                 # the shipped model's settings
-#   RECORDS=50000 DEVICE=gpu bash training/reproduce.sh   # bigger, with the GPU path tracer
+#   bash training/reproduce.sh                          # the shipped model's settings
+#   nohup bash training/reproduce.sh > out/reproduce.log 2>&1 &    # in the background
+#   RECORDS=100000 EPOCHS=20 bash training/reproduce.sh  # smaller
+#
+# Data: fixed-count training labels (SAMPLES per record: unbiased and noisy, trained with the
+# relative L2 loss), precise validation and test labels (EVAL_SAMPLES per record) from held-out
+# clouds, light directions uniform in the angle gamma, density scales 10 … 300.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-RECORDS=${RECORDS:-7250}
-TEST_RECORDS=${TEST_RECORDS:-500}
-EPOCHS=${EPOCHS:-400}
+CLOUDS=${CLOUDS:-gen:150}
+DENSITY_RANGE=${DENSITY_RANGE:-10,300}
+RECORDS=${RECORDS:-1000000}
+SAMPLES=${SAMPLES:-256}
+VAL_RECORDS=${VAL_RECORDS:-1000}
+TEST_RECORDS=${TEST_RECORDS:-2000}
+EVAL_SAMPLES=${EVAL_SAMPLES:-16384}
+LIGHT=${LIGHT:-uniform-gamma}
+EPOCHS=${EPOCHS:-12}
+MAX_MINUTES=${MAX_MINUTES:-0}
+LOSS=${LOSS:-rel-l2}
 DEVICE=${DEVICE:-cpu}          # datagen: cpu (the shipped set) or gpu (different random streams)
-DATA=${DATA:-out/rpnn-hg}
+DATA=${DATA:-out/rpnn-hg-data}
 RUN=${RUN:-out/train-rpnn-hg}
 MODEL=${MODEL:-models/rpnn-hg.onnx}
 
 cargo build --release -p nimbus-cli
-./target/release/nimbus datagen --clouds gen:40 --phase hg --seed 0 --shard-size 250 \
-  --records "$RECORDS" --test-records "$TEST_RECORDS" --device "$DEVICE" --out "$DATA"
 bash training/setup.sh
+datagen() { # SPLIT-specific counts; the same --out and settings, so later calls resume
+  ./target/release/nimbus datagen --clouds "$CLOUDS" --density-range "$DENSITY_RANGE" \
+    --phase hg --seed 0 --shard-size 10000 --light "$LIGHT" \
+    --samples "$SAMPLES" --eval-samples "$EVAL_SAMPLES" --device "$DEVICE" --out "$DATA" "$@"
+}
+# Validation and test sets first (small, precise), then the training records.
+datagen --records 0 --val-records "$VAL_RECORDS" --test-records "$TEST_RECORDS"
+datagen --records "$RECORDS" --val-records "$VAL_RECORDS" --test-records "$TEST_RECORDS"
 training/.venv/bin/python training/train.py --data "$DATA" --run "$RUN" --epochs "$EPOCHS" \
-  --seed 0 --device auto --export "$MODEL" \
-  --reproduce "RECORDS=$RECORDS TEST_RECORDS=$TEST_RECORDS EPOCHS=$EPOCHS DEVICE=$DEVICE bash training/reproduce.sh"
+  --loss "$LOSS" --schedule cosine --max-minutes "$MAX_MINUTES" \
+  --seed 0 --device auto --resume --export "$MODEL" \
+  --reproduce "CLOUDS=$CLOUDS DENSITY_RANGE=$DENSITY_RANGE RECORDS=$RECORDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS TEST_RECORDS=$TEST_RECORDS EVAL_SAMPLES=$EVAL_SAMPLES LIGHT=$LIGHT EPOCHS=$EPOCHS LOSS=$LOSS DEVICE=$DEVICE bash training/reproduce.sh"
+cp "$RUN/curves.png" "${MODEL%.onnx}-curves.png"

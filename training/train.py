@@ -5,9 +5,17 @@ records and export it to ONNX.
     python training/train.py --data out/rpnn-hg --run out/train-hg --epochs 200 \
         --export models/rpnn-hg.onnx
 
-- Loss (log(1 + y_hat) - log(1 + y))^2, Adam with default settings, minibatches of 1000 (§5.2).
-- The records of the training clouds are split 75 % / 25 % (fixed seed) into fitting and
-  validation rows; the held-out test clouds' records (split "test") are reported separately.
+- Loss: ``--loss rel-l2`` (default) is the relative L2 of Neural Radiance Caching,
+  (y_hat - y)^2 / (sg(|y_hat|) + 0.01)^2, whose minimiser is the conditional mean, so noisy
+  fixed-count labels (``nimbus datagen --samples N``) teach the same function as converged ones;
+  ``--loss log`` is the paper's (log(1 + y_hat) - log(1 + y))^2 (§5.2), biased low under label
+  noise. Adam, minibatches of 1000 (§5.2); ``--schedule cosine`` decays the step size to 0 over
+  the run (averages out label noise at the end), ``constant`` is the paper's.
+- ``--mirror`` (default): each minibatch mirrors a random half of its rows across the plane of
+  the view and light directions (stencil ix -> 4 - ix): a free second record.
+- Validation: the data set's "val" split (held-out clouds with precise labels) when it has one,
+  else 25 % of the training records (fixed seed); the test clouds' records (split "test") are
+  reported separately, with the per-record median relative error by gamma and target size.
 - Every epoch: validation (and test) loss, a row in ``<run>/log.csv``, ``<run>/curves.png``,
   ``<run>/last.pt`` (resumable with ``--resume``) and ``<run>/best.pt`` when validation improves.
 - ``--export`` writes the best checkpoint as ONNX, checks it against torch with onnxruntime on
@@ -32,7 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from rpnn import data as rdata  # noqa: E402
 from rpnn import export as rexport  # noqa: E402
-from rpnn.model import RPNN, log_loss, parameter_count  # noqa: E402
+from rpnn.model import LOSSES, RPNN, mirror_columns, parameter_count  # noqa: E402
 
 
 def parse_args(argv=None):
@@ -49,6 +57,15 @@ def parse_args(argv=None):
     p.add_argument("--head-layers", type=int, default=3)
     p.add_argument("--outputs", type=int, default=1, help="output channels (1: grey radiance)")
     p.add_argument("--lr", type=float, default=1e-3, help="Adam step size (default: Adam's own)")
+    p.add_argument("--loss", default="rel-l2", choices=sorted(LOSSES),
+                   help="rel-l2: unbiased under label noise (default); log: the paper's §5.2 loss")
+    p.add_argument("--mirror", action=argparse.BooleanOptionalAction, default=True,
+                   help="mirror a random half of each minibatch (ix -> 4 - ix)")
+    p.add_argument("--schedule", default="constant", choices=["constant", "cosine"],
+                   help="step size over the epochs: constant (the paper) or cosine decay to 0")
+    p.add_argument("--max-minutes", type=float, default=0.0,
+                   help="stop after this much training time (0: no limit); the best checkpoint "
+                        "is exported as usual")
     p.add_argument("--resume", action="store_true", help="continue from <run>/last.pt")
     p.add_argument("--preload", default="auto", choices=["auto", "yes", "no"],
                    help="copy the records into memory (GPU memory on CUDA) instead of reading "
@@ -114,15 +131,52 @@ class Batches:
                 yield x.to(self.device, non_blocking=nb), y.to(self.device, non_blocking=nb)
 
 
-def evaluate(model, batches: Batches, batch: int) -> float | None:
+def evaluate(model, batches: Batches, batch: int, loss_fn) -> float | None:
     if len(batches) == 0:
         return None
     model.eval()
     total = 0.0
     with torch.no_grad():
         for x, y in batches.iterate(batch, None):
-            total += float(log_loss(model(x), y[:, None].expand(-1, model.outputs))) * len(y)
+            total += float(loss_fn(model(x), y[:, None].expand(-1, model.outputs))) * len(y)
     return total / len(batches)
+
+
+GAMMA_BINS_DEG = [0, 30, 60, 90, 120, 150, 180]
+
+
+def record_errors(model, batches: Batches, batch: int) -> dict | None:
+    """Per-record relative error |y_hat - y| / y on a precise split: median overall, by gamma
+    (30-degree bins; gamma = 180 is front-lit) and by target size (terciles), plus the ratio of
+    mean prediction to mean target."""
+    if len(batches) == 0:
+        return None
+    model.eval()
+    preds, ys, gammas = [], [], []
+    with torch.no_grad():
+        for x, y in batches.iterate(batch, None):
+            preds.append(model(x)[:, 0].cpu().numpy())
+            ys.append(y.cpu().numpy())
+            gammas.append(x[:, -1].cpu().numpy())
+    p, y, g = np.concatenate(preds), np.concatenate(ys), np.degrees(np.concatenate(gammas))
+    ok = y > 0
+    rel = np.abs(p[ok] - y[ok]) / y[ok]
+    g, yk = g[ok], y[ok]
+    out = {"records": int(ok.sum()), "median_rel_error": float(np.median(rel)),
+           "mean_ratio": float(p[ok].mean() / yk.mean()), "by_gamma": [], "by_target": []}
+    for lo, hi in zip(GAMMA_BINS_DEG[:-1], GAMMA_BINS_DEG[1:]):
+        sel = (g >= lo) & ((g < hi) | (hi == 180))
+        if sel.any():
+            out["by_gamma"].append({"gamma_deg": [lo, hi], "records": int(sel.sum()),
+                                    "median_rel_error": float(np.median(rel[sel]))})
+    edges = np.quantile(yk, [0, 1 / 3, 2 / 3, 1])
+    for i in range(3):
+        sel = (yk >= edges[i]) & ((yk < edges[i + 1]) | (i == 2))
+        if sel.any():
+            out["by_target"].append({"target": [float(edges[i]), float(edges[i + 1])],
+                                     "records": int(sel.sum()),
+                                     "median_rel_error": float(np.median(rel[sel]))})
+    return out
 
 
 def plot(log_rows: list[dict], path: Path) -> None:
@@ -140,7 +194,7 @@ def plot(log_rows: list[dict], path: Path) -> None:
             ax.plot(ep, [float(v) if v not in (None, "") else np.nan for v in vals], label=label)
     ax.set_yscale("log")
     ax.set_xlabel("epoch")
-    ax.set_ylabel("loss (log(1+ŷ) − log(1+y))²")
+    ax.set_ylabel("loss")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     fig.tight_layout()
@@ -161,20 +215,30 @@ def train(args) -> dict:
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
     manifest = rdata.read_manifest(args.data)
     train_shards = rdata.load_shards(args.data, "train")
+    val_shards = rdata.load_shards(args.data, "val")
     test_shards = rdata.load_shards(args.data, "test")
     train_recs = rdata.Records(train_shards)
+    val_recs = rdata.Records(val_shards)
     test_recs = rdata.Records(test_shards)
     if len(train_recs) < 2:
         raise SystemExit(f"{args.data}: {len(train_recs)} training records; at least 2 are needed")
-    fit_idx, val_idx = rdata.split_indices(len(train_recs), args.val_fraction, args.seed)
-    total_bytes = (len(train_recs) + len(test_recs)) * rdata.DESCRIPTOR_LEN * 4
+    if len(val_recs):
+        # Held-out validation clouds with precise labels.
+        fit_idx, val_idx = np.arange(len(train_recs)), np.arange(len(val_recs))
+        val_source = val_recs
+    else:
+        fit_idx, val_idx = rdata.split_indices(len(train_recs), args.val_fraction, args.seed)
+        val_source = train_recs
+    total_bytes = (len(train_recs) + len(val_recs) + len(test_recs)) * rdata.DESCRIPTOR_LEN * 4
     preload = args.preload == "yes" or (args.preload == "auto" and total_bytes < 4 << 30)
     fit = Batches(train_recs, fit_idx, device, preload)
-    val = Batches(train_recs, val_idx, device, preload)
+    val = Batches(val_source, val_idx, device, preload)
     test = Batches(test_recs, np.arange(len(test_recs)), device, preload)
+    loss_fn = LOSSES[args.loss]
+    mirror = mirror_columns(args.levels).to(device) if args.mirror else None
 
     model = build_model(args)
-    model.init_output_bias(float(np.mean(train_recs.gather(fit_idx)[1])))
+    model.init_output_bias(float(np.mean(train_recs.gather(fit_idx[:200_000])[1])))
     model = model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     args.run.mkdir(parents=True, exist_ok=True)
@@ -191,28 +255,42 @@ def train(args) -> dict:
         say(f"resumed from {last} after epoch {state['epoch']}")
     say(f"RPNN {model.config()}: {parameter_count(model):,} parameters; device {device}; "
         f"{len(fit)} fitting / {len(val)} validation / {len(test)} test records; "
-        f"{'preloaded' if preload else 'memory-mapped'}")
+        f"{'preloaded' if preload else 'memory-mapped'}; loss {args.loss}"
+        f"{', mirrored' if mirror is not None else ''}")
 
     if not state["log"]:
         # Epoch 0: the untrained network (a constant near the mean target), the baseline of the
         # learning curves.
         state["log"].append({"epoch": 0, "train_loss": None,
-                             "val_loss": evaluate(model, val, 4 * args.batch),
-                             "test_loss": evaluate(model, test, 4 * args.batch), "seconds": 0.0})
+                             "val_loss": evaluate(model, val, 4 * args.batch, loss_fn),
+                             "test_loss": evaluate(model, test, 4 * args.batch, loss_fn),
+                             "seconds": 0.0})
+    steps_per_epoch = -(-len(fit) // args.batch)
     for epoch in range(state["epoch"] + 1, args.epochs + 1):
+        if args.max_minutes and state["seconds"] >= 60 * args.max_minutes:
+            say(f"stopping: {state['seconds'] / 60:.1f} min of training (--max-minutes)")
+            break
         t0 = time.time()
         model.train()
         order = np.random.default_rng([args.seed, epoch]).permutation(len(fit))
+        flip_rng = torch.Generator().manual_seed(args.seed * 1_000_003 + epoch)
         tl, tn = 0.0, 0
-        for x, y in fit.iterate(args.batch, order):
+        for step, (x, y) in enumerate(fit.iterate(args.batch, order)):
+            if args.schedule == "cosine":
+                t = ((epoch - 1) * steps_per_epoch + step) / max(args.epochs * steps_per_epoch, 1)
+                for gr in opt.param_groups:
+                    gr["lr"] = args.lr * 0.5 * (1.0 + np.cos(np.pi * t))
+            if mirror is not None:
+                flip = (torch.rand(len(y), generator=flip_rng) < 0.5).to(x.device)
+                x = torch.where(flip[:, None], x[:, mirror], x)
             opt.zero_grad(set_to_none=True)
-            loss = log_loss(model(x), y[:, None].expand(-1, model.outputs))
+            loss = loss_fn(model(x), y[:, None].expand(-1, model.outputs))
             loss.backward()
             opt.step()
             tl += float(loss.detach()) * len(y)
             tn += len(y)
-        vl = evaluate(model, val, 4 * args.batch)
-        te = evaluate(model, test, 4 * args.batch)
+        vl = evaluate(model, val, 4 * args.batch, loss_fn)
+        te = evaluate(model, test, 4 * args.batch, loss_fn)
         dt = time.time() - t0
         state["seconds"] += dt
         state["epoch"] = epoch
@@ -233,15 +311,15 @@ def train(args) -> dict:
         say(f"epoch {epoch}: train {row['train_loss']:.5g}, validation {vl:.5g}{te_s} ({dt:.1f} s)")
 
     result = {"state": state, "manifest": manifest, "fit": len(fit), "val": len(val),
-              "test": len(test), "device": str(device)}
+              "test": len(test), "device": str(device), "val_from_clouds": bool(len(val_recs))}
     if args.export:
-        result["card"] = export(args, result, train_recs, val_idx, test_recs)
+        result["card"] = export(args, result, val_source, val_idx, test_recs, device)
         say(f"wrote {args.export} (export check: max relative difference "
             f"{result['card']['export_check']['max_relative_difference']:.2e})")
     return result
 
 
-def export(args, result, train_recs, val_idx, test_recs) -> dict:
+def export(args, result, val_source, val_idx, test_recs, device) -> dict:
     best = args.run / "best.pt"
     if not best.exists():
         raise SystemExit(f"{best}: no checkpoint to export (train at least one epoch)")
@@ -251,10 +329,21 @@ def export(args, result, train_recs, val_idx, test_recs) -> dict:
     m = result["manifest"]
     rexport.export_onnx(model, args.export, {
         "nimbus.rpnn.phase": m.get("settings", {}).get("phase", "unknown"),
+        "nimbus.rpnn.albedo": str(m.get("settings", {}).get("albedo", "unknown")),
         "nimbus.rpnn.data_manifest_sha256": rdata.manifest_hash(args.data),
     })
+    # Per-record errors of the best model on the precise splits.
+    dev_model = RPNN(**ck["config"])
+    dev_model.load_state_dict(ck["model"])
+    dev_model = dev_model.to(device)
+    errors = {
+        "validation": record_errors(dev_model, Batches(val_source, val_idx, device, False),
+                                    4 * args.batch),
+        "test": record_errors(dev_model, Batches(test_recs, np.arange(len(test_recs)), device,
+                                                 False), 4 * args.batch),
+    }
     # Check on real records: validation rows, then held-out ones (up to 2000 in all).
-    xv, _ = train_recs.gather(val_idx[:1000])
+    xv, _ = val_source.gather(val_idx[:1000])
     rows = [xv]
     if len(test_recs):
         rows.append(test_recs.gather(np.arange(min(1000, len(test_recs))))[0])
@@ -275,10 +364,14 @@ def export(args, result, train_recs, val_idx, test_recs) -> dict:
                  "seed": settings.get("seed"), "max_samples": settings.get("max_samples"),
                  "train_clouds": splits.count("train"), "test_clouds": splits.count("test"),
                  "clouds": m.get("clouds", []),
-                 "train_records": result["fit"] + result["val"],
+                 "train_records": result["fit"] + (0 if result["val_from_clouds"]
+                                                   else result["val"]),
+                 "val_records": result["val"] if result["val_from_clouds"] else 0,
                  "test_records": result["test"],
                  "convergence_rate": m.get("convergence_rate")},
-        "training": {"epochs": s["epoch"], "best_epoch": s["best_epoch"],
+        "training": {"loss": args.loss, "mirror": args.mirror, "schedule": args.schedule,
+                     "steps": s["epoch"] * -(-result["fit"] // args.batch),
+                     "epochs": s["epoch"], "best_epoch": s["best_epoch"],
                      "best_val_loss": s["best_val"],
                      "test_loss": next((r["test_loss"] for r in s["log"]
                                         if r["epoch"] == s["best_epoch"]), None),
@@ -286,6 +379,7 @@ def export(args, result, train_recs, val_idx, test_recs) -> dict:
                      "batch": args.batch, "lr": args.lr, "seed": args.seed,
                      "device": result["device"], "seconds": s["seconds"],
                      "torch": torch.__version__},
+        "record_errors": errors,
         "export_check": check,
         "reproduce": args.reproduce or " ".join(["python"] + sys.argv),
     }

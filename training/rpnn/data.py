@@ -17,7 +17,9 @@ import numpy as np
 
 from .model import DESCRIPTOR_LEN
 
-FORMAT = "nimbus-rpnn-records/1"
+FORMAT = "nimbus-rpnn-records/2"
+# Version 1 (13 meta columns, no validation split) reads the same way.
+FORMATS = ("nimbus-rpnn-records/1", FORMAT)
 
 
 class DataError(ValueError):
@@ -43,8 +45,8 @@ def read_manifest(root: Path) -> dict:
         raise DataError(f"{path}: not found (run `nimbus datagen --out {root}` first)") from None
     except json.JSONDecodeError as e:
         raise DataError(f"{path}: not valid JSON ({e})") from None
-    if m.get("format") != FORMAT:
-        raise DataError(f"{path}: field 'format' is {m.get('format')!r}, expected {FORMAT!r}")
+    if m.get("format") not in FORMATS:
+        raise DataError(f"{path}: field 'format' is {m.get('format')!r}, expected one of {FORMATS}")
     if m.get("descriptor_len") != DESCRIPTOR_LEN:
         raise DataError(
             f"{path}: field 'descriptor_len' is {m.get('descriptor_len')}, expected {DESCRIPTOR_LEN}"
@@ -68,7 +70,7 @@ def _load(path: Path, shape_tail: tuple) -> np.ndarray:
 
 
 def load_shards(root: Path, split: str, check: bool = True) -> list[Shard]:
-    """The shards of ``split`` ("train" or "test"), checked for shape and finite values."""
+    """The shards of ``split`` ("train", "val" or "test"), checked for shape and finite values."""
     root = Path(root)
     m = read_manifest(root)
     shards = []

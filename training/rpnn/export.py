@@ -88,6 +88,27 @@ def verify(model: torch.nn.Module, path: Path, x: np.ndarray) -> dict:
     return {"rows": int(len(x)), "max_relative_difference": d, "passed": bool(d < 1e-5)}
 
 
+def record_error_lines(errors: dict | None) -> list[str]:
+    """Markdown for the per-record errors on the precise splits (train.record_errors)."""
+    if not errors:
+        return []
+    out = ["## Per-record error (precise labels)", ""]
+    for name, e in errors.items():
+        if not e:
+            continue
+        out.append(f"- {name}: {e['records']} records, median relative error "
+                   f"{100 * e['median_rel_error']:.1f} %, mean prediction / mean target "
+                   f"{e['mean_ratio']:.3f}")
+        out.append("  - by gamma (180° = front-lit): " + ", ".join(
+            f"{b['gamma_deg'][0]}–{b['gamma_deg'][1]}°: {100 * b['median_rel_error']:.1f} % "
+            f"({b['records']})" for b in e["by_gamma"]))
+        out.append("  - by target tercile: " + ", ".join(
+            f"{b['target'][0]:.3g}–{b['target'][1]:.3g}: {100 * b['median_rel_error']:.1f} %"
+            for b in e["by_target"]))
+    out.append("")
+    return out
+
+
 def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
     """Writes ``<model>.json`` and ``<model>.md`` next to the ONNX file."""
     path_onnx = Path(path_onnx)
@@ -112,17 +133,30 @@ def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
         "## Data",
         f"- Set: `{d['root']}` (manifest sha256 `{d['manifest_sha256']}`), phase function "
         f"{d['phase']}, albedo {d['albedo']}.",
-        f"- Clouds: {d['train_clouds']} training clouds, {d['test_clouds']} held-out test clouds.",
-        f"- Records: {d['train_records']} training-cloud records ({t['train_rows']} fitted, "
-        f"{t['val_rows']} validation), {d['test_records']} test-cloud records; "
-        f"{100 * d['convergence_rate']:.0f} % converged to ±2 % (95 %).",
+        f"- Clouds: {d['train_clouds']} training clouds, {d.get('val_clouds', 0)} validation "
+        f"clouds, {d['test_clouds']} held-out test clouds.",
+        f"- Records: {d['train_records']} training-cloud records ({t['train_rows']} fitted), "
+        f"{d.get('val_records', 0) or t['val_rows']} validation records, {d['test_records']} "
+        f"test-cloud records.",
+        "- Labels: " + (
+            f"training {d['samples']} samples each (fixed count, unbiased, noisy); validation "
+            f"and test {d.get('eval_samples') or 'converged to ±2 % (95 %)'} samples each; "
+            f"light directions {d.get('light')}."
+            if d.get("samples") else
+            f"converged to ±2 % (95 %) where possible: {100 * (d['convergence_rate'] or 0):.0f} %."),
         "",
         "## Training",
-        f"- Loss (log(1 + ŷ) − log(1 + y))², Adam (default settings), minibatch {t['batch']}, "
-        f"{t['epochs']} epochs, seed {t['seed']}, device {t['device']}, {t['seconds']:.0f} s.",
+        f"- Loss {t.get('loss', 'log')} ("
+        + ("relative L2 (ŷ − y)² / (sg(|ŷ|) + 0.01)², unbiased under label noise"
+           if t.get("loss") == "rel-l2" else "(log(1 + ŷ) − log(1 + y))², Kallweit §5.2")
+        + f"), Adam, step size {t['lr']} ({t.get('schedule', 'constant')}), minibatch "
+        f"{t['batch']}, {t['epochs']} epochs ({t.get('steps', '?')} steps), mirror augmentation "
+        f"{'on' if t.get('mirror') else 'off'}, seed {t['seed']}, device {t['device']}, "
+        f"{t['seconds']:.0f} s.",
         f"- Best validation loss {t['best_val_loss']:.4g} (epoch {t['best_epoch']}); "
         f"test-cloud loss {t['test_loss'] if t['test_loss'] is None else format(t['test_loss'], '.4g')}.",
         "",
+        *record_error_lines(card.get("record_errors")),
         "## Export check",
         f"- onnxruntime vs torch on {e['rows']} real records: max relative difference "
         f"{e['max_relative_difference']:.2e} ({'passed' if e['passed'] else 'FAILED'}, bound 1e-5).",

@@ -112,3 +112,37 @@ def parameter_count(model: nn.Module) -> int:
 def log_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Kallweit 2017 Eq. (2): mean of (log(1 + y_hat) - log(1 + y))^2."""
     return torch.mean((torch.log1p(pred) - torch.log1p(target)) ** 2)
+
+
+def rel_l2_loss(pred: torch.Tensor, target: torch.Tensor, eps: float = 0.01) -> torch.Tensor:
+    """Relative L2 of Neural Radiance Caching (Müller et al. 2021, §5):
+    mean((y_hat - y)^2 / (sg(|y_hat|) + eps)^2), sg = stop-gradient.
+
+    The denominator does not depend on the label, so for any input the expected loss is
+    minimised by y_hat = E[y | input]: zero-mean label noise (fixed-count Monte Carlo targets)
+    averages out instead of biasing the network. Dividing by the prediction makes it relative in
+    scale, so thin (small-target) configurations count as much as thick ones. ``eps`` (in units
+    of the target, L_i per unit irradiance, mean ~ 1) keeps targets near 0 from dominating.
+    """
+    scale = pred.detach().abs() + eps
+    return torch.mean(((pred - target) / scale) ** 2)
+
+
+LOSSES = {"rel-l2": rel_l2_loss, "log": log_loss}
+
+
+def mirror_columns(levels: int = LEVELS, points: int = POINTS) -> torch.Tensor:
+    """Column permutation of a descriptor row that mirrors the stencil across the plane of the
+    view and light directions: ix -> 4 - ix (x is the frame's axis perpendicular to that plane,
+    crates/rpnn/src/descriptor.rs). gamma is unchanged. L_i of the mirrored cloud at the mirrored
+    point equals L_i of the original, so every record gives a second, free one.
+    """
+    if points != 225:
+        raise ValueError("mirroring needs the 5x5x9 stencil (225 points)")
+    idx = []
+    for k in range(levels):
+        for p in range(points):
+            ix, rest = p % 5, p // 5
+            idx.append(k * points + (4 - ix) + 5 * rest)
+    idx.append(levels * points)
+    return torch.tensor(idx, dtype=torch.long)

@@ -181,6 +181,23 @@ enum Command {
         /// Records from the held-out test clouds (default: a quarter of --records).
         #[arg(long)]
         test_records: Option<usize>,
+        /// Records from the validation clouds (default: as many as --test-records).
+        #[arg(long)]
+        val_records: Option<usize>,
+        /// Training labels with exactly N samples each (unbiased, noisy; train with the
+        /// relative L2 loss). Default: to ±2 % at 95 % confidence, capped at --max-samples.
+        #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1 << 24))]
+        samples: Option<u64>,
+        /// Validation and test labels with exactly N samples each (default: converged).
+        #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1 << 24))]
+        eval_samples: Option<u64>,
+        /// Light directions: `sphere` (uniform, Kallweit §5.1) or `uniform-gamma` (the angle
+        /// to the view direction uniform in [0, π]).
+        #[arg(long, default_value = "sphere")]
+        light: String,
+        /// Density scales of generated clouds LO,HI (log-uniform).
+        #[arg(long, value_delimiter = ',', default_values_t = [10.0, 80.0])]
+        density_range: Vec<f64>,
         #[arg(long, short)]
         out: PathBuf,
         /// Phase function: hg (g = 0.857) or mie (chopped, r_eff 8 µm).
@@ -223,9 +240,14 @@ enum Command {
     /// Stiff and extreme inputs (phase asymmetry, density, albedo, sun placement, degenerate
     /// grids, invalid voxels) × every method, each under a time limit; writes OUT/stability.md.
     Stress(StressArgs),
-    /// Print statistics of a volume file.
+    /// Print statistics of a volume file; `--gpu`: the GPU adapters wgpu sees.
     Info {
-        file: PathBuf,
+        /// A volume file (.vol, .npy, .vdb).
+        #[arg(required_unless_present = "gpu")]
+        file: Option<PathBuf>,
+        /// List the GPU adapters wgpu sees, best first (the first is the one Nimbus opens).
+        #[arg(long)]
+        gpu: bool,
         /// σ_t per unit grid value, for the optical depths.
         #[arg(long, default_value_t = 1.0)]
         density_scale: f64,
@@ -482,6 +504,11 @@ fn run(cli: Cli) -> Result<()> {
             clouds,
             records,
             test_records,
+            val_records,
+            samples,
+            eval_samples,
+            light,
+            density_range,
             out,
             phase,
             seed,
@@ -500,13 +527,31 @@ fn run(cli: Cli) -> Result<()> {
                     if n == 0 {
                         bail!("--clouds gen:N needs N ≥ 1");
                     }
-                    dataset::generated_set(n, seed)
+                    let ok = density_range.len() == 2
+                        && density_range.iter().all(|d| d.is_finite() && *d > 0.0)
+                        && density_range[0] <= density_range[1];
+                    if !ok {
+                        bail!(
+                            "--density-range needs LO,HI with 0 < LO <= HI, got {density_range:?}"
+                        );
+                    }
+                    dataset::generated_set_in(n, seed, [density_range[0], density_range[1]])
                 }
                 None => dataset::folder_set(Path::new(&clouds), density_scale)?,
             };
+            let light = match light.as_str() {
+                "sphere" => nimbus_rpnn::datagen::LightSampling::Sphere,
+                "uniform-gamma" => nimbus_rpnn::datagen::LightSampling::UniformGamma,
+                other => bail!("--light {other}: expected sphere or uniform-gamma"),
+            };
+            let test_records = test_records.unwrap_or(records / 4);
             let opts = dataset::DatagenOptions {
                 records,
-                test_records: test_records.unwrap_or(records / 4),
+                test_records,
+                val_records: val_records.unwrap_or(test_records),
+                samples: samples.unwrap_or(0),
+                eval_samples: eval_samples.unwrap_or(0),
+                light,
                 shard_size,
                 seed,
                 max_samples,
@@ -558,10 +603,25 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Info {
             file,
+            gpu,
             density_scale,
             aabb_min,
             aabb_max,
         } => {
+            if gpu {
+                let adapters = nimbus_gpu::list_adapters();
+                if adapters.is_empty() {
+                    say!(
+                        "no GPU adapter (install a Vulkan driver; without a GPU: `apt-get install mesa-vulkan-drivers`)"
+                    );
+                }
+                for (i, a) in adapters.iter().enumerate() {
+                    say!("{} {a}", if i == 0 { "used " } else { "     " });
+                }
+            }
+            let Some(file) = file else {
+                return Ok(());
+            };
             let f = io::read_grid(&file)?;
             let (lo, hi) = match (aabb_min, aabb_max) {
                 (Some(a), Some(b)) if a.len() != 3 || b.len() != 3 => {

@@ -30,6 +30,10 @@ pub(crate) struct RpnnArgs {
     /// RPNN: sky directions per shading point and sample (network queries for sky light).
     #[arg(long, default_value_t = 4)]
     pub(crate) sky_dirs: u32,
+    /// RPNN: refuse (instead of warning) when the scene's phase function or albedo differs
+    /// from the model's training data.
+    #[arg(long)]
+    pub(crate) strict: bool,
 }
 
 /// `render --method rpnn`.
@@ -52,7 +56,18 @@ pub(crate) fn render_rpnn(
         .clone()
         .unwrap_or_else(nimbus_rpnn::model::default_model_path);
     let model = nimbus_rpnn::model::Rpnn::load(&model_path)?;
-    if let Some(w) = nimbus_rpnn::render::phase_mismatch(s, &model.phase) {
+    let mismatches = [
+        nimbus_rpnn::render::phase_mismatch(s, &model.phase),
+        nimbus_rpnn::render::albedo_mismatch(s, model.albedo),
+    ];
+    for w in mismatches.into_iter().flatten() {
+        if args.strict {
+            anyhow::bail!(
+                "{}: {} (--strict)",
+                model_path.display(),
+                w.trim_start_matches("warning: ")
+            );
+        }
         say!("{w}");
     }
     let pyr = nimbus_rpnn::Pyramid::for_rendering(&s.volume);

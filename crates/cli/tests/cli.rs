@@ -25,6 +25,26 @@ fn text(o: &Output) -> String {
 }
 
 #[test]
+fn info_gpu_lists_the_adapter_in_use() {
+    // CI and dev machines have at least lavapipe (scripts/test.sh installs it).
+    let o = nimbus(&["info", "--gpu"]);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    let first = t.lines().next().unwrap_or_default();
+    assert!(
+        first.starts_with("used ") && first.contains('(') && first.contains(", "),
+        "{t}"
+    );
+    // Without a file and without --gpu, clap names the missing argument.
+    let o = nimbus(&["info"]);
+    assert!(
+        !o.status.success() && text(&o).contains("<FILE>"),
+        "{}",
+        text(&o)
+    );
+}
+
+#[test]
 fn generate_info_render() {
     let d = tmp();
     let vol = d.join("c.vol");
@@ -235,10 +255,18 @@ fn datagen_end_to_end() {
         "2",
         "--test-records",
         "1",
+        "--val-records",
+        "1",
         "--shard-size",
         "2",
-        "--max-samples",
-        "512",
+        "--samples",
+        "64",
+        "--eval-samples",
+        "256",
+        "--light",
+        "uniform-gamma",
+        "--density-range",
+        "10,300",
         "--device",
         "cpu",
         "-q",
@@ -246,11 +274,13 @@ fn datagen_end_to_end() {
         d.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", text(&o));
-    assert!(text(&o).contains("3 records"), "{}", text(&o));
+    assert!(text(&o).contains("4 records"), "{}", text(&o));
     for f in [
         "manifest.json",
+        "settings.json",
         "train_00000_x.npy",
         "train_00000_y.npy",
+        "val_00000_y.npy",
         "test_00000_meta.npy",
     ] {
         assert!(d.join(f).exists(), "{f}");
@@ -330,5 +360,77 @@ fn rpnn_render_and_missing_model() {
         text(&o).contains("--sky-dirs must lie in 1..=1024"),
         "{}",
         text(&o)
+    );
+}
+
+/// A scene whose albedo differs from the model's training albedo: a warning by default, a
+/// refusal naming the model and both albedos with `--strict`.
+#[test]
+fn rpnn_albedo_guard() {
+    let d = tmp();
+    let scene = d.join("albedo08.toml");
+    std::fs::write(
+        &scene,
+        r#"
+[volume]
+generator = { kind = "cumulus", seed = 7, resolution = [24, 18, 24] }
+density_scale = 20.0
+albedo = 0.8
+phase = { kind = "hg", g = 0.857 }
+[sun]
+direction = [0.0, 1.0, 0.3]
+irradiance = 1.0
+[camera]
+origin = [0.0, 0.0, 4.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+vfov_deg = 30.0
+width = 8
+height = 6
+[render]
+spp = 1
+"#,
+    )
+    .unwrap();
+    let model = root().join("models/rpnn-hg.onnx");
+    let args = |strict: bool| {
+        let mut a = vec![
+            "render".to_string(),
+            scene.display().to_string(),
+            "--method".into(),
+            "rpnn".into(),
+            "--backend".into(),
+            "ort".into(),
+            "--model".into(),
+            model.display().to_string(),
+            "-q".into(),
+            "-o".into(),
+            d.join("albedo08").display().to_string(),
+        ];
+        if strict {
+            a.push("--strict".into());
+        }
+        a
+    };
+    let o = Command::new(env!("CARGO_BIN_EXE_nimbus"))
+        .args(args(true))
+        .output()
+        .unwrap();
+    let t = text(&o);
+    assert!(
+        !o.status.success()
+            && t.contains("rpnn-hg.onnx")
+            && t.contains("albedo 1")
+            && t.contains("albedo 0.8"),
+        "{t}"
+    );
+    let o = Command::new(env!("CARGO_BIN_EXE_nimbus"))
+        .args(args(false))
+        .output()
+        .unwrap();
+    let t = text(&o);
+    assert!(
+        o.status.success() && t.contains("warning") && t.contains("albedo 0.8"),
+        "{t}"
     );
 }

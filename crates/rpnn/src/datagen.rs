@@ -37,14 +37,16 @@ pub const BATCH: u64 = 256;
 pub const MIN_SAMPLES: u64 = 1024;
 
 /// Estimates L_i for many configurations of one cloud on the GPU, progressively: rounds of
-/// [`BATCH`] samples per still-open configuration until each meets the ±2 % / 95 % rule (after
-/// [`MIN_SAMPLES`]) or reaches `max_samples`. Same quantity as [`CloudData::estimate`].
+/// [`BATCH`] samples per still-open configuration until each meets the ±`rel_target` / 95 %
+/// rule (after [`MIN_SAMPLES`]) or reaches `max_samples` (`rel_target` = 0: exactly
+/// `max_samples`). Same quantity as [`CloudData::estimate`].
 pub fn estimate_gpu(
     gpt: &mut nimbus_trace::gpu::GpuPathTracer,
     configs: &[(DVec3, DVec3, DVec3)],
     max_samples: u64,
+    rel_target: f64,
     seed: u64,
-) -> Result<Vec<(f64, u64, bool, f64)>, nimbus_trace::gpu::GpuPtError> {
+) -> Result<Vec<Estimate>, nimbus_trace::gpu::GpuPtError> {
     let tasks: Vec<nimbus_trace::gpu::LiTask> = configs
         .iter()
         .map(|(x, v, l)| nimbus_trace::gpu::LiTask {
@@ -53,6 +55,7 @@ pub fn estimate_gpu(
             to_light: l.as_vec3().extend(0.0).to_array(),
         })
         .collect();
+    let max_samples = max_samples.max(1);
     let mut sums = vec![[0.0f64; 3]; configs.len()];
     let mut result = vec![None; configs.len()];
     let mut round = 0u32;
@@ -64,29 +67,108 @@ pub fn estimate_gpu(
             break;
         }
         let batch: Vec<_> = open.iter().map(|&i| tasks[i]).collect();
-        let per = if round == 0 { MIN_SAMPLES } else { BATCH * 4 };
+        // Every open configuration has the same count so far (they start together).
+        let done = sums[open[0]][2] as u64;
+        let per = if rel_target <= 0.0 {
+            (max_samples - done).min(1 << 16)
+        } else if round == 0 {
+            MIN_SAMPLES
+        } else {
+            BATCH * 4
+        };
         let r = gpt.indirect(&batch, per as u32, round, seed)?;
         for (k, &i) in open.iter().enumerate() {
             for c in 0..3 {
                 sums[i][c] += r[k][c];
             }
             let [s, s2, n] = sums[i];
-            let mean = s / n;
-            let var = ((s2 / n - mean * mean) * n / (n - 1.0)).max(0.0);
-            let rel = if mean > 0.0 {
-                1.96 * (var / n).sqrt() / mean
-            } else {
-                f64::INFINITY
-            };
-            if rel <= 0.02 {
-                result[i] = Some((mean, n as u64, true, rel));
-            } else if n as u64 >= max_samples {
-                result[i] = Some((mean, n as u64, false, rel));
+            let e = Estimate::from_sums(s, s2, n as u64, rel_target);
+            if e.converged || e.samples >= max_samples {
+                result[i] = Some(e);
             }
         }
         round += 1;
     }
     Ok(result.into_iter().map(|r| r.unwrap()).collect())
+}
+
+/// A Monte Carlo estimate of L_i.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Estimate {
+    pub mean: f64,
+    pub samples: u64,
+    /// Met the ±2 % / 95 % rule (always false for fixed-count estimates).
+    pub converged: bool,
+    /// Half-width of the 95 % interval relative to the mean (∞ for a zero mean).
+    pub rel_ci: f64,
+    /// Estimated variance of `mean` (sample variance / samples): the label noise of a record.
+    pub var_mean: f64,
+}
+
+impl Estimate {
+    fn from_sums(s: f64, s2: f64, n: u64, converged_if_within: f64) -> Self {
+        let nf = n as f64;
+        let mean = s / nf;
+        let var = if n > 1 {
+            ((s2 / nf - mean * mean) * nf / (nf - 1.0)).max(0.0)
+        } else {
+            0.0
+        };
+        let half = 1.96 * (var / nf).sqrt();
+        let rel_ci = if mean > 0.0 {
+            half / mean
+        } else {
+            f64::INFINITY
+        };
+        Self {
+            mean,
+            samples: n,
+            converged: n >= MIN_SAMPLES && rel_ci <= converged_if_within,
+            rel_ci,
+            var_mean: var / nf,
+        }
+    }
+}
+
+/// How the direction towards the light is drawn for a record.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LightSampling {
+    /// ω_l uniform on the sphere (Kallweit §5.1): γ has density sin γ / 2, so few records are
+    /// nearly front-lit (γ → π) or back-lit (γ → 0).
+    Sphere,
+    /// γ = angle(ω, ω_l) uniform in [0, π], azimuth uniform about ω: every lighting angle gets
+    /// the same share of records. The target is a function of (descriptor, γ), and γ is an input
+    /// of the network, so the conditional mean the loss converges to is the same for any density
+    /// of γ; the density only moves the network's accuracy between angles. Each record stores
+    /// the weight π sin γ / 2 that would restore the sphere's distribution.
+    UniformGamma,
+}
+
+impl LightSampling {
+    /// A direction towards the light for view direction `view` from two uniform numbers.
+    pub fn sample(self, view: DVec3, u: [f64; 2]) -> DVec3 {
+        match self {
+            Self::Sphere => uniform_sphere(u),
+            Self::UniformGamma => {
+                let gamma = std::f64::consts::PI * u[0];
+                let phi = std::f64::consts::TAU * u[1];
+                let (t, b) = nimbus_scene::frame::orthonormal_basis(view);
+                (view * gamma.cos() + (t * phi.cos() + b * phi.sin()) * gamma.sin()).normalize()
+            }
+        }
+    }
+
+    /// The record's weight relative to sampling on the sphere (see [`LightSampling::UniformGamma`]).
+    pub fn weight(self, view: DVec3, to_light: DVec3) -> f32 {
+        match self {
+            Self::Sphere => 1.0,
+            Self::UniformGamma => {
+                let s = view.cross(to_light).length().min(1.0);
+                (std::f64::consts::FRAC_PI_2 * s) as f32
+            }
+        }
+    }
 }
 
 /// One training record.
@@ -101,6 +183,11 @@ pub struct Record {
     pub converged: bool,
     /// Half-width of the 95 % interval relative to the mean.
     pub rel_ci: f32,
+    /// Estimated variance of `target` (label noise).
+    pub var_mean: f32,
+    /// Importance weight of the light direction relative to uniform sampling on the sphere
+    /// (1 for uniform ω_l; π sin γ / 2 when γ is drawn uniformly in [0, π]).
+    pub light_weight: f32,
 }
 
 /// Errors of data generation.
@@ -174,7 +261,6 @@ impl CloudData {
     }
 
     /// Estimates L_i(x, ω) for unit irradiance from `to_light` with the ±2 % / 95 % rule.
-    /// Returns (mean, samples, converged, relative CI half-width).
     pub fn estimate(
         &self,
         x: DVec3,
@@ -182,12 +268,13 @@ impl CloudData {
         to_light: DVec3,
         max_samples: u64,
         rng: &mut Pcg32,
-    ) -> (f64, u64, bool, f64) {
+    ) -> Estimate {
         self.estimate_to(x, view, to_light, max_samples, 0.02, rng)
     }
 
-    /// Like [`CloudData::estimate`] with a relative half-width target `rel_target` (0 runs to
-    /// `max_samples`, rounded up to whole batches).
+    /// Like [`CloudData::estimate`] with a relative half-width target `rel_target`; 0 takes
+    /// exactly `max_samples` samples (a fixed-count, unbiased estimate: no stopping rule, whose
+    /// decision would correlate with the heavy-tailed samples and bias the mean low).
     pub fn estimate_to(
         &self,
         x: DVec3,
@@ -196,15 +283,16 @@ impl CloudData {
         max_samples: u64,
         rel_target: f64,
         rng: &mut Pcg32,
-    ) -> (f64, u64, bool, f64) {
+    ) -> Estimate {
         let mut scene = self.scene.clone();
         scene.sun = Some(Sun::new(to_light, DVec3::ONE, 0.0).expect("unit direction"));
         let tracer = PathTracer::with_majorants(&scene, self.majorants.clone());
         let (_, phase) = scene.medium.vertex(1);
         let (mut n, mut s, mut s2) = (0u64, 0.0f64, 0.0f64);
         let mut stats = PathStats::default();
+        let max_samples = max_samples.max(1);
         loop {
-            for _ in 0..BATCH {
+            for _ in 0..BATCH.min(max_samples - n) {
                 let smp = phase.sample(view, rng.next2());
                 let l = tracer.radiance_after(x, smp.dir, 1, Some(smp.pdf), rng, &mut stats);
                 let v = (l.x + l.y + l.z) / 3.0;
@@ -212,34 +300,41 @@ impl CloudData {
                 s2 += v * v;
                 n += 1;
             }
-            let mean = s / n as f64;
-            let var = ((s2 / n as f64 - mean * mean) * n as f64 / (n - 1) as f64).max(0.0);
-            let half = 1.96 * (var / n as f64).sqrt();
-            let rel = if mean > 0.0 {
-                half / mean
-            } else {
-                f64::INFINITY
-            };
-            if n >= MIN_SAMPLES && rel <= rel_target {
-                return (mean, n, true, rel);
-            }
-            if n >= max_samples {
-                return (mean, n, false, rel);
+            let e = Estimate::from_sums(s, s2, n, rel_target);
+            if e.converged || n >= max_samples {
+                return e;
             }
         }
     }
 
-    /// A shading configuration (x, ω, ω_l) from `rng` (§5.1).
+    /// A shading configuration (x, ω, ω_l) from `rng` (§5.1), ω_l uniform on the sphere.
     pub fn sample_config(&self, rng: &mut Pcg32) -> Result<(DVec3, DVec3, DVec3), DatagenError> {
-        let (x, view) = self.sample_position(rng)?;
-        Ok((x, view, uniform_sphere(rng.next2())))
+        self.sample_config_with(LightSampling::Sphere, rng)
     }
 
-    /// One complete record from `rng`.
-    pub fn record(&self, max_samples: u64, rng: &mut Pcg32) -> Result<Record, DatagenError> {
-        let (x, view, to_light) = self.sample_config(rng)?;
-        let (mean, samples, converged, rel) = self.estimate(x, view, to_light, max_samples, rng);
-        self.finish(x, view, to_light, (mean, samples, converged, rel))
+    /// A shading configuration with the light direction drawn by `light`.
+    pub fn sample_config_with(
+        &self,
+        light: LightSampling,
+        rng: &mut Pcg32,
+    ) -> Result<(DVec3, DVec3, DVec3), DatagenError> {
+        let (x, view) = self.sample_position(rng)?;
+        Ok((x, view, light.sample(view, rng.next2())))
+    }
+
+    /// One complete record from `rng`: ω_l by `light`, L_i to ±2 % (capped at `max_samples`)
+    /// when `fixed` is false, else with exactly `max_samples` samples.
+    pub fn record(
+        &self,
+        light: LightSampling,
+        max_samples: u64,
+        fixed: bool,
+        rng: &mut Pcg32,
+    ) -> Result<Record, DatagenError> {
+        let (x, view, to_light) = self.sample_config_with(light, rng)?;
+        let target = if fixed { 0.0 } else { 0.02 };
+        let e = self.estimate_to(x, view, to_light, max_samples, target, rng);
+        self.finish(x, view, to_light, e, light)
     }
 
     /// Builds the record (descriptor, checks) for an estimate.
@@ -248,8 +343,10 @@ impl CloudData {
         x: DVec3,
         view: DVec3,
         to_light: DVec3,
-        (mean, samples, converged, rel): (f64, u64, bool, f64),
+        e: Estimate,
+        light: LightSampling,
     ) -> Result<Record, DatagenError> {
+        let mean = e.mean;
         let mut d = vec![0.0f32; DESCRIPTOR_LEN];
         descriptor(
             &self.pyramid,
@@ -270,9 +367,11 @@ impl CloudData {
             to_light: to_light.as_vec3(),
             descriptor: d,
             target: mean as f32,
-            samples,
-            converged,
-            rel_ci: rel.min(f32::MAX as f64) as f32,
+            samples: e.samples,
+            converged: e.converged,
+            rel_ci: e.rel_ci.min(f32::MAX as f64) as f32,
+            var_mean: e.var_mean.min(f32::MAX as f64) as f32,
+            light_weight: light.weight(view, to_light),
         })
     }
 }

@@ -1,22 +1,33 @@
 //! Training data sets on disk: the cloud set, sharded `.npy` records and a JSON manifest.
 //!
 //! ## Files (readable by numpy/torch without extra dependencies)
-//! For split `train` or `test` and shard k:
+//! For split `train`, `val` or `test` and shard k:
 //! - `{split}_{k:05}_x.npy`: float32 `[n, 2251]` descriptors (layout in [`crate::descriptor`]);
 //! - `{split}_{k:05}_y.npy`: float32 `[n]` targets L_i (unit irradiance);
-//! - `{split}_{k:05}_meta.npy`: float32 `[n, 13]`: cloud index, x (3), ω (3), ω_l (3), sample
-//!   count, converged (0/1), relative 95 % half-width;
+//! - `{split}_{k:05}_meta.npy`: float32 `[n, 15]`: cloud index, x (3), ω (3), ω_l (3), sample
+//!   count, converged (0/1), relative 95 % half-width, variance of the target (label noise),
+//!   light-direction weight relative to sampling on the sphere;
 //! - `manifest.json`: settings, clouds (with their split), shards, counts, convergence rate.
 //!
 //! Record r of a split uses its own random stream (seed, split, r) and cloud r mod (clouds of
 //! the split), so a run is deterministic for a seed and resumable: finished shards (all three
 //! files present with the right row count) are kept, the rest are recomputed.
 //!
+//! ## Labels: converged or fixed-count
+//! Converged records (`samples` = 0) are path-traced until the 95 % interval is within ±2 %
+//! (capped at `max_samples`): few, precise, but slow, and the sequential stopping rule biases
+//! heavy-tailed labels low. Fixed-count records (`samples` = N) take exactly N samples: cheap,
+//! noisy and unbiased — with a loss whose minimiser is the conditional mean, many of them teach
+//! the network the same function as few converged ones (Kallweit's targets are means). The
+//! validation and test splits use `eval_samples` (e.g. 16 384: ≈ 4 % relative noise per record)
+//! so that they can tell models apart.
+//!
 //! ## The generated cloud set (`gen:N`)
 //! Cloud i: kind cycles cumulus, stratus, cirrus, mixture (max of a cumulus and a 0.6-scaled
 //! stratus); x-resolution cycles 48, 64, 80, 96 (with the kind's proportions); density scale
-//! 10 × 2^(3u) (10…80) with u from the seed; every fifth cloud (i mod 5 = 4) is a test cloud that
-//! never enters training.
+//! lo × (hi/lo)^u with u from the seed (default 10 × 2^(3u), 10…80); every fifth cloud
+//! (i mod 5 = 4) is a test cloud and every tenth (i mod 10 = 2) a validation cloud; neither
+//! enters training.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -28,11 +39,25 @@ use nimbus_trace::rng::mix64;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::datagen::{CloudData, DatagenError, Record};
+use crate::datagen::{CloudData, DatagenError, LightSampling, Record};
 use crate::descriptor::DESCRIPTOR_LEN;
 
 /// Columns of the `_meta.npy` arrays.
-pub const META_COLUMNS: usize = 13;
+pub const META_COLUMNS: usize = 15;
+
+/// The splits of a data set, in the order they are written.
+pub const SPLITS: [&str; 3] = ["train", "val", "test"];
+
+/// The split of generated or folder cloud i (see the module docs).
+fn split_of(i: usize) -> String {
+    if i % 5 == 4 {
+        "test".into()
+    } else if i % 10 == 2 {
+        "val".into()
+    } else {
+        "train".into()
+    }
+}
 
 /// Where a cloud comes from.
 #[derive(Debug, Clone, Serialize, PartialEq)]
@@ -58,8 +83,13 @@ pub struct CloudSpec {
     pub split: String,
 }
 
-/// The generated set of `n` clouds (see the module docs).
+/// The generated set of `n` clouds (see the module docs), density scales 10…80.
 pub fn generated_set(n: usize, seed: u64) -> Vec<CloudSpec> {
+    generated_set_in(n, seed, [10.0, 80.0])
+}
+
+/// The generated set of `n` clouds with density scales log-uniform in `density` = [lo, hi].
+pub fn generated_set_in(n: usize, seed: u64, density: [f64; 2]) -> Vec<CloudSpec> {
     let kinds = ["cumulus", "stratus", "cirrus", "mixture"];
     let sizes = [48, 64, 80, 96];
     (0..n)
@@ -79,18 +109,14 @@ pub fn generated_set(n: usize, seed: u64) -> Vec<CloudSpec> {
                     seed: s % 1_000_000,
                     resolution: res,
                 },
-                density_scale: 10.0 * 2f64.powf(3.0 * u),
-                split: if i % 5 == 4 {
-                    "test".into()
-                } else {
-                    "train".into()
-                },
+                density_scale: density[0] * (density[1] / density[0]).powf(u),
+                split: split_of(i),
             }
         })
         .collect()
 }
 
-/// The clouds of a folder (.vol/.npy/.vdb, sorted); every fifth is a test cloud. The grids are
+/// The clouds of a folder (.vol/.npy/.vdb, sorted); splits as for generated sets. The grids are
 /// placed in a box 2 units wide with cubic voxels (`.npy` has no box of its own).
 pub fn folder_set(dir: &Path, density_scale: f64) -> Result<Vec<CloudSpec>, DatagenError> {
     let err = |msg: String| DatagenError::Cloud {
@@ -122,11 +148,7 @@ pub fn folder_set(dir: &Path, density_scale: f64) -> Result<Vec<CloudSpec>, Data
                 .into_owned(),
             source: CloudSource::File { path: p },
             density_scale,
-            split: if i % 5 == 4 {
-                "test".into()
-            } else {
-                "train".into()
-            },
+            split: split_of(i),
         })
         .collect())
 }
@@ -176,12 +198,20 @@ pub fn build_volume(spec: &CloudSpec) -> Result<Volume, DatagenError> {
 pub struct DatagenOptions {
     /// Training records (from the training clouds).
     pub records: usize,
+    /// Validation records (from the validation clouds).
+    pub val_records: usize,
     /// Test records (from the held-out clouds).
     pub test_records: usize,
     pub shard_size: usize,
     pub seed: u64,
-    /// Sample cap of one estimate.
+    /// Sample cap of one converged estimate.
     pub max_samples: u64,
+    /// Training labels: 0 = converged (±2 %, capped at `max_samples`), N = exactly N samples.
+    pub samples: u64,
+    /// Validation and test labels: 0 = converged, N = exactly N samples.
+    pub eval_samples: u64,
+    /// How the light direction of a record is drawn.
+    pub light: LightSampling,
     pub albedo: f64,
     /// `hg` (g = 0.857) or `mie` (r_eff 8 µm, chopped at 5°: full function at x, chopped after).
     pub phase: String,
@@ -276,6 +306,83 @@ fn rows_of(path: &Path) -> Option<u64> {
     npy.shape().first().copied()
 }
 
+/// What determines the records of a set: written to `settings.json` when a run starts; a later
+/// run in the same folder must agree (it would otherwise mix old shards with new settings).
+fn settings_json(clouds: &[CloudSpec], opts: &DatagenOptions) -> serde_json::Value {
+    let mut o = serde_json::to_value(opts).expect("options serialise");
+    let m = o.as_object_mut().expect("an object");
+    // Not part of what a record is: how it was computed or shown.
+    for k in ["progress", "gpu", "records", "val_records", "test_records"] {
+        m.remove(k);
+    }
+    serde_json::json!({ "settings": o, "clouds": clouds })
+}
+
+fn check_settings(
+    clouds: &[CloudSpec],
+    opts: &DatagenOptions,
+    out: &Path,
+) -> Result<(), DatagenError> {
+    let path = out.join("settings.json");
+    let want_text = serde_json::to_string_pretty(&settings_json(clouds, opts)).expect("json");
+    // Compared as text: a parsed f64 need not round-trip bit for bit through serde_json.
+    let want: serde_json::Value = serde_json::from_str(&want_text).expect("json");
+    if let Ok(text) = std::fs::read_to_string(&path) {
+        if text == want_text {
+            return Ok(());
+        }
+        let have: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| DatagenError::Cloud {
+                cloud: path.display().to_string(),
+                msg: format!("not valid JSON ({e}); remove it or use a new --out"),
+            })?;
+        {
+            let differs = ["settings", "clouds"]
+                .iter()
+                .flat_map(|sec| {
+                    let (a, b) = (&have[sec], &want[sec]);
+                    match (a.as_object(), b.as_object()) {
+                        (Some(a), Some(b)) => b
+                            .keys()
+                            .chain(a.keys())
+                            .collect::<std::collections::BTreeSet<_>>()
+                            .into_iter()
+                            .filter(|k| a.get(*k) != b.get(*k))
+                            .map(|k| {
+                                format!(
+                                    "{k} (was {}, now {})",
+                                    a.get(k).unwrap_or(&serde_json::Value::Null),
+                                    b.get(k).unwrap_or(&serde_json::Value::Null)
+                                )
+                            })
+                            .collect::<Vec<_>>(),
+                        _ if a != b => vec![sec.to_string()],
+                        _ => vec![],
+                    }
+                })
+                .collect::<Vec<_>>();
+            return Err(DatagenError::Cloud {
+                cloud: out.display().to_string(),
+                msg: format!(
+                    "holds records made with other settings: {}; use a new --out (or remove the folder)",
+                    if differs.is_empty() {
+                        "the cloud set".to_string()
+                    } else {
+                        differs.join(", ")
+                    }
+                ),
+            });
+        }
+    }
+    let tmp = out.join("settings.json.tmp");
+    std::fs::write(&tmp, &want_text)
+        .and_then(|_| std::fs::rename(&tmp, &path))
+        .map_err(|e| DatagenError::Cloud {
+            cloud: path.display().to_string(),
+            msg: e.to_string(),
+        })
+}
+
 /// Generates (or completes) a data set in `out`.
 pub fn run(
     clouds: &[CloudSpec],
@@ -290,6 +397,7 @@ pub fn run(
         return Err(err("shard size must be at least 1".into()));
     }
     std::fs::create_dir_all(out).map_err(|e| err(e.to_string()))?;
+    check_settings(clouds, opts, out)?;
     let medium = medium(opts)?;
     let gpu = if opts.gpu {
         Some(nimbus_gpu::Gpu::new().map_err(|e| err(e.to_string()))?)
@@ -299,17 +407,31 @@ pub fn run(
     let start = Instant::now();
     let mut shards = Vec::new();
     let (mut computed, mut total, mut converged) = (0usize, 0usize, 0usize);
-    for (split, count) in [("train", opts.records), ("test", opts.test_records)] {
+    let counts = [opts.records, opts.val_records, opts.test_records];
+    // Every requested split must have clouds: said before any work.
+    for (split, &count) in SPLITS.iter().zip(&counts) {
+        if count > 0 && !clouds.iter().any(|c| c.split == *split) {
+            return Err(err(format!(
+                "{count} {split} records requested but the set has no {split} clouds"
+            )));
+        }
+    }
+    for (split, count) in SPLITS.into_iter().zip(counts) {
+        let n_samples = if split == "train" {
+            opts.samples
+        } else {
+            opts.eval_samples
+        };
+        let (cap, fixed) = if n_samples > 0 {
+            (n_samples, true)
+        } else {
+            (opts.max_samples, false)
+        };
         let members: Vec<usize> = (0..clouds.len())
             .filter(|&i| clouds[i].split == split)
             .collect();
         if count == 0 {
             continue;
-        }
-        if members.is_empty() {
-            return Err(err(format!(
-                "{count} {split} records requested but the set has no {split} clouds"
-            )));
         }
         // Build the clouds of this split (volume + pyramid), in parallel.
         let data: Vec<CloudData> = members
@@ -363,14 +485,19 @@ pub fn run(
                 bar.inc(n);
                 continue;
             }
-            let split_id = if split == "train" { 0u64 } else { 1u64 };
+            // train 0 and test 1 as before the validation split existed (same records).
+            let split_id = match split {
+                "train" => 0u64,
+                "test" => 1,
+                _ => 2,
+            };
             let rng_of = |r: usize| Pcg32::new(mix64(opts.seed ^ mix64(split_id)), mix64(r as u64));
             let records: Vec<(usize, Record)> = match &gpu {
                 None => (lo..hi)
                     .into_par_iter()
                     .map(|r| {
                         let ci = r % data.len();
-                        let rec = data[ci].record(opts.max_samples, &mut rng_of(r))?;
+                        let rec = data[ci].record(opts.light, cap, fixed, &mut rng_of(r))?;
                         bar.inc(1);
                         Ok((members[ci], rec))
                     })
@@ -384,19 +511,21 @@ pub fn run(
                         }
                         let cfgs: Vec<_> = rs
                             .par_iter()
-                            .map(|&r| cloud.sample_config(&mut rng_of(r)))
+                            .map(|&r| cloud.sample_config_with(opts.light, &mut rng_of(r)))
                             .collect::<Result<_, _>>()?;
                         let mut gpt = nimbus_trace::gpu::GpuPathTracer::new(gpu, &cloud.scene)
                             .map_err(|e| err(e.to_string()))?;
                         let est = crate::datagen::estimate_gpu(
                             &mut gpt,
                             &cfgs,
-                            opts.max_samples,
+                            cap,
+                            if fixed { 0.0 } else { 0.02 },
                             mix64(opts.seed ^ (k as u64) ^ ((ci as u64) << 32)),
                         )
                         .map_err(|e| err(e.to_string()))?;
                         for ((&r, c), e) in rs.iter().zip(&cfgs).zip(est) {
-                            out[r - lo] = Some((members[ci], cloud.finish(c.0, c.1, c.2, e)?));
+                            out[r - lo] =
+                                Some((members[ci], cloud.finish(c.0, c.1, c.2, e, opts.light)?));
                             bar.inc(1);
                         }
                     }
@@ -416,7 +545,13 @@ pub fn run(
                 ms.extend_from_slice(&r.x.to_array());
                 ms.extend_from_slice(&r.view.to_array());
                 ms.extend_from_slice(&r.to_light.to_array());
-                ms.extend_from_slice(&[r.samples as f32, r.converged as u8 as f32, r.rel_ci]);
+                ms.extend_from_slice(&[
+                    r.samples as f32,
+                    r.converged as u8 as f32,
+                    r.rel_ci,
+                    r.var_mean,
+                    r.light_weight,
+                ]);
                 conv += r.converged as usize;
             }
             write_npy(&px, &[n, DESCRIPTOR_LEN as u64], &xs)?;
@@ -431,7 +566,7 @@ pub fn run(
     }
     let seconds = start.elapsed().as_secs_f64();
     let manifest = Manifest {
-        format: "nimbus-rpnn-records/1",
+        format: "nimbus-rpnn-records/2",
         descriptor_len: DESCRIPTOR_LEN,
         descriptor_layout: "level-major: [(k-1)*225 + p] = rho at stencil point p (p = ix + 5 iy + 25 iz) of level k = 1..10; [2250] = gamma (radians)",
         meta_columns: [
@@ -448,6 +583,8 @@ pub fn run(
             "samples",
             "converged",
             "rel_ci95",
+            "target_variance",
+            "light_weight",
         ],
         settings: opts.clone(),
         clouds: clouds.to_vec(),

@@ -86,6 +86,9 @@ pub struct Rpnn {
     pub head: Vec<Dense>,
     /// `nimbus.rpnn.phase` from the metadata (`hg`, `mie`, or `unknown`).
     pub phase: String,
+    /// The single-scattering albedo of the training data: `nimbus.rpnn.albedo` from the
+    /// metadata, else `data.albedo` of the model card (`<model>.json`) beside the file.
+    pub albedo: Option<f64>,
 }
 
 impl Rpnn {
@@ -158,7 +161,15 @@ impl Rpnn {
                 e.to_string()
             })
         })?;
-        Self::from_bytes(&bytes).map_err(err)
+        let mut m = Self::from_bytes(&bytes).map_err(err)?;
+        if m.albedo.is_none() {
+            // Models exported before the albedo entered the metadata: read the card.
+            m.albedo = std::fs::read_to_string(path.with_extension("json"))
+                .ok()
+                .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+                .and_then(|v| v["data"]["albedo"].as_f64());
+        }
+        Ok(m)
     }
 
     /// Parses ONNX bytes (errors without the file name).
@@ -222,6 +233,10 @@ impl Rpnn {
         rpnn.phase = meta
             .get("nimbus.rpnn.phase")
             .map_or("unknown".into(), |s| s.to_string());
+        rpnn.albedo = meta
+            .get("nimbus.rpnn.albedo")
+            .and_then(|a| a.parse::<f64>().ok())
+            .filter(|a| a.is_finite());
         if let Some(cfg) = meta.get("nimbus.rpnn.config") {
             let v: serde_json::Value = serde_json::from_str(cfg)
                 .map_err(|e| format!("metadata nimbus.rpnn.config: {e}"))?;
@@ -614,6 +629,7 @@ fn structure(out: Sym, denses: Vec<Dense>) -> Result<Rpnn, String> {
         blocks,
         head,
         phase: String::new(),
+        albedo: None,
     })
 }
 

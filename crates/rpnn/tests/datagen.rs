@@ -2,7 +2,7 @@
 //! bad clouds.
 
 use glam::DVec3;
-use nimbus_rpnn::datagen::CloudData;
+use nimbus_rpnn::datagen::{CloudData, LightSampling};
 use nimbus_rpnn::dataset::{self, DatagenOptions};
 use nimbus_scene::{Aabb, DensityGrid, Medium, Phase, Volume};
 use nimbus_trace::Pcg32;
@@ -40,11 +40,12 @@ fn light() -> DVec3 {
 #[test]
 fn stopping_rule_and_coverage() {
     let c = sphere();
-    let (est, n, converged, rel) = c.estimate(X, VIEW, light(), 1 << 20, &mut Pcg32::new(1, 1));
+    let e = c.estimate(X, VIEW, light(), 1 << 20, &mut Pcg32::new(1, 1));
+    let (est, n, converged, rel) = (e.mean, e.samples, e.converged, e.rel_ci);
     assert!(converged && rel <= 0.02, "n = {n}, rel = {rel}");
     // 100× longer, with a fixed sample count (no stopping rule).
-    let (long, done, _, long_rel) =
-        c.estimate_to(X, VIEW, light(), 100 * n, 0.0, &mut Pcg32::new(2, 2));
+    let e = c.estimate_to(X, VIEW, light(), 100 * n, 0.0, &mut Pcg32::new(2, 2));
+    let (long, done, long_rel) = (e.mean, e.samples, e.rel_ci);
     assert!(done >= 100 * n && long_rel < 0.003);
     assert!(
         (est / long - 1.0).abs() < 0.025,
@@ -53,7 +54,8 @@ fn stopping_rule_and_coverage() {
     let runs = 40;
     let mut covered = 0;
     for s in 0..runs {
-        let (m, _, conv, _) = c.estimate(X, VIEW, light(), 1 << 20, &mut Pcg32::new(100 + s, 7));
+        let e = c.estimate(X, VIEW, light(), 1 << 20, &mut Pcg32::new(100 + s, 7));
+        let (m, conv) = (e.mean, e.converged);
         assert!(conv);
         covered += ((m / long - 1.0).abs() <= 0.02) as usize;
     }
@@ -72,17 +74,23 @@ fn indirect_only() {
         Medium::new(0.0, Phase::Isotropic).unwrap(),
     )
     .unwrap();
-    let (m, _, _, _) = c.estimate(X, VIEW, light(), 4096, &mut Pcg32::new(3, 3));
+    let m = c
+        .estimate(X, VIEW, light(), 4096, &mut Pcg32::new(3, 3))
+        .mean;
     assert_eq!(m, 0.0);
 }
 
 fn opts(seed: u64) -> DatagenOptions {
     DatagenOptions {
         records: 6,
+        val_records: 0,
         test_records: 2,
         shard_size: 4,
         seed,
         max_samples: 2048,
+        samples: 0,
+        eval_samples: 0,
+        light: LightSampling::Sphere,
         albedo: 1.0,
         phase: "hg".into(),
         progress: false,
@@ -189,21 +197,24 @@ fn gpu_estimator_matches_cpu() {
     let [s, s2, n] = gpt.indirect(&[cfg], 1 << 18, 0, 11).unwrap()[0];
     let g_mean = s / n;
     let g_var = (s2 / n - g_mean * g_mean) / n;
-    let (c_mean, cn, _, c_rel) =
-        c.estimate_to(X, VIEW, light(), 1 << 18, 0.0, &mut Pcg32::new(5, 5));
-    let c_var = (c_rel * c_mean / 1.96).powi(2);
+    let e = c.estimate_to(X, VIEW, light(), 1 << 18, 0.0, &mut Pcg32::new(5, 5));
+    let (c_mean, cn, c_var) = (e.mean, e.samples, e.var_mean);
     assert!(n >= (1 << 18) as f64 && cn >= 1 << 18);
     assert!(
         (g_mean - c_mean).abs() < 4.5 * (g_var + c_var).sqrt(),
         "GPU {g_mean} vs CPU {c_mean}"
     );
-    let est =
-        nimbus_rpnn::datagen::estimate_gpu(&mut gpt, &[(X, VIEW, light())], 1 << 20, 3).unwrap();
+    let est = nimbus_rpnn::datagen::estimate_gpu(&mut gpt, &[(X, VIEW, light())], 1 << 20, 0.02, 3)
+        .unwrap();
     assert!(
-        est[0].2 && est[0].3 <= 0.02 && (est[0].0 / c_mean - 1.0).abs() < 0.03,
+        est[0].converged && est[0].rel_ci <= 0.02 && (est[0].mean / c_mean - 1.0).abs() < 0.03,
         "{:?}",
         est[0]
     );
+    // Fixed count on the GPU: exactly the requested samples, not converged by definition.
+    let fixed =
+        nimbus_rpnn::datagen::estimate_gpu(&mut gpt, &[(X, VIEW, light())], 5000, 0.0, 4).unwrap();
+    assert_eq!((fixed[0].samples, fixed[0].converged), (5000, false));
 }
 
 /// A cloud so thin that no free flight ends inside it: a clear error after the try limit, not a
@@ -223,4 +234,103 @@ fn cloud_that_is_never_hit() {
         .unwrap()
         .to_string();
     assert!(e.contains("ghost") && e.contains("no ray entered"), "{e}");
+}
+
+/// Fixed-count estimates carry no stopping-rule bias: the mean of 200 independent 64-sample
+/// estimates agrees with a 2²⁰-sample run, and their stored variance matches the spread between
+/// them.
+#[test]
+fn fixed_count_estimates_are_unbiased_with_honest_variance() {
+    let c = sphere();
+    let long = c.estimate_to(X, VIEW, light(), 1 << 20, 0.0, &mut Pcg32::new(2, 2));
+    let runs = 200;
+    let est: Vec<_> = (0..runs)
+        .map(|s| c.estimate_to(X, VIEW, light(), 64, 0.0, &mut Pcg32::new(900 + s, 3)))
+        .collect();
+    assert!(est.iter().all(|e| e.samples == 64 && !e.converged));
+    let mean = est.iter().map(|e| e.mean).sum::<f64>() / runs as f64;
+    let spread = est.iter().map(|e| (e.mean - mean).powi(2)).sum::<f64>() / (runs - 1) as f64;
+    let stored = est.iter().map(|e| e.var_mean).sum::<f64>() / runs as f64;
+    // 4.5 standard errors of the mean of 200 estimates (plus the long run's own error).
+    let se = (spread / runs as f64 + long.var_mean).sqrt();
+    assert!(
+        (mean - long.mean).abs() < 4.5 * se,
+        "mean of fixed-count estimates {mean} vs long run {} (se {se})",
+        long.mean
+    );
+    // The average stored variance estimates the true variance of a 64-sample mean; with 200
+    // runs the spread's own relative error is ≈ √(2/199) ≈ 10 % (more for a skewed
+    // distribution), so 30 % allows for that.
+    assert!(
+        (stored / spread - 1.0).abs() < 0.3,
+        "stored variance {stored} vs observed {spread}"
+    );
+}
+
+/// `uniform-gamma` draws γ uniformly in [0, π] (10 bins within 5 σ of 1 000 each) and its
+/// weights π sin γ / 2 average to 1 (∫₀^π (1/π)(π sin γ / 2) dγ = 1): the sphere's distribution
+/// restored.
+#[test]
+fn uniform_gamma_light_sampling() {
+    let mut rng = Pcg32::new(8, 8);
+    let view = DVec3::new(0.3, -0.2, 0.9).normalize();
+    let n = 10_000;
+    let mut bins = [0usize; 10];
+    let mut wsum = 0.0;
+    for _ in 0..n {
+        let l = LightSampling::UniformGamma.sample(view, rng.next2());
+        assert!((l.length() - 1.0).abs() < 1e-9);
+        let gamma = view.cross(l).length().atan2(view.dot(l));
+        bins[((gamma / std::f64::consts::PI * 10.0) as usize).min(9)] += 1;
+        wsum += LightSampling::UniformGamma.weight(view, l) as f64;
+    }
+    for b in bins {
+        // Binomial σ = √(10 000 · 0.1 · 0.9) = 30.
+        assert!((b as f64 - 1000.0).abs() < 150.0, "{bins:?}");
+    }
+    // The weight's standard deviation is ≈ 0.48, so the mean of 10⁴ has σ ≈ 0.005.
+    assert!((wsum / n as f64 - 1.0).abs() < 0.025, "{}", wsum / n as f64);
+    assert_eq!(LightSampling::Sphere.weight(view, view), 1.0);
+}
+
+/// A rerun in the same folder with different settings is refused, naming the setting; the
+/// validation split comes from its own clouds.
+#[test]
+fn other_settings_refused_and_validation_split() {
+    let set: Vec<_> = dataset::generated_set(5, 1)
+        .into_iter()
+        .map(|mut c| {
+            if let dataset::CloudSource::Generated { resolution, .. } = &mut c.source {
+                *resolution = [24, 18, 24];
+            }
+            c
+        })
+        .collect();
+    assert_eq!(set[2].split, "val");
+    let d = tmp("settings");
+    let mut o = opts(1);
+    o.records = 2;
+    o.val_records = 2;
+    o.test_records = 0;
+    o.samples = 64;
+    o.eval_samples = 256;
+    let r = dataset::run(&set, &o, &d).unwrap();
+    assert_eq!(r.records, 4);
+    let meta: Vec<f32> =
+        npyz::NpyFile::new(&std::fs::read(d.join("val_00000_meta.npy")).unwrap()[..])
+            .unwrap()
+            .into_vec()
+            .unwrap();
+    assert_eq!(meta.len(), 2 * dataset::META_COLUMNS);
+    assert!(
+        meta.chunks(dataset::META_COLUMNS)
+            .all(|m| m[0] == 2.0 && m[10] == 256.0)
+    );
+    let mut other = o.clone();
+    other.seed = 2;
+    let e = dataset::run(&set, &other, &d).unwrap_err().to_string();
+    assert!(
+        e.contains("seed (was 1, now 2)") && e.contains("new --out"),
+        "{e}"
+    );
 }

@@ -156,6 +156,7 @@ fn random_paper_model(seed: u64) -> Rpnn {
         blocks,
         head,
         phase: "hg".into(),
+        albedo: Some(1.0),
     }
 }
 
