@@ -24,13 +24,21 @@ pub(crate) struct EvalArgs {
     #[arg(long, default_value = "pt,pm,rpnn")]
     methods: String,
     /// Budget sweep of one method, METHOD=B1,B2,… (spp for pt/pt-gpu/rpnn, ring frames for pm);
-    /// repeat for several methods. Defaults: pt=1,4,16,64 pt-gpu=4,16,64,256 pm=4,16,100
-    /// rpnn=1,4,16.
+    /// repeat for several methods. Defaults: pt=2,8,32,128 pt-gpu=4,16,64,256 pm=4,16,100
+    /// rpnn=2,8,32 (a Monte Carlo budget is rendered as two halves for its noise estimate).
     #[arg(long)]
     budgets: Vec<String>,
-    /// Reference samples per pixel.
-    #[arg(long, default_value_t = 1024)]
+    /// Reference samples per pixel per half and round (rounds repeat until --ref-noise or
+    /// --ref-time-cap).
+    #[arg(long, default_value_t = 512)]
     ref_spp: u32,
+    /// Reference noise target: relative noise of 4×4 cloud blocks, estimated from two
+    /// independent halves (0: a single round).
+    #[arg(long, default_value_t = 0.01)]
+    ref_noise: f64,
+    /// Reference time cap in seconds (the noise reached is reported when it stops there).
+    #[arg(long, default_value_t = 600.0)]
+    ref_time_cap: f64,
     /// Which path tracer renders the reference.
     #[arg(long, value_enum, default_value = "auto")]
     ref_device: RefDeviceArg,
@@ -64,6 +72,15 @@ impl EvalArgs {
         if !(1..=1 << 20).contains(&self.ref_spp) {
             bail!("--ref-spp must lie in 1..=1048576, got {}", self.ref_spp);
         }
+        if !(self.ref_noise.is_finite() && (0.0..1.0).contains(&self.ref_noise)) {
+            bail!("--ref-noise must lie in [0, 1), got {}", self.ref_noise);
+        }
+        if !(self.ref_time_cap.is_finite() && self.ref_time_cap >= 0.0) {
+            bail!(
+                "--ref-time-cap must be a finite number of seconds ≥ 0, got {}",
+                self.ref_time_cap
+            );
+        }
         if !(1..=1 << 24).contains(&self.beams) {
             bail!("--beams must lie in 1..=16777216, got {}", self.beams);
         }
@@ -90,6 +107,8 @@ impl EvalArgs {
             },
             reference: ReferenceSettings {
                 spp: self.ref_spp,
+                target_rel_noise: self.ref_noise,
+                time_cap_s: self.ref_time_cap,
                 seed: CompareOptions::reference_seed(seed),
                 device: match self.ref_device {
                     RefDeviceArg::Auto => RefDevice::Auto,

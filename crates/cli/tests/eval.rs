@@ -75,7 +75,7 @@ fn split_csv(line: &str) -> Vec<String> {
 
 /// Column index in report.csv.
 fn col(name: &str) -> usize {
-    "scene,method,budget,budget_unit,time_s,gpu_ms,setup_s,device,rmse,rel_rmse,rel_rmse_4x4,mean_ratio,mse,noise,ttuv,speedup_ttuv,speedup_error,bias,nonfinite"
+    "scene,method,budget,budget_unit,time_s,gpu_ms,setup_s,device,rmse,rel_rmse,rel_rmse_4x4,rel_rmse_all,mean_ratio,mse,mse_4x4,noise,noise_4x4,ttuv,speedup_error,speedup_ttuv,bias,bias_floor,nonfinite"
         .split(',')
         .position(|c| c == name)
         .unwrap()
@@ -102,7 +102,11 @@ fn compare_scene_writes_a_report_and_reuses_the_cached_reference() {
         "--beams",
         "2048",
         "--ref-spp",
-        "512",
+        "256",
+        "--ref-noise",
+        "0.03",
+        "--ref-time-cap",
+        "60",
         "--ref-device",
         "cpu",
         "--cache",
@@ -148,19 +152,39 @@ fn compare_scene_writes_a_report_and_reuses_the_cached_reference() {
         };
         assert!((ratio - 1.0).abs() < tol, "{r:?}");
     }
-    // The converged (largest) budget of each method has a bias estimate, the others none.
+    // The converged (largest) budget of each method has a bias estimate and its floor, the
+    // others none.
     for m in ["pt", "pm", "rpnn"] {
         let b: Vec<&Vec<String>> = rows.iter().filter(|r| r[1] == m).collect();
         assert!(!b.last().unwrap()[col("bias")].is_empty());
+        assert!(!b.last().unwrap()[col("bias_floor")].is_empty());
         assert!(b[..b.len() - 1].iter().all(|r| r[col("bias")].is_empty()));
     }
+    // The path tracer's own bias, with noise estimated from independent halves, is within its
+    // floor: the procedure does not mistake heavy-tailed noise for bias (it did, up to 0.21,
+    // with per-pixel sample variances).
+    let pt_top = pt.last().unwrap();
+    assert!(
+        f(pt_top, "bias") < 2.0 * f(pt_top, "bias_floor"),
+        "pt bias {} vs floor {}",
+        f(pt_top, "bias"),
+        f(pt_top, "bias_floor")
+    );
     // The RPNN row has a TTUV speed-up over the path tracer (Kallweit §6).
     let nn = rows.iter().find(|r| r[1] == "rpnn").unwrap();
     assert!(f(nn, "speedup_ttuv") > 0.0);
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(json["rows"].as_array().unwrap().len(), 6);
-    assert_eq!(json["reference"]["spp"], 512);
+    // Rounds of 2 × 256 spp until the 4×4 cloud noise is ≤ 3 % (or 60 s).
+    let spp = json["reference"]["spp"].as_u64().unwrap();
+    assert!(spp >= 512 && spp.is_multiple_of(512), "{spp}");
+    let st = &json["reference"]["stats"];
+    assert!(st["cloud_pixels"].as_u64().unwrap() > 0 && st["cloud_blocks"].as_u64().unwrap() > 0);
+    assert!(
+        st["target_met"] == true && st["rel_noise_4x4"].as_f64().unwrap() <= 0.03,
+        "{st}"
+    );
     assert_eq!(json["reference"]["cached"], false);
     // Second run: the reference comes from the cache (same key), with the same numbers.
     let o2 = nimbus(&args);
@@ -184,7 +208,9 @@ fn compare_scene_writes_a_report_and_reuses_the_cached_reference() {
         "--budgets",
         "pt=1",
         "--ref-spp",
-        "512",
+        "256",
+        "--ref-noise",
+        "0",
         "--ref-device",
         "cpu",
         "--cache",
@@ -218,6 +244,11 @@ fn compare_rejects_bad_arguments() {
             "expected METHOD=",
         ),
         (vec!["--methods", "pt", "--ref-spp", "0"], "--ref-spp"),
+        (vec!["--methods", "pt", "--ref-noise", "nan"], "--ref-noise"),
+        (
+            vec!["--methods", "pt", "--ref-time-cap=-1"],
+            "--ref-time-cap",
+        ),
     ] {
         let mut a = vec!["compare", s];
         a.extend(args);
@@ -255,6 +286,8 @@ fn bench_suite_writes_the_table() {
         "1024",
         "--ref-spp",
         "128",
+        "--ref-noise",
+        "0",
         "--ref-device",
         "cpu",
         "--cache",
@@ -301,4 +334,39 @@ fn stress_subset_passes_and_rejects_invalid_voxels() {
     let o = nimbus(&["stress", "--cases", "nope", "--out", d.to_str().unwrap()]);
     assert!(!o.status.success());
     assert!(text(&o).contains("no case `nope`"), "{}", text(&o));
+}
+
+/// `bench/device.sh --small`: the GPU benchmark script runs end to end on this machine's
+/// adapter (lavapipe in CI) and writes every measure with a positive, finite value.
+#[test]
+fn device_benchmark_script_small() {
+    let d = tmp("device");
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let o = std::process::Command::new("bash")
+        .current_dir(&root)
+        .arg("bench/device.sh")
+        .args(["--small", "--out", d.to_str().unwrap()])
+        .env("NIMBUS", env!("CARGO_BIN_EXE_nimbus"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", text(&o));
+    let csv = std::fs::read_to_string(d.join("device.csv")).unwrap();
+    let mut measures = std::collections::BTreeMap::new();
+    for line in csv.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let v: f64 = f[3].parse().unwrap_or(f64::NAN);
+        assert!(v.is_finite() && v > 0.0, "{line}");
+        *measures.entry(f[0].to_string()).or_insert(0) += 1;
+    }
+    // 3 scenes × 5 photon-mapping figures, 2 RPNN backends, 2 path tracers, 1 datagen.
+    assert_eq!(measures.get("pm_frame_ms"), Some(&3), "{csv}");
+    assert_eq!(measures.get("pm_upsample_ms"), Some(&3), "{csv}");
+    assert_eq!(measures.get("rpnn_ms_per_spp"), Some(&2), "{csv}");
+    assert_eq!(measures.get("pt_paths_per_s"), Some(&2), "{csv}");
+    assert_eq!(measures.get("datagen_records_per_hour"), Some(&1), "{csv}");
+    assert!(
+        std::fs::read_to_string(d.join("device.md"))
+            .unwrap()
+            .contains("| measure |")
+    );
 }

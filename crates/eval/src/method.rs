@@ -5,6 +5,12 @@
 //! (each frame traces n_g beams, so the photon count is m · n_g; Elek 2012 §5). Every run is
 //! timed from the first sample to the finished image; one-time setup (pipelines, density
 //! upload, density pyramid, model loading) is reported separately as `setup_s`.
+//!
+//! A Monte Carlo budget of b ≥ 2 samples per pixel is rendered as two independent halves of
+//! b/2 (seeds `seed` and `seed ^ HALF_B`); the image is their mean and its noise is estimated
+//! from their difference, E[(A − B)²/4] = Var((A + B)/2), which — unlike a per-pixel sample
+//! variance — holds for the heavy-tailed samples of a delta sun through an HG lobe. The metrics
+//! subtract it to measure bias ([`crate::metrics`]).
 
 use std::fmt;
 use std::path::PathBuf;
@@ -49,15 +55,15 @@ impl Method {
         }
     }
 
-    /// The default sweep: four doublings of the work per step for the Monte Carlo methods
-    /// (RMSE halves per step when unbiased), ring sizes up to the paper's m = 100 for photon
-    /// mapping.
+    /// The default sweep: four times the work per step for the Monte Carlo methods (RMSE
+    /// halves per step when unbiased; every budget even, so it splits into two halves), ring
+    /// sizes up to the paper's m = 100 for photon mapping.
     pub fn default_budgets(self) -> Vec<u32> {
         match self {
-            Method::Pt => vec![1, 4, 16, 64],
+            Method::Pt => vec![2, 8, 32, 128],
             Method::PtGpu => vec![4, 16, 64, 256],
             Method::Pm => vec![4, 16, 100],
-            Method::Rpnn => vec![1, 4, 16],
+            Method::Rpnn => vec![2, 8, 32],
         }
     }
 
@@ -156,9 +162,11 @@ pub struct Run {
     pub method: Method,
     pub budget: u32,
     pub image: Image,
-    /// Variance of each pixel's mean luminance (Monte Carlo methods with ≥ 2 samples per
-    /// pixel; one sample has no variance estimate).
+    /// Variance of each pixel's mean luminance, (A − B)²/4 from the two halves (Monte Carlo
+    /// methods with ≥ 2 samples per pixel; one sample has no noise estimate).
     pub variance: Option<Vec<f32>>,
+    /// Luminance of half A − half B per pixel (block-level noise estimates).
+    pub half_diff: Option<Vec<f32>>,
     /// Wall time from the first sample to the finished image.
     pub time_s: f64,
     /// GPU time from timestamp queries, when the adapter has them.
@@ -167,6 +175,36 @@ pub struct Run {
     pub setup_s: f64,
     /// Where it ran (`cpu`, the adapter, `ort`, …).
     pub device: String,
+}
+
+/// The second half's seed offset.
+pub const HALF_B: u64 = 0x5851_f42d_4c95_7f2d;
+
+/// Renders a Monte Carlo budget of `spp` as halves (see the module docs) with `render(spp,
+/// seed)`; returns (image, half difference, seconds summed over the renders).
+fn halves(
+    spp: u32,
+    seed: u64,
+    mut render: impl FnMut(u32, u64) -> Result<(Image, f64)>,
+) -> Result<(Image, Option<Vec<f32>>, f64)> {
+    if spp < 2 {
+        let (img, t) = render(spp, seed)?;
+        return Ok((img, None, t));
+    }
+    let (a, ta) = render(spp / 2, seed)?;
+    let (b, tb) = render(spp - spp / 2, seed ^ HALF_B)?;
+    let mut img = Image::new(a.width, a.height);
+    let mut diff = vec![0.0f32; a.pixels.len()];
+    for (i, (pa, pb)) in a.pixels.iter().zip(&b.pixels).enumerate() {
+        img.pixels[i] = [0, 1, 2].map(|c| 0.5 * (pa[c] + pb[c]));
+        diff[i] = (pa[0] + pa[1] + pa[2] - pb[0] - pb[1] - pb[2]) / 3.0;
+    }
+    Ok((img, Some(diff), ta + tb))
+}
+
+fn variance_of(diff: &Option<Vec<f32>>) -> Option<Vec<f32>> {
+    diff.as_ref()
+        .map(|d| d.iter().map(|v| v * v / 4.0).collect())
 }
 
 /// A lazily created GPU, shared by the GPU methods of one evaluation.
@@ -199,20 +237,24 @@ pub fn sweep(
             let tracer = nimbus_trace::PathTracer::new(scene);
             let setup_s = t_setup.elapsed().as_secs_f64();
             for &spp in budgets {
-                let out = nimbus_trace::render_with(
-                    &tracer,
-                    &nimbus_trace::RenderOptions {
-                        spp,
-                        seed: settings.seed,
-                        progress: false,
-                    },
-                );
+                let (image, half_diff, time_s) = halves(spp, settings.seed, |spp, seed| {
+                    let out = nimbus_trace::render_with(
+                        &tracer,
+                        &nimbus_trace::RenderOptions {
+                            spp,
+                            seed,
+                            progress: false,
+                        },
+                    );
+                    Ok((out.image, out.stats.seconds))
+                })?;
                 runs.push(Run {
                     method,
                     budget: spp,
-                    image: out.image,
-                    variance: (spp > 1).then_some(out.variance),
-                    time_s: out.stats.seconds,
+                    image,
+                    variance: variance_of(&half_diff),
+                    half_diff,
+                    time_s,
                     gpu_ms: None,
                     setup_s,
                     device: format!("cpu ({} threads)", rayon_threads()),
@@ -226,14 +268,18 @@ pub fn sweep(
                 .with_context(|| format!("{label}: GPU path tracer"))?;
             let setup_s = t_setup.elapsed().as_secs_f64();
             for &spp in budgets {
-                let t0 = Instant::now();
-                let (image, variance) = gpt.render(spp, settings.seed)?;
+                let (image, half_diff, time_s) = halves(spp, settings.seed, |spp, seed| {
+                    let t0 = Instant::now();
+                    let (image, _) = gpt.render(spp, seed)?;
+                    Ok((image, t0.elapsed().as_secs_f64()))
+                })?;
                 runs.push(Run {
                     method,
                     budget: spp,
                     image,
-                    variance: (spp > 1).then_some(variance),
-                    time_s: t0.elapsed().as_secs_f64(),
+                    variance: variance_of(&half_diff),
+                    half_diff,
+                    time_s,
                     gpu_ms: None,
                     setup_s,
                     device: gpu.describe(),
@@ -269,6 +315,7 @@ pub fn sweep(
                     budget: frames,
                     image,
                     variance: None,
+                    half_diff: None,
                     time_s: t1.elapsed().as_secs_f64(),
                     gpu_ms: gpu.has_timestamps().then_some(gpu_ms).filter(|&v| v > 0.0),
                     setup_s,
@@ -302,19 +349,23 @@ pub fn sweep(
             };
             let setup_s = t_setup.elapsed().as_secs_f64();
             for &spp in budgets {
-                let opts = RpnnOptions {
-                    spp,
-                    seed: settings.seed,
-                    sky_dirs: settings.sky_dirs,
-                };
-                let out = nimbus_rpnn::render::render(scene, &pyr, &mut backend, &opts)
-                    .with_context(|| format!("{label}: RPNN render"))?;
+                let (image, half_diff, time_s) = halves(spp, settings.seed, |spp, seed| {
+                    let opts = RpnnOptions {
+                        spp,
+                        seed,
+                        sky_dirs: settings.sky_dirs,
+                    };
+                    let out = nimbus_rpnn::render::render(scene, &pyr, &mut backend, &opts)
+                        .with_context(|| format!("{label}: RPNN render"))?;
+                    Ok((out.image, out.times.total_ms / 1e3))
+                })?;
                 runs.push(Run {
                     method,
                     budget: spp,
-                    image: out.image,
-                    variance: (spp > 1).then_some(out.variance),
-                    time_s: out.times.total_ms / 1e3,
+                    image,
+                    variance: variance_of(&half_diff),
+                    half_diff,
+                    time_s,
                     gpu_ms: None,
                     setup_s,
                     device: device.clone(),

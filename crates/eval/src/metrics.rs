@@ -1,20 +1,27 @@
 //! From runs and a reference to the numbers of a report (Kallweit 2017 §6).
 //!
-//! Over the cloud pixels (reference luminance > 10⁻³ × its maximum, the mask of
-//! `nimbus_trace::compare`), with luminance = mean of R, G, B:
-//! - `rel_rmse`: RMSE / mean reference luminance; `rel_rmse_4x4` the same on 4×4 block means;
-//!   `mean_ratio`: mean test / mean reference luminance;
-//! - `mse`: mean squared luminance error; `noise`: mean variance of the run's pixel means;
-//! - `ttuv` = time × mean pixel variance ("time to unit variance", §6) for Monte Carlo runs;
-//!   `speedup_ttuv` = TTUV of the baseline path tracer / TTUV of the run (the paper's speed-up);
-//! - `speedup_error`: how much longer the baseline path tracer needs to reach the run's error.
-//!   An unbiased path tracer's MSE falls as C/t, so it reaches the run's MSE after C/MSE
-//!   seconds; C = median over its runs of time × (MSE − reference variance);
-//! - `bias` (converged runs: the largest budget of each method): the RMSE that remains after
-//!   the estimated noise of run and reference is taken out, √max(0, MSE − noise − noise_ref),
-//!   relative to the mean reference luminance (Table 1 reports this RMSE on converged images).
-//!   The photon map has no per-pixel variance; its `bias` keeps its own residual noise and is an
-//!   upper bound.
+//! Over the **cloud pixels** — camera optical depth τ ≥ 0.1 ([`nimbus_trace::tau`]), a mask
+//! from the geometry, not from brightness (with a sky every pixel is bright) — with luminance =
+//! mean of R, G, B:
+//! - `rmse`: RMSE of luminance (absolute, as Kallweit Table 1); `rel_rmse`: RMSE / mean
+//!   reference luminance; `rel_rmse_4x4` the same on the means of 4×4 blocks lying fully in the
+//!   cloud; `mean_ratio`: mean test / mean reference luminance; `rel_rmse_all`: relative RMSE
+//!   over every pixel, sky included (for comparison with brightness-masked figures);
+//! - `noise`, `noise_4x4`: the run's own noise variance per pixel and per block, from its two
+//!   halves ((A − B)²/4, see [`crate::method`]);
+//! - `ttuv` = time × mean pixel variance ("time to unit variance", §6): variance only;
+//!   `speedup_ttuv` = TTUV of the baseline path tracer / TTUV of the run;
+//! - `speedup_error` (the headline): how much longer the baseline path tracer needs to reach
+//!   the run's error against the truth, on 4×4 blocks. An unbiased path tracer's block MSE
+//!   against the truth falls as C/t, so it reaches a run's error e² = MSE₄ₓ₄ − (reference noise)
+//!   after C/e² seconds; C = median over its runs of time × (MSE₄ₓ₄ − reference noise). A biased
+//!   method's error never falls below its bias, so its speed-up shrinks at small errors;
+//! - `bias` (converged runs: the largest budget of each method): the relative RMSE over 4×4
+//!   cloud blocks left after the run's and the reference's noise are taken out,
+//!   √max(0, MSE₄ₓ₄ − noise₄ₓ₄ − noise_ref₄ₓ₄) / mean; `bias_floor` = √(noise₄ₓ₄ +
+//!   noise_ref₄ₓ₄) / mean, the noise that was removed: a bias below 2× its floor is reported as
+//!   "within the floor". The photon map has no noise estimate; its bias keeps its own residual
+//!   noise and is an upper bound.
 
 use nimbus_trace::compare::compare;
 use serde::Serialize;
@@ -36,40 +43,89 @@ pub struct Row {
     pub rmse: f64,
     pub rel_rmse: f64,
     pub rel_rmse_4x4: f64,
+    pub rel_rmse_all: f64,
     pub mean_ratio: f64,
     pub mse: f64,
+    pub mse_4x4: f64,
     pub noise: Option<f64>,
+    pub noise_4x4: Option<f64>,
     pub ttuv: Option<f64>,
     pub speedup_ttuv: Option<f64>,
     pub speedup_error: Option<f64>,
     pub bias: Option<f64>,
+    pub bias_floor: Option<f64>,
     pub nonfinite: usize,
+}
+
+impl Row {
+    /// Whether the bias is below twice the noise floor it was measured against.
+    pub fn within_floor(&self) -> Option<bool> {
+        Some(self.bias? < 2.0 * self.bias_floor?)
+    }
 }
 
 /// Reference statistics over the cloud pixels.
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct RefStats {
     pub cloud_pixels: usize,
+    /// 4×4 blocks lying fully in the cloud.
+    pub cloud_blocks: usize,
     pub mean_lum: f64,
-    /// Mean variance of the reference's pixel means.
+    /// Mean variance of the reference's pixel means (from its halves).
     pub noise: f64,
-    /// √noise / mean: the relative error floor the reference itself sets.
+    /// √noise / mean: the per-pixel relative noise of the reference.
     pub rel_noise: f64,
+    /// Mean variance of the reference's 4×4 block means (from its halves).
+    pub noise_4x4: f64,
+    /// √noise_4x4 / mean: the floor the reference sets for block errors and biases.
+    pub rel_noise_4x4: f64,
+    pub spp: u32,
+    pub target_met: bool,
 }
 
 fn lum(p: [f32; 3]) -> f64 {
     (p[0] as f64 + p[1] as f64 + p[2] as f64) / 3.0
 }
 
-/// The cloud mask: reference luminance > 10⁻³ × max.
+/// The cloud mask: camera optical depth τ ≥ 0.1.
 pub fn cloud_mask(reference: &Reference) -> Vec<bool> {
-    let l: Vec<f64> = reference.image.pixels.iter().map(|&p| lum(p)).collect();
-    let max = l.iter().cloned().fold(0.0, f64::max);
-    l.iter().map(|&v| v > 1e-3 * max).collect()
+    nimbus_trace::tau::cloud_mask(&reference.tau)
+}
+
+/// The 4×4 blocks lying fully inside `mask` (pixel indices of each).
+pub fn cloud_blocks(mask: &[bool], w: usize, h: usize) -> Vec<[usize; 16]> {
+    let mut out = Vec::new();
+    for by in 0..h / 4 {
+        for bx in 0..w / 4 {
+            let b: [usize; 16] = std::array::from_fn(|k| (by * 4 + k / 4) * w + bx * 4 + k % 4);
+            if b.iter().all(|&i| mask[i]) {
+                out.push(b);
+            }
+        }
+    }
+    out
+}
+
+/// Mean over blocks of (block mean of `d`)² / 4: the variance of the block means of (A + B)/2
+/// when `d` = A − B.
+fn block_half_noise(d: &[f32], blocks: &[[usize; 16]]) -> f64 {
+    if blocks.is_empty() {
+        return 0.0;
+    }
+    blocks
+        .iter()
+        .map(|b| {
+            let m = b.iter().map(|&i| d[i] as f64).sum::<f64>() / 16.0;
+            m * m / 4.0
+        })
+        .sum::<f64>()
+        / blocks.len() as f64
 }
 
 pub fn ref_stats(reference: &Reference) -> RefStats {
+    let (w, h) = (reference.image.width, reference.image.height);
     let mask = cloud_mask(reference);
+    let blocks = cloud_blocks(&mask, w, h);
     let idx: Vec<usize> = (0..mask.len()).filter(|&i| mask[i]).collect();
     let n = idx.len().max(1) as f64;
     let mean = idx
@@ -82,37 +138,75 @@ pub fn ref_stats(reference: &Reference) -> RefStats {
         .map(|&i| reference.variance[i] as f64)
         .sum::<f64>()
         / n;
+    let noise_4x4 = block_half_noise(&reference.half_diff, &blocks);
+    let m = mean.max(f64::MIN_POSITIVE);
     RefStats {
         cloud_pixels: idx.len(),
+        cloud_blocks: blocks.len(),
         mean_lum: mean,
         noise,
-        rel_noise: noise.sqrt() / mean.max(f64::MIN_POSITIVE),
+        rel_noise: noise.sqrt() / m,
+        noise_4x4,
+        rel_noise_4x4: noise_4x4.sqrt() / m,
+        spp: reference.spp,
+        target_met: reference.target_met,
     }
 }
 
 /// The rows of one scene's runs (any order; speed-ups use `pt`, else `pt-gpu`, as baseline).
 pub fn evaluate(scene: &str, runs: &[Run], reference: &Reference) -> Vec<Row> {
+    let (w, h) = (reference.image.width, reference.image.height);
     let mask = cloud_mask(reference);
+    let blocks = cloud_blocks(&mask, w, h);
     let idx: Vec<usize> = (0..mask.len()).filter(|&i| mask[i]).collect();
     let n = idx.len().max(1) as f64;
     let rs = ref_stats(reference);
+    let ref_lum: Vec<f64> = reference.image.pixels.iter().map(|&p| lum(p)).collect();
+    let mean_all = ref_lum.iter().sum::<f64>() / ref_lum.len().max(1) as f64;
     let mut rows: Vec<Row> = runs
         .iter()
         .map(|r| {
             let m = compare(&r.image, &reference.image, Some(&mask));
+            let t_lum: Vec<f64> = r
+                .image
+                .pixels
+                .iter()
+                .map(|&p| {
+                    let t = lum(p);
+                    if t.is_finite() { t } else { 0.0 }
+                })
+                .collect();
             let mse = idx
                 .iter()
-                .map(|&i| {
-                    let t = lum(r.image.pixels[i]);
-                    let t = if t.is_finite() { t } else { 0.0 };
-                    (t - lum(reference.image.pixels[i])).powi(2)
-                })
+                .map(|&i| (t_lum[i] - ref_lum[i]).powi(2))
                 .sum::<f64>()
                 / n;
+            let mse_all = t_lum
+                .iter()
+                .zip(&ref_lum)
+                .map(|(t, r)| (t - r).powi(2))
+                .sum::<f64>()
+                / ref_lum.len().max(1) as f64;
+            let mse_4x4 = if blocks.is_empty() {
+                0.0
+            } else {
+                blocks
+                    .iter()
+                    .map(|b| {
+                        b.iter()
+                            .map(|&i| t_lum[i] - ref_lum[i])
+                            .sum::<f64>()
+                            .powi(2)
+                            / 256.0
+                    })
+                    .sum::<f64>()
+                    / blocks.len() as f64
+            };
             let noise = r
                 .variance
                 .as_ref()
                 .map(|v| idx.iter().map(|&i| v[i] as f64).sum::<f64>() / n);
+            let noise_4x4 = r.half_diff.as_ref().map(|d| block_half_noise(d, &blocks));
             Row {
                 scene: scene.to_string(),
                 method: r.method,
@@ -122,21 +216,26 @@ pub fn evaluate(scene: &str, runs: &[Run], reference: &Reference) -> Vec<Row> {
                 gpu_ms: r.gpu_ms,
                 setup_s: r.setup_s,
                 device: r.device.clone(),
-                rmse: m.rmse_rgb,
+                rmse: mse.sqrt(),
                 rel_rmse: m.rel_rmse_cloud,
                 rel_rmse_4x4: m.rel_rmse_cloud_4x4,
+                rel_rmse_all: mse_all.sqrt() / mean_all.max(f64::MIN_POSITIVE),
                 mean_ratio: m.mean_lum_ratio,
                 mse,
+                mse_4x4,
                 noise,
+                noise_4x4,
                 ttuv: noise.map(|v| v * r.time_s),
                 speedup_ttuv: None,
                 speedup_error: None,
                 bias: None,
+                bias_floor: None,
                 nonfinite: m.nonfinite,
             }
         })
         .collect();
-    // Bias of converged runs: each method's largest budget.
+    let mean = rs.mean_lum.max(f64::MIN_POSITIVE);
+    // Bias of converged runs: each method's largest budget, on 4×4 blocks.
     for method in Method::ALL {
         let Some(top) = rows
             .iter_mut()
@@ -145,8 +244,9 @@ pub fn evaluate(scene: &str, runs: &[Run], reference: &Reference) -> Vec<Row> {
         else {
             continue;
         };
-        let b2 = top.mse - top.noise.unwrap_or(0.0) - rs.noise;
-        top.bias = Some(b2.max(0.0).sqrt() / rs.mean_lum.max(f64::MIN_POSITIVE));
+        let removed = top.noise_4x4.unwrap_or(0.0) + rs.noise_4x4;
+        top.bias = Some((top.mse_4x4 - removed).max(0.0).sqrt() / mean);
+        top.bias_floor = Some(removed.sqrt() / mean);
     }
     // Baseline: the CPU path tracer, else the GPU one.
     let base = [Method::Pt, Method::PtGpu]
@@ -157,7 +257,7 @@ pub fn evaluate(scene: &str, runs: &[Run], reference: &Reference) -> Vec<Row> {
         let ttuv_base = median(b.iter().filter_map(|r| r.ttuv).collect());
         let c_base = median(
             b.iter()
-                .map(|r| r.time_s * (r.mse - rs.noise).max(0.0))
+                .map(|r| r.time_s * (r.mse_4x4 - rs.noise_4x4).max(0.0))
                 .collect(),
         );
         for r in rows.iter_mut() {
@@ -166,7 +266,7 @@ pub fn evaluate(scene: &str, runs: &[Run], reference: &Reference) -> Vec<Row> {
             {
                 r.speedup_ttuv = Some(tb / t);
             }
-            let e = (r.mse - rs.noise).max(0.0) * r.time_s;
+            let e = (r.mse_4x4 - rs.noise_4x4).max(0.0) * r.time_s;
             if let Some(c) = c_base
                 && e > 0.0
                 && c > 0.0
@@ -197,31 +297,48 @@ mod tests {
     use super::*;
     use nimbus_scene::Image;
 
-    fn img(v: f32) -> Image {
+    /// An 8×8 image: `cloud` in the top four rows (τ = 1: two full 4×4 cloud blocks), `sky` in
+    /// the bottom four (τ = 0).
+    fn img(cloud: f32, sky: f32) -> Image {
         let mut i = Image::new(8, 8);
-        i.pixels.iter_mut().for_each(|p| *p = [v; 3]);
+        for (k, p) in i.pixels.iter_mut().enumerate() {
+            *p = [if k < 32 { cloud } else { sky }; 3];
+        }
         i
     }
 
-    fn reference(v: f32, var: f32) -> Reference {
+    /// A half difference d everywhere: block and pixel noise d²/4.
+    fn diff(noise: f64) -> Vec<f32> {
+        vec![(4.0 * noise).sqrt() as f32; 64]
+    }
+
+    fn reference(v: f32, noise: f64) -> Reference {
+        let d = diff(noise);
         Reference {
-            image: img(v),
-            variance: vec![var; 64],
+            image: img(v, 0.5),
+            variance: d.iter().map(|x| x * x / 4.0).collect(),
+            half_diff: d,
+            tau: (0..64).map(|k| if k < 32 { 1.0 } else { 0.0 }).collect(),
+            rel_noise_4x4: noise.sqrt(),
+            target_met: true,
             key: String::new(),
             estimator: "pt".into(),
-            spp: 1,
+            spp: 2,
             time_s: 0.0,
             cached: false,
             path: None,
         }
     }
 
-    fn run(method: Method, budget: u32, v: f32, var: Option<f32>, t: f64) -> Run {
+    fn run(method: Method, budget: u32, v: f32, noise: Option<f64>, t: f64) -> Run {
+        let d = noise.map(diff);
         Run {
             method,
             budget,
-            image: img(v),
-            variance: var.map(|x| vec![x; 64]),
+            // The sky is far off in every run: the cloud metrics must not see it.
+            image: img(v, 5.0),
+            variance: d.as_ref().map(|d| d.iter().map(|x| x * x / 4.0).collect()),
+            half_diff: d,
             time_s: t,
             gpu_ms: None,
             setup_s: 0.0,
@@ -230,37 +347,52 @@ mod tests {
     }
 
     #[test]
-    fn bias_ttuv_and_speedups() {
+    fn geometric_mask_bias_floor_ttuv_and_time_to_equal_error() {
         let r = reference(1.0, 1e-4);
-        // Path tracer: unbiased, MSE = its noise + the reference's (images constant here, so
-        // the noise terms are given, and MSE comes from a 0.02 offset: 4e-4).
+        let rs = ref_stats(&r);
+        assert_eq!((rs.cloud_pixels, rs.cloud_blocks), (32, 2));
+        // f32 half differences: relative tolerances of 1e-5 cover their rounding.
+        assert!((rs.rel_noise_4x4 / 0.01 - 1.0).abs() < 1e-5);
+        // Path tracer: unbiased; MSE₄ₓ₄ = 4e-4 from a 0.02 offset = its noise (3e-4) + the
+        // reference's (1e-4).
         let runs = vec![
-            run(Method::Pt, 1, 1.02, Some(3e-4), 1.0),
-            run(Method::Pt, 4, 1.02, Some(3e-4), 1.0),
+            run(Method::Pt, 2, 1.02, Some(3e-4), 1.0),
+            run(Method::Pt, 8, 1.02, Some(3e-4), 1.0),
             // A method 10 % too bright, 10× cheaper in TTUV.
-            run(Method::Rpnn, 1, 1.1, Some(3e-5), 1.0),
+            run(Method::Rpnn, 2, 1.1, Some(3e-5), 1.0),
             run(Method::Pm, 8, 0.95, None, 0.5),
         ];
         let rows = evaluate("s", &runs, &r);
         let pt = &rows[1];
-        assert!((pt.rel_rmse - 0.02).abs() < 1e-6);
-        // Variances are f32: relative tolerances of 1e-5 cover their rounding (6e-8 each).
+        assert!((pt.rel_rmse - 0.02).abs() < 1e-6 && (pt.rmse - 0.02).abs() < 1e-6);
+        assert!((pt.mean_ratio - 1.02).abs() < 1e-6);
+        // All pixels: (32 · 0.02² + 32 · 4.5²) / 64 over a mean of 0.75.
+        let all = ((32.0 * 0.0004 + 32.0 * 20.25) / 64.0f64).sqrt() / 0.75;
+        assert!(
+            (pt.rel_rmse_all / all - 1.0).abs() < 1e-5,
+            "{}",
+            pt.rel_rmse_all
+        );
         assert!((pt.ttuv.unwrap() / 3e-4 - 1.0).abs() < 1e-5);
-        // bias = √max(0, 4e-4 − 3e-4 − 1e-4) = 0 (up to f32 rounding of the offset).
+        // bias = √max(0, 4e-4 − 3e-4 − 1e-4) = 0 (up to f32 rounding), floor √4e-4 = 0.02.
         assert!(pt.bias.unwrap() < 2e-3, "{:?}", pt.bias);
+        assert!((pt.bias_floor.unwrap() - 0.02).abs() < 1e-6);
+        assert_eq!(pt.within_floor(), Some(true));
         assert!(
             rows[0].bias.is_none(),
             "only the largest budget is converged"
         );
         let nn = &rows[2];
         assert!((nn.speedup_ttuv.unwrap() / 10.0 - 1.0).abs() < 1e-5);
-        // bias = √(0.01 − 3e-5 − 1e-4) ≈ 0.09935.
+        // bias = √(0.01 − 3e-5 − 1e-4) ≈ 0.09935, far above its floor √1.3e-4 ≈ 0.0114.
         assert!((nn.bias.unwrap() - (0.01f64 - 3e-5 - 1e-4).sqrt()).abs() < 1e-5);
-        // Baseline C = 1 s × (4e-4 − 1e-4); the network needs 1 s × (0.01 − 1e-4) → 0.0303×.
+        assert_eq!(nn.within_floor(), Some(false));
+        // Baseline C = 1 s × (4e-4 − 1e-4); the network needs 1 s × (0.01 − 1e-4): the path
+        // tracer reaches the network's error 33× sooner (speed-up 0.0303×).
         let se = nn.speedup_error.unwrap();
         assert!((se - 3e-4 / (0.01 - 1e-4)).abs() < 1e-4, "{se}");
         let pm = &rows[3];
-        assert!(pm.ttuv.is_none() && pm.noise.is_none());
+        assert!(pm.ttuv.is_none() && pm.noise.is_none() && pm.noise_4x4.is_none());
         assert!((pm.bias.unwrap() - (0.0025f64 - 1e-4).sqrt()).abs() < 1e-5);
         assert!((pm.mean_ratio - 0.95).abs() < 1e-6);
     }

@@ -11,10 +11,12 @@ use anyhow::{Result, anyhow, bail};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-/// One curve: a label and (time in s, error) points.
+/// One curve: a label, (time in s, error) points and, when known, the method's bias (drawn
+/// as a dashed line of the curve's colour: the error its curve cannot fall below).
 pub struct Series {
     pub label: String,
     pub points: Vec<(f64, f64)>,
+    pub bias: Option<f64>,
 }
 
 const COLOURS: [RGBColor; 6] = [
@@ -93,7 +95,8 @@ pub fn error_vs_time(
         y0 = y0.min(y);
         y1 = y1.max(y);
     }
-    if let Some(f) = floor.filter(|f| *f > 0.0 && f.is_finite()) {
+    let lines = series.iter().filter_map(|s| s.bias).chain(floor);
+    for f in lines.filter(|f| *f > 0.0 && f.is_finite()) {
         y0 = y0.min(f);
         y1 = y1.max(f);
     }
@@ -164,6 +167,16 @@ where
         chart
             .draw_series(p.iter().map(|&(x, y)| Circle::new((x, y), 4, c.filled())))
             .map_err(e)?;
+        if let Some(b) = s.bias.filter(|b| *b > 0.0 && b.is_finite()) {
+            chart
+                .draw_series(DashedLineSeries::new(
+                    vec![(x0, b), (x1, b)],
+                    3,
+                    5,
+                    c.stroke_width(1),
+                ))
+                .map_err(e)?;
+        }
     }
     if let Some(f) = floor.filter(|f| *f > 0.0 && f.is_finite()) {
         let grey = RGBColor(120, 120, 120);
@@ -175,7 +188,7 @@ where
                 grey.stroke_width(1),
             ))
             .map_err(e)?
-            .label("reference noise")
+            .label("reference noise (dashed colour: each method's bias)")
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], grey));
     }
     chart

@@ -12,6 +12,7 @@ pub mod gpu;
 pub mod integrator;
 pub mod render;
 pub mod rng;
+pub mod tau;
 pub mod tracking;
 
 pub use integrator::PathTracer;

@@ -1,0 +1,101 @@
+#!/usr/bin/env bash
+# Everything Nimbus claims about GPU speed, measured in one run, as one CSV + Markdown table:
+#   1. photon mapping per stage at 1920×1200 on the Elek 2012 Table 1 scenes (a turning sun, so
+#      every frame traces, updates, upsamples and ray marches; mean over frames 2..N);
+#   2. RPNN milliseconds per sample at 1280×720 for both network backends (wgpu, ort);
+#   3. GPU path tracer camera paths/s against the CPU path tracer on scenes/refs/cumulus_side;
+#   4. `datagen --device gpu` records per hour (fixed-count labels, --samples 1024).
+#
+#   bash bench/device.sh [--small] [--out DIR]
+#
+# On an H100/H200 the full run takes ≈ 3–5 minutes. `--small` runs the same steps at reduced
+# sizes (1/8 of the pixels, fewer frames and records) so lavapipe finishes in about a minute;
+# the tests run it that way. The binary is ./target/release/nimbus (or $NIMBUS). Writes
+# DIR/device.csv and DIR/device.md (default DIR: out/device).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+small=0
+out=out/device
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --small) small=1 ;;
+    --out) out="$2"; shift ;;
+    -h|--help) sed -n '2,14p' "$0"; exit 0 ;;
+    *) echo "bench/device.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
+  esac
+  shift
+done
+nimbus=${NIMBUS:-./target/release/nimbus}
+[ -x "$nimbus" ] || { echo "bench/device.sh: $nimbus not found (cargo build --release -p nimbus-cli)" >&2; exit 1; }
+export XDG_RUNTIME_DIR=${XDG_RUNTIME_DIR:-/tmp}
+mkdir -p "$out/scenes"
+csv="$out/device.csv"
+echo "measure,scene,setting,value,unit" > "$csv"
+row() { echo "$1,$2,$3,$4,$5" >> "$csv"; }
+
+if [ "$small" = 1 ]; then
+  W=240; H=150; FRAMES=3; BEAMS=1024; RW=160; RH=90; RSPP=1; PTSPP=4; GPTSPP=16
+  DG_RECORDS=16; DG_SAMPLES=256
+else
+  W=1920; H=1200; FRAMES=12; BEAMS=8192; RW=1280; RH=720; RSPP=2; PTSPP=16; GPTSPP=256
+  DG_RECORDS=2000; DG_SAMPLES=1024
+fi
+# A copy of a scene with another image size (relative volume paths stay valid: generators).
+sized() { # SRC W H -> path
+  local dst="$out/scenes/$(basename "$1" .toml)_$2x$3.toml"
+  sed -e "s/^width = .*/width = $2/" -e "s/^height = .*/height = $3/" "$1" > "$dst"
+  echo "$dst"
+}
+adapter=$("$nimbus" info --gpu | head -1 | sed 's/^used *//')
+echo "adapter: $adapter" >&2
+
+# 1. Photon mapping per stage (Elek Table 1 analogue).
+for spec in "altostratus 15,10,15" "cumulus_congestus 10,12,18" "wide_cloud 15,10,15"; do
+  set -- $spec
+  scene=$(sized "scenes/bench/$1.toml" "$W" "$H")
+  "$nimbus" animate "$scene" --frames "$FRAMES" --sun-speed 0.5 --beams "$BEAMS" --ring 100 \
+    --cache-res "$2" -o "$out/pm_$1" > /dev/null
+  awk -F, -v s="$1" -v set="${W}x${H} I=$(echo "$2" | tr , x) n_g=$BEAMS" 'NR>2 { t+=$6; u+=$7; p+=$8; r+=$9; n++ }
+    END { if (n == 0) exit 1;
+          printf "pm_trace_ms,%s,%s,%.3f,ms\npm_update_ms,%s,%s,%.3f,ms\npm_upsample_ms,%s,%s,%.3f,ms\npm_raymarch_ms,%s,%s,%.3f,ms\npm_frame_ms,%s,%s,%.3f,ms\n",
+            s,set,t/n, s,set,u/n, s,set,p/n, s,set,r/n, s,set,(t+u+p+r)/n }' \
+    "$out/pm_$1/timings.csv" >> "$csv"
+done
+
+# 2. RPNN ms per sample, both backends.
+scene=$(sized scenes/bench/rpnn_720p.toml "$RW" "$RH")
+for b in wgpu ort; do
+  line=$("$nimbus" render "$scene" --method rpnn --backend "$b" --spp "$RSPP" -q \
+    -o "$out/rpnn_$b.exr" | grep "ms per spp" | head -1)
+  ms=$(echo "$line" | sed -E 's/.* ([0-9.]+) ms per spp.*/\1/')
+  row rpnn_ms_per_spp rpnn_720p "${RW}x${RH} backend=$b" "$ms" ms
+done
+
+# 3. Camera paths/s: GPU path tracer against the CPU one.
+for dev in gpu cpu; do
+  spp=$([ "$dev" = gpu ] && echo "$GPTSPP" || echo "$PTSPP")
+  line=$("$nimbus" render scenes/refs/cumulus_side.toml --device "$dev" --spp "$spp" -q \
+    -o "$out/pt_$dev.exr" | grep "camera paths/s" | head -1)
+  rate=$(echo "$line" | sed -E 's/.*\(([0-9.e+-]+) camera paths\/s.*/\1/')
+  row pt_paths_per_s cumulus_side "device=$dev spp=$spp" "$rate" paths/s
+done
+
+# 4. Training records per hour with the GPU path tracer.
+rm -rf "$out/datagen"
+line=$("$nimbus" datagen --clouds gen:5 --records "$DG_RECORDS" --val-records 0 --test-records 0 \
+  --samples "$DG_SAMPLES" --device gpu --shard-size 100000 -q -o "$out/datagen" | tail -1)
+rps=$(echo "$line" | sed -E 's/.*, ([0-9.]+) records\/s.*/\1/')
+row datagen_records_per_hour gen:5 "device=gpu samples=$DG_SAMPLES records=$DG_RECORDS" \
+  "$(awk -v r="$rps" 'BEGIN { printf "%.0f", r * 3600 }')" records/h
+
+# The Markdown table.
+{
+  echo "# Device benchmark ($(date -u +%Y-%m-%d), $adapter$([ "$small" = 1 ] && echo ', --small'))"
+  echo
+  echo "Command: \`bash bench/device.sh$([ "$small" = 1 ] && echo ' --small')\`"
+  echo
+  echo "| measure | scene | setting | value | unit |"
+  echo "|---|---|---|---:|---|"
+  tail -n +2 "$csv" | awk -F, '{ printf "| %s | %s | %s | %s | %s |\n", $1, $2, $3, $4, $5 }'
+} > "$out/device.md"
+cat "$out/device.md"
