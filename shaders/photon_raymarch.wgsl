@@ -11,6 +11,18 @@
 
 @group(0) @binding(2) var<storage, read> j_in: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> image: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> t_sun: array<f32>;
+
+fn t_sun_at(p: vec3<f32>) -> f32 {
+    let t = trilinear(p, P.d_res);
+    let r = P.d_res;
+    let f = t.f;
+    let c00 = mix(t_sun[grid_index(t.i0.x, t.i0.y, t.i0.z, r)], t_sun[grid_index(t.i1.x, t.i0.y, t.i0.z, r)], f.x);
+    let c10 = mix(t_sun[grid_index(t.i0.x, t.i1.y, t.i0.z, r)], t_sun[grid_index(t.i1.x, t.i1.y, t.i0.z, r)], f.x);
+    let c01 = mix(t_sun[grid_index(t.i0.x, t.i0.y, t.i1.z, r)], t_sun[grid_index(t.i1.x, t.i0.y, t.i1.z, r)], f.x);
+    let c11 = mix(t_sun[grid_index(t.i0.x, t.i1.y, t.i1.z, r)], t_sun[grid_index(t.i1.x, t.i1.y, t.i1.z, r)], f.x);
+    return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
+}
 
 fn j_at(p: vec3<f32>) -> vec4<f32> {
     let t = trilinear(p, P.d_res);
@@ -75,8 +87,11 @@ fn raymarch(@builtin(global_invocation_id) gid: vec3<u32>) {
             let sigma_t = P.density_scale * dens;
             if (sigma_t > 0.0) {
                 let jv = j_at(x);
-                let ls = sigma_s_scale * dens * (P.sun_irradiance * (jv.x * hg_eval(P.g * jv.z, mu))
+                var ls = sigma_s_scale * dens * (P.sun_irradiance * (jv.x * hg_eval(P.g * jv.z, mu))
                     + P.sky_radiance * (jv.y / (4.0 * PI)));
+                if (P.single_scatter != 0u) {
+                    ls += sigma_s_scale * dens * P.sun_irradiance * (t_sun_at(x) * hg_eval(P.g, mu));
+                }
                 let ts = exp(-sigma_t * dt);
                 l += tr * ls * (1.0 - ts) / sigma_t;
                 tr *= ts;

@@ -13,6 +13,9 @@
 //   0: Σ w (sun)   1: Σ w (sky)   2: Σ w (cos θ + 1)/2 (sun; θ to the sun's propagation)
 //   3: Σ min(order, 1023)   4: number of deposits
 // Workgroup-shared accumulation when the grid fits (SHARED_CELLS), else global atomics.
+// With exact single scattering (`P.single_scatter` = 1) an unscattered sun beam (order 0)
+// deposits nothing: the ray marcher computes first-order sun light exactly from the
+// sun-transmittance volume, and the cache holds only light scattered at least once.
 
 @group(0) @binding(2) var<storage, read_write> h_new: array<atomic<u32>>;
 
@@ -74,17 +77,23 @@ fn trace_beam(index: u32) {
         let t = -log(1.0 - rand(&rng)) / P.sigma_max;
         if (exit.x > exit.y || t >= exit.y) { break; }
         x = x + d * t;
+        let skip = is_sun && order == 0u && P.single_scatter != 0u;
         let cell = cell_of(x) * 5u;
         let wu = u32(floor(w * W_SCALE + rand(&rng)));
+        // The random numbers drawn do not depend on `skip` (the paper variant is unchanged).
         if (is_sun) {
-            deposit(cell, wu);
             let cu = u32(floor(f32(wu) * 0.5 * (dot(d, sun_prop) + 1.0) + rand(&rng)));
-            deposit(cell + 2u, cu);
+            if (!skip) {
+                deposit(cell, wu);
+                deposit(cell + 2u, cu);
+            }
         } else {
             deposit(cell + 1u, wu);
         }
-        deposit(cell + 3u, min(order, 1023u));
-        deposit(cell + 4u, 1u);
+        if (!skip) {
+            deposit(cell + 3u, min(order, 1023u));
+            deposit(cell + 4u, 1u);
+        }
         let reduced = order >= P.similarity_order;
         var sigma = P.density_scale * density_at(x);
         if (reduced) { sigma = sigma * P.reduced_factor; }

@@ -54,12 +54,23 @@ enum Method {
     Rpnn,
 }
 
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum PmVariantArg {
+    Exact,
+    Elek2012,
+}
+
 /// Photon-mapping settings shared by `render --method pm` and `animate`.
 #[derive(clap::Args)]
 struct PmArgs {
     /// Photon mapping: beams traced per frame (n_g).
     #[arg(long, default_value_t = 8192)]
     beams: u32,
+    /// Photon mapping: `elek2012` (default, the paper: one cache for all scattering orders,
+    /// similarity σ√(1−g)) or `exact` (exact single scattering from a sun-transmittance
+    /// volume, the cache for scattered light only, similarity σ(1−g); see BENCHMARKS.md).
+    #[arg(long, value_enum, default_value = "elek2012")]
+    pm_variant: PmVariantArg,
     /// Photon mapping: partial caches in the ring (m).
     #[arg(long, default_value_t = 100)]
     ring: u32,
@@ -84,6 +95,10 @@ struct PmArgs {
 impl PmArgs {
     fn settings(&self, seed: u32) -> Result<nimbus_photon::PmSettings> {
         Ok(nimbus_photon::PmSettings {
+            variant: match self.pm_variant {
+                PmVariantArg::Exact => nimbus_photon::PmVariant::Exact,
+                PmVariantArg::Elek2012 => nimbus_photon::PmVariant::Elek2012,
+            },
             beams_per_frame: self.beams,
             ring: self.ring,
             cache_res: triple(self.cache_res.clone(), "--cache-res")?,

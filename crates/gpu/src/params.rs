@@ -57,6 +57,12 @@ pub struct PmParams {
     pub noise_amplitude: f32,
     /// Detail noise: base frequency (1 / world units).
     pub noise_frequency: f32,
+    /// Photon mapping: 1 = exact single scattering (sun-transmittance volume in the ray
+    /// marcher, no order-0 sun deposits in the cache); 0 = the paper's single cache.
+    pub single_scatter: u32,
+    pub pad0: u32,
+    pub pad1: u32,
+    pub pad2: u32,
 }
 
 #[cfg(test)]
@@ -109,6 +115,10 @@ mod tests {
             ("sky_norm", offset_of!(PmParams, sky_norm)),
             ("noise_amplitude", offset_of!(PmParams, noise_amplitude)),
             ("noise_frequency", offset_of!(PmParams, noise_frequency)),
+            ("single_scatter", offset_of!(PmParams, single_scatter)),
+            ("pad0", offset_of!(PmParams, pad0)),
+            ("pad1", offset_of!(PmParams, pad1)),
+            ("pad2", offset_of!(PmParams, pad2)),
         ];
         assert_eq!(members.len(), rust.len());
         for ((m, moff), (name, off)) in members.iter().zip(rust) {

@@ -28,6 +28,11 @@ pub const SHADERS: &[(&str, &str, bool)] = &[
         include_str!("../../../shaders/photon_raymarch.wgsl"),
         true,
     ),
+    (
+        "photon_sun.wgsl",
+        include_str!("../../../shaders/photon_sun.wgsl"),
+        true,
+    ),
     ("pt.wgsl", include_str!("../../../shaders/pt.wgsl"), true),
     (
         "rpnn_descriptor.wgsl",

@@ -14,5 +14,5 @@ pub mod mapper;
 
 pub mod reference;
 
-pub use mapper::{PhotonMapper, PmError, PmSettings};
+pub use mapper::{PhotonMapper, PmError, PmSettings, PmVariant};
 pub use nimbus_gpu::params::PmParams;

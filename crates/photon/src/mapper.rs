@@ -29,9 +29,42 @@ pub enum PmError {
     Setting { field: &'static str, msg: String },
 }
 
+/// Which photon-mapping method.
+///
+/// Measured on `scenes/refs/cumulus_side` (mean cloud luminance against the path tracer, see
+/// BENCHMARKS.md): the exact variant's single scattering agrees with the path tracer limited to
+/// one scattering (1.7 %), but its cache of multiply scattered light comes out ≈ 33 % low — the
+/// paper's variant reaches 1.00 only because its order-0 deposits, smeared over coarse cells
+/// with a mixed lobe, add ≈ 5× the true single scattering, and its σ√(1 − g) switch adds
+/// ≈ 22 % more. Until the cache's multiple scattering is fixed (density-weighted deposits,
+/// upsampling), the paper's variant stays the default.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum PmVariant {
+    /// Exact single scattering from a sun-transmittance volume in the ray marcher; the cache
+    /// holds only light scattered at least once; similarity switch to σ(1 − g) (first-order
+    /// similarity theory, as diffusion theory's reduced extinction).
+    Exact,
+    /// Elek et al. 2012 as published: the unscattered sun beam is deposited into the same
+    /// cache and HG lobe as scattered light (§4.1, Appendix A), similarity switch to σ√(1 − g)
+    /// (§4.1.1).
+    #[default]
+    Elek2012,
+}
+
+impl PmVariant {
+    pub fn name(self) -> &'static str {
+        match self {
+            PmVariant::Exact => "exact",
+            PmVariant::Elek2012 => "elek2012",
+        }
+    }
+}
+
 /// Settings of the photon mapper (defaults follow Elek 2012 §5).
 #[derive(Debug, Clone)]
 pub struct PmSettings {
+    /// The method (default: the paper's; `Exact` adds exact single scattering).
+    pub variant: PmVariant,
     /// Beams traced per frame, n_g (the paper: 819 k / 100 = 8 192).
     pub beams_per_frame: u32,
     /// Number of partial caches in the ring, m.
@@ -43,9 +76,12 @@ pub struct PmSettings {
     pub beam_threshold: f32,
     /// A beam stops after this many scatterings.
     pub max_order: u32,
-    /// Similarity threshold t: switch to σ' = σ√(1−g) and isotropic scattering after
-    /// log(t)/log|g| bounces.
+    /// Similarity threshold t: switch to the reduced extinction σ' and isotropic scattering
+    /// after log(t)/log|g| bounces.
     pub similarity_t: f64,
+    /// Reduced extinction after the switch: σ(1 − g) when true, the paper's σ√(1 − g) when
+    /// false; `None`: the variant's (exact: σ(1 − g), elek2012: σ√(1 − g)).
+    pub similarity_linear: Option<bool>,
     /// Ray-marching step as a fraction of the box diagonal (the paper: 1/300).
     pub step_fraction: f64,
     /// Early exit below this transmittance (the paper: 2 %).
@@ -63,12 +99,14 @@ pub struct PmSettings {
 impl Default for PmSettings {
     fn default() -> Self {
         Self {
+            variant: PmVariant::Elek2012,
             beams_per_frame: 8192,
             ring: 100,
             cache_res: None,
             beam_threshold: 0.01,
             max_order: 1024,
             similarity_t: 0.05,
+            similarity_linear: None,
             step_fraction: 1.0 / 300.0,
             early_exit: 0.02,
             seed: 0,
@@ -142,6 +180,11 @@ pub struct PhotonMapper<'g> {
     pub last_times: StageTimes,
     raymarch_pipeline: wgpu::ComputePipeline,
     image_buf: Option<wgpu::Buffer>,
+    /// Sun transmittance per density voxel (exact single scattering) and its pass.
+    t_sun: wgpu::Buffer,
+    sun_stage: Stage,
+    /// Whether T_sun must be rebuilt (sun direction or density changed).
+    t_sun_dirty: bool,
 }
 
 fn f3(v: DVec3) -> [f32; 3] {
@@ -279,7 +322,14 @@ impl<'g> PhotonMapper<'g> {
             width: scene.camera.width as u32,
             height: scene.camera.height as u32,
             beam_threshold: settings.beam_threshold,
-            reduced_factor: (1.0 - g).max(0.0).sqrt() as f32,
+            reduced_factor: if settings
+                .similarity_linear
+                .unwrap_or(settings.variant == PmVariant::Exact)
+            {
+                (1.0 - g).max(0.0) as f32
+            } else {
+                (1.0 - g).max(0.0).sqrt() as f32
+            },
             sun_norm: 0.0,
             sky_norm: 0.0,
             noise_amplitude: {
@@ -287,6 +337,10 @@ impl<'g> PhotonMapper<'g> {
                 (settings.detail_noise as f64 * voxel) as f32
             },
             noise_frequency: (1.0 / (4.0 * vol.cell_size().min_element())) as f32,
+            single_scatter: (settings.variant == PmVariant::Exact) as u32,
+            pad0: 0,
+            pad1: 0,
+            pad2: 0,
         };
         gpu.check_storage("the density grid", voxels as u64 * 4)?;
         gpu.check_storage("the upsampled cache J", voxels as u64 * 16)?;
@@ -304,6 +358,25 @@ impl<'g> PhotonMapper<'g> {
         let ring = gpu.zeroed("ring H_0..H_m-1", settings.ring as u64 * cells as u64 * 20);
         let total = gpu.zeroed("I", cells as u64 * 20);
         let j = gpu.zeroed("J", voxels as u64 * 16);
+        // Bound by the ray marcher in both variants (4 bytes when unused).
+        let t_sun = gpu.zeroed(
+            "sun transmittance",
+            if settings.variant == PmVariant::Exact {
+                gpu.check_storage("the sun-transmittance volume", voxels as u64 * 4)?;
+                voxels as u64 * 4
+            } else {
+                4
+            },
+        );
+        let sun_p = gpu.pipeline(
+            "sun transmittance",
+            &shaders::source("photon_sun.wgsl"),
+            "sun_transmittance",
+        );
+        let sun_stage = Stage {
+            bind: gpu.bind(&sun_p, &[(0, &params_buf), (1, &density), (2, &t_sun)]),
+            pipeline: sun_p,
+        };
         let slot_buf = gpu.uniform("ring slot", &[0u32; 4]);
         let mut trace_src = shaders::source("photon_trace.wgsl");
         if shared_cap != SHARED_CELLS {
@@ -398,8 +471,44 @@ impl<'g> PhotonMapper<'g> {
             last_times: Vec::new(),
             raymarch_pipeline,
             image_buf: None,
+            t_sun,
+            sun_stage,
+            t_sun_dirty: true,
             settings,
         })
+    }
+
+    /// Rebuilds the sun-transmittance volume when the sun or the density changed (exact
+    /// variant only; a no-op otherwise).
+    fn update_sun_transmittance(&mut self) {
+        if self.params.single_scatter == 0 || !self.t_sun_dirty {
+            return;
+        }
+        self.gpu
+            .queue
+            .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        {
+            let (x, y) = Gpu::workgroups_1d(self.voxels);
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("sun transmittance"),
+                timestamp_writes: self.timer.pass("sun transmittance"),
+            });
+            pass.set_pipeline(&self.sun_stage.pipeline);
+            pass.set_bind_group(0, &self.sun_stage.bind, &[]);
+            pass.dispatch_workgroups(x, y, 1);
+        }
+        self.timer.resolve(&mut enc);
+        self.gpu.queue.submit([enc.finish()]);
+        let t = self.timer.read(self.gpu);
+        self.last_times.extend(t);
+        self.t_sun_dirty = false;
+    }
+
+    /// Reads the sun-transmittance volume back (exact variant).
+    pub fn read_sun_transmittance(&mut self) -> Result<Vec<f32>, PmError> {
+        self.update_sun_transmittance();
+        Ok(self.gpu.read(&self.t_sun)?)
     }
 
     /// Empties the ring and the total cache.
@@ -452,6 +561,7 @@ impl<'g> PhotonMapper<'g> {
         self.gpu
             .queue
             .write_buffer(&self.density, 0, bytemuck::cast_slice(data));
+        self.t_sun_dirty = true;
         Ok(())
     }
 
@@ -491,7 +601,11 @@ impl<'g> PhotonMapper<'g> {
 
     /// Changes the sun direction (unit vector towards the sun) for the following frames.
     pub fn set_sun_dir(&mut self, dir: DVec3) {
-        self.params.sun_dir = f3(dir.normalize());
+        let d = f3(dir.normalize());
+        if d != self.params.sun_dir {
+            self.t_sun_dirty = true;
+        }
+        self.params.sun_dir = d;
     }
 
     /// One frame of illumination: traces `beams` (default n_g) beams into H_new and replaces the
@@ -614,6 +728,7 @@ impl<'g> PhotonMapper<'g> {
 
     /// Ray marches the current J for `camera` (Elek §4.4).
     pub fn raymarch(&mut self, camera: &Camera) -> Result<Image, PmError> {
+        self.update_sun_transmittance();
         let (w, h) = (camera.width, camera.height);
         let (forward, right, up, tan_half) = camera.basis();
         self.params.cam_origin = f3(camera.origin);
@@ -638,6 +753,7 @@ impl<'g> PhotonMapper<'g> {
                     (1, &self.density),
                     (2, &self.j),
                     (3, &img),
+                    (4, &self.t_sun),
                 ],
             );
             self.raymarch = Some((

@@ -252,6 +252,15 @@ pub fn in_scattered(p: &PmParams, dens: f32, j: [f32; 4], mu: f32) -> Vec3 {
             + v3(p.sky_radiance) * (j[1] / (4.0 * std::f32::consts::PI)))
 }
 
+/// Exact first-order sun light at density `dens` with sun transmittance `t_sun`:
+/// σ_s E_sun T_sun p_HG(μ | g).
+pub fn single_scattered(p: &PmParams, dens: f32, t_sun: f32, mu: f32) -> Vec3 {
+    let g = p.g;
+    let denom = (1.0 - g) * (1.0 - g) + 2.0 * g * (1.0 - mu);
+    let hg = (1.0 - g * g) / (4.0 * std::f32::consts::PI * denom * denom.sqrt());
+    p.albedo * p.density_scale * dens * v3(p.sun_irradiance) * (t_sun * hg)
+}
+
 fn pcg_hash(v: u32) -> u32 {
     let state = v.wrapping_mul(747796405).wrapping_add(2891336453);
     let word = ((state >> ((state >> 28) + 4)) ^ state).wrapping_mul(277803737);
@@ -307,7 +316,42 @@ pub fn perturb(p: &PmParams, x: Vec3) -> Vec3 {
 }
 
 /// One pixel of `photon_raymarch.wgsl`.
-pub fn raymarch_pixel(p: &PmParams, density: &[f32], j: &[[f32; 4]], x: u32, y: u32) -> Vec3 {
+/// Sun transmittance at density voxel `idx` (the pass of `photon_sun.wgsl`): midpoint rule
+/// with half the smallest voxel as step from the voxel centre to the box boundary.
+pub fn sun_transmittance_voxel(p: &PmParams, density: &[f32], idx: usize) -> f32 {
+    let r = p.d_res;
+    let v = [
+        idx as u32 % r[0],
+        (idx as u32 / r[0]) % r[1],
+        idx as u32 / (r[0] * r[1]),
+    ];
+    let ext = v3(p.aabb_max) - v3(p.aabb_min);
+    let resf = Vec3::new(r[0] as f32, r[1] as f32, r[2] as f32);
+    let x = v3(p.aabb_min)
+        + (Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32) + Vec3::splat(0.5)) / resf * ext;
+    let sun = v3(p.sun_dir);
+    let (_, t1) = box_intersect(p, x, sun);
+    let cell = ext / resf;
+    let h = 0.5 * cell.x.min(cell.y.min(cell.z));
+    let len = t1.max(0.0);
+    let n = (len / h).ceil().max(1.0);
+    let dt = len / n;
+    let tau: f32 = (0..n as u32)
+        .map(|i| density_at(p, density, x + sun * ((i as f32 + 0.5) * dt)))
+        .sum();
+    (-p.density_scale * tau * dt).exp()
+}
+
+/// The colour of pixel (x, y) (the pass of `photon_raymarch.wgsl`); `t_sun` is the
+/// sun-transmittance volume (read when `p.single_scatter` is set).
+pub fn raymarch_pixel(
+    p: &PmParams,
+    density: &[f32],
+    j: &[[f32; 4]],
+    t_sun: &[f32],
+    x: u32,
+    y: u32,
+) -> Vec3 {
     let px = (x as f32 + 0.5) / p.width as f32 * 2.0 - 1.0;
     let py = 1.0 - (y as f32 + 0.5) / p.height as f32 * 2.0;
     let d = (v3(p.cam_forward)
@@ -329,7 +373,11 @@ pub fn raymarch_pixel(p: &PmParams, density: &[f32], j: &[[f32; 4]], x: u32, y: 
             let sigma_t = p.density_scale * dens;
             if sigma_t > 0.0 {
                 let jv = interp(p, xp, p.d_res, |i| glam::Vec4::from_array(j[i]));
-                let ls = in_scattered(p, dens, jv.to_array(), mu);
+                let mut ls = in_scattered(p, dens, jv.to_array(), mu);
+                if p.single_scatter != 0 {
+                    let ts = interp(p, xp, p.d_res, |i| t_sun[i]);
+                    ls += single_scattered(p, dens, ts, mu);
+                }
                 let ts = (-sigma_t * dt).exp();
                 l += tr * ls * (1.0 - ts) / sigma_t;
                 tr *= ts;
