@@ -13,7 +13,8 @@
 //   0: Σ w (sun)   1: Σ w (sky)   2: Σ w (cos θ + 1)/2 (sun; θ to the sun's propagation)
 //   3: Σ min(order, 1023)   4: number of deposits
 // Workgroup-shared accumulation when the grid fits (SHARED_CELLS), else global atomics.
-// With exact single scattering (`P.single_scatter` = 1) an unscattered sun beam (order 0)
+// With `P.density_weighted` every deposit is weighted by σ(x)/σ̄ (see `cells` in
+// photon_upsample.wgsl). With exact single scattering (`P.single_scatter` = 1) an unscattered sun beam (order 0)
 // deposits nothing: the ray marcher computes first-order sun light exactly from the
 // sun-transmittance volume, and the cache holds only light scattered at least once.
 
@@ -79,7 +80,12 @@ fn trace_beam(index: u32) {
         x = x + d * t;
         let skip = is_sun && order == 0u && P.single_scatter != 0u;
         let cell = cell_of(x) * 5u;
-        let wu = u32(floor(w * W_SCALE + rand(&rng)));
+        // Density-weighted deposits (a collision estimator): weight σ(x)/σ̄, so a cell sums
+        // σφ and the `cells` pass divides by the cell's mean σ.
+        let sigma_here = P.density_scale * density_at(x);
+        var dw = 1.0;
+        if (P.density_weighted != 0u) { dw = sigma_here / P.sigma_max; }
+        let wu = u32(floor(w * dw * W_SCALE + rand(&rng)));
         // The random numbers drawn do not depend on `skip` (the paper variant is unchanged).
         if (is_sun) {
             let cu = u32(floor(f32(wu) * 0.5 * (dot(d, sun_prop) + 1.0) + rand(&rng)));
@@ -95,7 +101,7 @@ fn trace_beam(index: u32) {
             deposit(cell + 4u, 1u);
         }
         let reduced = order >= P.similarity_order;
-        var sigma = P.density_scale * density_at(x);
+        var sigma = sigma_here;
         if (reduced) { sigma = sigma * P.reduced_factor; }
         if (rand(&rng) * P.sigma_max < sigma) {
             w = w * P.albedo;

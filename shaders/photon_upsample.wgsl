@@ -22,6 +22,19 @@
 
 struct CellValue { sun: f32, sky: f32, g: f32, gamma: f32, has_sun: bool };
 
+// Mean density over coarse cell c (4×4×4 stratified samples of the trilinear field): the
+// divisor of density-weighted sums, which estimate ⟨σφ⟩ over the cell.
+fn cell_mean_density(c: vec3<u32>) -> f32 {
+    let lo = P.aabb_min + vec3<f32>(c) / vec3<f32>(P.i_res) * (P.aabb_max - P.aabb_min);
+    let size = (P.aabb_max - P.aabb_min) / vec3<f32>(P.i_res);
+    var s = 0.0;
+    for (var k = 0u; k < 64u; k++) {
+        let u = (vec3<f32>(f32(k % 4u), f32((k / 4u) % 4u), f32(k / 16u)) + vec3<f32>(0.5)) * 0.25;
+        s += density_at(lo + u * size);
+    }
+    return s / 64.0;
+}
+
 fn cell_value(i: u32) -> CellValue {
     let b = i * 5u;
     let w_sun = f32(total[b]);
@@ -33,7 +46,13 @@ fn cell_value(i: u32) -> CellValue {
     if (w_sun > 0.0) { g = clamp(2.0 * cw / w_sun - 1.0, -0.999, 0.999); }
     var gamma = 0.0;
     if (n > 0.0) { gamma = ord / n; }
-    return CellValue(w_sun * P.sun_norm, w_sky * P.sky_norm, g, gamma, w_sun > 0.0);
+    var scale = 1.0;
+    if (P.density_weighted != 0u) {
+        let c = vec3<u32>(i % P.i_res.x, (i / P.i_res.x) % P.i_res.y, i / (P.i_res.x * P.i_res.y));
+        let m = cell_mean_density(c) / P.d_max;
+        scale = select(0.0, 1.0 / m, m > 0.0);
+    }
+    return CellValue(w_sun * P.sun_norm * scale, w_sky * P.sky_norm * scale, g, gamma, w_sun > 0.0);
 }
 
 @compute @workgroup_size(64)

@@ -71,6 +71,10 @@ struct PmArgs {
     /// volume, the cache for scattered light only, similarity σ(1−g); see BENCHMARKS.md).
     #[arg(long, value_enum, default_value = "elek2012")]
     pm_variant: PmVariantArg,
+    /// Photon mapping: density-weighted deposits (cells hold the fluence where the medium is,
+    /// ⟨σφ⟩/⟨σ⟩, instead of the cell-volume average; experimental, see BENCHMARKS.md).
+    #[arg(long)]
+    pm_density_weighted: bool,
     /// Photon mapping: partial caches in the ring (m).
     #[arg(long, default_value_t = 100)]
     ring: u32,
@@ -99,6 +103,7 @@ impl PmArgs {
                 PmVariantArg::Exact => nimbus_photon::PmVariant::Exact,
                 PmVariantArg::Elek2012 => nimbus_photon::PmVariant::Elek2012,
             },
+            density_weighted: Some(self.pm_density_weighted),
             beams_per_frame: self.beams,
             ring: self.ring,
             cache_res: triple(self.cache_res.clone(), "--cache-res")?,

@@ -60,7 +60,9 @@ pub struct PmParams {
     /// Photon mapping: 1 = exact single scattering (sun-transmittance volume in the ray
     /// marcher, no order-0 sun deposits in the cache); 0 = the paper's single cache.
     pub single_scatter: u32,
-    pub pad0: u32,
+    /// Photon mapping: 1 = density-weighted deposits (weight σ(x)/σ̄; a cell stores
+    /// ⟨σφ⟩/⟨σ⟩, the fluence where the medium is, not averaged with the air of the cell).
+    pub density_weighted: u32,
     pub pad1: u32,
     pub pad2: u32,
 }
@@ -116,7 +118,7 @@ mod tests {
             ("noise_amplitude", offset_of!(PmParams, noise_amplitude)),
             ("noise_frequency", offset_of!(PmParams, noise_frequency)),
             ("single_scatter", offset_of!(PmParams, single_scatter)),
-            ("pad0", offset_of!(PmParams, pad0)),
+            ("density_weighted", offset_of!(PmParams, density_weighted)),
             ("pad1", offset_of!(PmParams, pad1)),
             ("pad2", offset_of!(PmParams, pad2)),
         ];

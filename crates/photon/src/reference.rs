@@ -61,7 +61,30 @@ pub struct CellValue {
     pub has_sun: bool,
 }
 
-pub fn cell_value(p: &PmParams, total: &[u32], i: usize) -> CellValue {
+/// Mean density over coarse cell `i` (4×4×4 stratified samples; `cell_mean_density` in the
+/// shader): the divisor of density-weighted sums.
+pub fn cell_mean_density(p: &PmParams, density: &[f32], i: usize) -> f32 {
+    let r = p.i_res;
+    let c = [
+        i as u32 % r[0],
+        (i as u32 / r[0]) % r[1],
+        i as u32 / (r[0] * r[1]),
+    ];
+    let ires = Vec3::new(r[0] as f32, r[1] as f32, r[2] as f32);
+    let ext = v3(p.aabb_max) - v3(p.aabb_min);
+    let lo = v3(p.aabb_min) + Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32) / ires * ext;
+    let size = ext / ires;
+    let mut s = 0.0f32;
+    for k in 0..64u32 {
+        let u = (Vec3::new((k % 4) as f32, ((k / 4) % 4) as f32, (k / 16) as f32)
+            + Vec3::splat(0.5))
+            * 0.25;
+        s += density_at(p, density, lo + u * size);
+    }
+    s / 64.0
+}
+
+pub fn cell_value(p: &PmParams, density: &[f32], total: &[u32], i: usize) -> CellValue {
     let b = i * 5;
     let w_sun = total[b] as f32;
     let w_sky = total[b + 1] as f32;
@@ -74,9 +97,15 @@ pub fn cell_value(p: &PmParams, total: &[u32], i: usize) -> CellValue {
         0.0
     };
     let gamma = if n > 0.0 { ord / n } else { 0.0 };
+    let scale = if p.density_weighted != 0 {
+        let m = cell_mean_density(p, density, i) / p.d_max;
+        if m > 0.0 { 1.0 / m } else { 0.0 }
+    } else {
+        1.0
+    };
     CellValue {
-        sun: w_sun * p.sun_norm,
-        sky: w_sky * p.sky_norm,
+        sun: w_sun * p.sun_norm * scale,
+        sky: w_sky * p.sky_norm * scale,
         g,
         gamma,
         has_sun: w_sun > 0.0,
@@ -170,7 +199,7 @@ pub fn upsample_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usize) 
         idx as u32 / (res[0] * res[1]),
     );
     if p.filtered == 0 {
-        let cv = cell_value(p, total, idx);
+        let cv = cell_value(p, density, total, idx);
         return [cv.sun, cv.sky, cv.g, cv.gamma];
     }
     let ext = v3(p.aabb_max) - v3(p.aabb_min);
@@ -185,7 +214,7 @@ pub fn upsample_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usize) 
     let c = uc.floor().clamp(Vec3::ZERO, ires - Vec3::ONE);
     let c = [c.x as i32, c.y as i32, c.z as i32];
     let sigma_s = p.albedo * p.density_scale;
-    let gp = interp(p, pos, p.i_res, |i| cell_value(p, total, i).gamma);
+    let gp = interp(p, pos, p.i_res, |i| cell_value(p, density, total, i).gamma);
     let lng = p.g.abs().max(1e-30).ln();
     let (mut sw, mut s_sun, mut s_sky, mut swg, mut s_g) = (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
     for dz in -1..=1 {
@@ -207,7 +236,7 @@ pub fn upsample_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usize) 
                 if wl <= 0.0 {
                     continue;
                 }
-                let cv = cell_value(p, total, index(qu[0], qu[1], qu[2], p.i_res));
+                let cv = cell_value(p, density, total, index(qu[0], qu[1], qu[2], p.i_res));
                 sw += wl;
                 s_sun += wl * cv.sun;
                 s_sky += wl * cv.sky;
@@ -227,7 +256,7 @@ pub fn upsample_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usize) 
         [s_sun / sw, s_sky / sw, 0.0, gp]
     } else {
         let f = interp(p, pos, p.i_res, |i| {
-            let cv = cell_value(p, total, i);
+            let cv = cell_value(p, density, total, i);
             glam::Vec2::new(cv.sun, cv.sky)
         });
         [f.x, f.y, 0.0, gp]

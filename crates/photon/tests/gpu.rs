@@ -339,7 +339,7 @@ fn equal_resolution_skips_the_filter() {
     pm.upsample();
     let (j, total) = (pm.read_j().unwrap(), pm.read_total().unwrap());
     for (i, v) in j.iter().enumerate() {
-        let c = reference::cell_value(&pm.params, &total, i);
+        let c = reference::cell_value(&pm.params, &[], &total, i);
         assert_eq!(*v, [c.sun, c.sky, c.g, c.gamma]);
     }
 }
@@ -405,7 +405,7 @@ fn varying_budget_keeps_energy() {
         pm.upsample();
         let t = pm.read_total().unwrap();
         (0..t.len() / 5)
-            .map(|i| reference::cell_value(&pm.params, &t, i).sun as f64)
+            .map(|i| reference::cell_value(&pm.params, &[], &t, i).sun as f64)
             .sum::<f64>()
     };
     let a = fluence(&[8192, 24576, 8192, 24576, 8192, 24576, 8192, 24576], 1);
@@ -507,4 +507,92 @@ fn settings_are_checked() {
         .contains("cache_res")
     );
     let _ = Path::new(".");
+}
+
+/// Density-weighted deposits: the ray marcher's input J equals the CPU twin's (per-cell mean
+/// density as divisor), and a homogeneous medium filling every cell is unaffected by the
+/// weighting (σ(x)/σ̄ = 1 everywhere: the same sums, divisor 1).
+#[test]
+fn density_weighted_deposits_match_cpu_and_are_neutral_in_a_homogeneous_box() {
+    let gpu = gpu();
+    let s = small_cloud();
+    let mut pm = PhotonMapper::new(
+        &gpu,
+        &s,
+        PmSettings {
+            variant: PmVariant::Exact,
+            density_weighted: Some(true),
+            beams_per_frame: 4096,
+            ring: 4,
+            cache_res: Some([6, 5, 6]),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    pm.render(&s.camera).unwrap();
+    let (total, density, j) = (
+        pm.read_total().unwrap(),
+        pm.read_density().unwrap(),
+        pm.read_j().unwrap(),
+    );
+    let p = pm.params;
+    let cpu: Vec<[f32; 4]> = (0..j.len())
+        .map(|i| reference::upsample_voxel(&p, &density, &total, i))
+        .collect();
+    let scale = cpu
+        .iter()
+        .map(|v| v[0].abs())
+        .fold(0.0f32, f32::max)
+        .max(1e-20);
+    for (a, b) in j.iter().zip(&cpu) {
+        assert!(
+            (a[0] - b[0]).abs() <= 1e-4 * scale,
+            "GPU {} vs CPU {}",
+            a[0],
+            b[0]
+        );
+    }
+    // Homogeneous box: weighted and unweighted caches agree exactly (same random numbers,
+    // weights σ/σ̄ = 1).
+    let grid = DensityGrid::constant([8, 8, 8], 0.5).unwrap();
+    let vol = Volume::new(
+        grid,
+        Aabb::new(DVec3::splat(-0.5), DVec3::splat(0.5)).unwrap(),
+        6.0,
+    )
+    .unwrap();
+    let h = scene(
+        vol,
+        0.9,
+        0.5,
+        Some(Sun::new(DVec3::Z, DVec3::ONE, 0.0).unwrap()),
+        None,
+        Camera::new(DVec3::new(0.0, 0.0, 3.0), DVec3::ZERO, DVec3::Y, 30.0, 8, 8).unwrap(),
+    );
+    let run = |dw| {
+        let mut pm = PhotonMapper::new(
+            &gpu,
+            &h,
+            PmSettings {
+                variant: PmVariant::Exact,
+                density_weighted: Some(dw),
+                beams_per_frame: 4096,
+                ring: 2,
+                cache_res: Some([4, 4, 4]),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        pm.render(&h.camera).unwrap();
+        (pm.read_total().unwrap(), pm.read_j().unwrap())
+    };
+    let (ta, ja) = run(false);
+    let (tb, jb) = run(true);
+    assert_eq!(ta, tb);
+    for (a, b) in ja.iter().zip(&jb) {
+        assert!(
+            (a[0] - b[0]).abs() <= 1e-5 * a[0].abs().max(1e-12),
+            "{a:?} vs {b:?}"
+        );
+    }
 }
