@@ -15,13 +15,13 @@ cd "$(dirname "$0")/.."
 CLOUDS=${CLOUDS:-gen:150}
 DENSITY_RANGE=${DENSITY_RANGE:-10,300}
 RECORDS=${RECORDS:-1000000}
-SAMPLES=${SAMPLES:-256}
+SAMPLES=${SAMPLES:-128}
 VAL_RECORDS=${VAL_RECORDS:-1000}
 TEST_RECORDS=${TEST_RECORDS:-2000}
 EVAL_SAMPLES=${EVAL_SAMPLES:-16384}
 LIGHT=${LIGHT:-uniform-gamma}
 EPOCHS=${EPOCHS:-12}
-MAX_MINUTES=${MAX_MINUTES:-0}
+MAX_MINUTES=${MAX_MINUTES:-40}
 LOSS=${LOSS:-rel-l2}
 DEVICE=${DEVICE:-cpu}          # datagen: cpu (the shipped set) or gpu (different random streams)
 DATA=${DATA:-out/rpnn-hg-data}
@@ -41,5 +41,5 @@ datagen --records "$RECORDS" --val-records "$VAL_RECORDS" --test-records "$TEST_
 training/.venv/bin/python training/train.py --data "$DATA" --run "$RUN" --epochs "$EPOCHS" \
   --loss "$LOSS" --schedule cosine --max-minutes "$MAX_MINUTES" \
   --seed 0 --device auto --resume --export "$MODEL" \
-  --reproduce "CLOUDS=$CLOUDS DENSITY_RANGE=$DENSITY_RANGE RECORDS=$RECORDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS TEST_RECORDS=$TEST_RECORDS EVAL_SAMPLES=$EVAL_SAMPLES LIGHT=$LIGHT EPOCHS=$EPOCHS LOSS=$LOSS DEVICE=$DEVICE bash training/reproduce.sh"
+  --reproduce "CLOUDS=$CLOUDS DENSITY_RANGE=$DENSITY_RANGE RECORDS=$RECORDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS TEST_RECORDS=$TEST_RECORDS EVAL_SAMPLES=$EVAL_SAMPLES LIGHT=$LIGHT EPOCHS=$EPOCHS MAX_MINUTES=$MAX_MINUTES LOSS=$LOSS DEVICE=$DEVICE bash training/reproduce.sh"
 cp "$RUN/curves.png" "${MODEL%.onnx}-curves.png"

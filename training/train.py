@@ -362,7 +362,10 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
         "data": {"root": str(args.data), "manifest_sha256": rdata.manifest_hash(args.data),
                  "phase": settings.get("phase"), "albedo": settings.get("albedo"),
                  "seed": settings.get("seed"), "max_samples": settings.get("max_samples"),
-                 "train_clouds": splits.count("train"), "test_clouds": splits.count("test"),
+                 "samples": settings.get("samples"), "eval_samples": settings.get("eval_samples"),
+                 "light": settings.get("light"),
+                 "train_clouds": splits.count("train"), "val_clouds": splits.count("val"),
+                 "test_clouds": splits.count("test"),
                  "clouds": m.get("clouds", []),
                  "train_records": result["fit"] + (0 if result["val_from_clouds"]
                                                    else result["val"]),

@@ -34,9 +34,9 @@ pub enum PmError {
 /// Measured on `scenes/refs/cumulus_side` (mean cloud luminance against the path tracer, see
 /// BENCHMARKS.md): the exact variant's single scattering agrees with the path tracer limited to
 /// one scattering (1.7 %), but its cache of multiply scattered light comes out ≈ 33 % low — the
-/// paper's variant reaches 1.00 only because its order-0 deposits, smeared over coarse cells
-/// with a mixed lobe, add ≈ 5× the true single scattering, and its σ√(1 − g) switch adds
-/// ≈ 22 % more. Density-weighted deposits ([`PmSettings::density_weighted`]) lift the exact
+/// paper's variant reaches 1.00 only because its order-0 deposits, rendered through each cell's
+/// mixed lobe, add ≈ 0.0098 where the true single scattering is 0.0018, and its σ√(1 − g)
+/// switch adds ≈ 22 % more. Density-weighted deposits ([`PmSettings::density_weighted`]) lift the exact
 /// variant's mean to 0.96 but over-brighten thin boundary cells. Until the cache's multiple
 /// scattering is right, the paper's variant stays the default.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
