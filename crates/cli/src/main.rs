@@ -63,8 +63,8 @@ enum PmVariantArg {
 /// Photon-mapping settings shared by `render --method pm` and `animate`.
 #[derive(clap::Args)]
 struct PmArgs {
-    /// Photon mapping: beams traced per frame (n_g).
-    #[arg(long, default_value_t = 8192)]
+    /// Photon mapping: beams traced per frame (n_g), 1..=2²⁶.
+    #[arg(long, default_value_t = 8192, value_parser = clap::value_parser!(u32).range(1..=1 << 26))]
     beams: u32,
     /// Photon mapping: `elek2012` (default, the paper: one cache for all scattering orders,
     /// similarity σ√(1−g)) or `exact` (exact single scattering from a sun-transmittance
@@ -88,8 +88,8 @@ struct PmArgs {
     #[arg(long, default_value_t = 0.0)]
     detail_noise: f32,
     /// Photon mapping: similarity threshold t (switch to σ√(1−g), isotropic, after
-    /// log t / log|g| bounces; 0 = never switch).
-    #[arg(long, default_value_t = 0.05)]
+    /// log t / log|g| bounces; 0 = never switch); in [0, 1).
+    #[arg(long, default_value_t = 0.05, value_parser = unit_interval)]
     similarity: f64,
     /// Photon mapping: a beam stops after this many scatterings.
     #[arg(long, default_value_t = 1024)]
@@ -137,10 +137,10 @@ enum Command {
         #[arg(long, short)]
         out: Option<PathBuf>,
         /// PNG exposure (default: the 99th-percentile luminance maps to 0.9).
-        #[arg(long)]
+        #[arg(long, value_parser = positive_finite)]
         exposure: Option<f64>,
-        /// Worker threads (default: all cores).
-        #[arg(long)]
+        /// Worker threads, 1..=1024 (default: all cores).
+        #[arg(long, value_parser = thread_count)]
         threads: Option<usize>,
         /// Compare against a reference EXR and print the error metrics.
         #[arg(long)]
@@ -182,7 +182,8 @@ enum Command {
         /// Output folder (frames frame_00000.png …, timings.csv).
         #[arg(long, short, default_value = "out/animation")]
         out: PathBuf,
-        #[arg(long)]
+        /// PNG exposure (default: fixed from the first frame's 99th-percentile luminance).
+        #[arg(long, value_parser = positive_finite)]
         exposure: Option<f64>,
     },
     /// Interactive viewer: the photon-mapped cloud in a window, following sun, camera and
@@ -764,6 +765,46 @@ fn triple(v: Option<Vec<u32>>, name: &str) -> Result<Option<[u32; 3]>> {
     }
 }
 
+/// A flag value that must be a finite number > 0 (an exposure of 0, NaN or ∞ writes an all-black
+/// or all-white image).
+fn positive_finite(s: &str) -> std::result::Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a number"))?;
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("must be a finite number > 0, got {s}"))
+    }
+}
+
+/// A thread count in 1..=1024 (more threads than that only exhaust the system's limits).
+fn thread_count(s: &str) -> std::result::Result<usize, String> {
+    let v: usize = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a whole number"))?;
+    if (1..=1024).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("must lie in 1..=1024, got {v}"))
+    }
+}
+
+/// A value in [0, 1).
+fn unit_interval(s: &str) -> std::result::Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a number"))?;
+    if v.is_finite() && (0.0..1.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("must lie in [0, 1), got {s}"))
+    }
+}
+
 fn print_metrics(test: &Path, reference: &Path, mask: Option<PathBuf>) -> Result<()> {
     let t = nimbus_scene::Image::read_exr(test)?;
     let r = nimbus_scene::Image::read_exr(reference)?;
@@ -784,6 +825,17 @@ fn print_metrics(test: &Path, reference: &Path, mask: Option<PathBuf>) -> Result
         None => None,
     };
     let res = compare::compare(&t, &r, m.as_deref());
+    if res.cloud_pixels == 0 || !res.mean_lum_ratio.is_finite() && res.nonfinite == 0 {
+        bail!(
+            "{}: the reference has no cloud pixels with positive luminance{}; relative metrics are undefined",
+            reference.display(),
+            if mask_path.is_some() {
+                " inside the mask"
+            } else {
+                ""
+            }
+        );
+    }
     say!("cloud pixels        {}", res.cloud_pixels);
     say!("rmse_rgb            {:.6}", res.rmse_rgb);
     say!("rel_rmse_cloud      {:.4}", res.rel_rmse_cloud);

@@ -434,3 +434,68 @@ spp = 1
         "{t}"
     );
 }
+
+/// Flags get the same checks as scene keys, an overflowing camera is refused instead of
+/// tracing NaN rays forever, and an all-black reference is an error, not NaN metrics.
+#[test]
+fn flags_cameras_and_references_that_would_lie() {
+    let d = tmp();
+    let scene = root().join("scenes/refs/cube_iso.toml");
+    let s = scene.to_str().unwrap();
+    for (args, want) in [
+        (vec!["render", s, "--exposure", "nan"], "--exposure"),
+        (vec!["render", s, "--exposure", "0"], "--exposure"),
+        (vec!["render", s, "--exposure=-1"], "--exposure"),
+        (vec!["render", s, "--exposure", "inf"], "--exposure"),
+        (vec!["render", s, "--threads", "100000"], "--threads"),
+        (vec!["render", s, "--threads", "0"], "--threads"),
+        (
+            vec!["render", s, "--method", "pm", "--beams", "0"],
+            "--beams",
+        ),
+        (
+            vec!["render", s, "--method", "pm", "--similarity", "nan"],
+            "--similarity",
+        ),
+        (
+            vec!["render", s, "--method", "pm", "--similarity", "1"],
+            "--similarity",
+        ),
+    ] {
+        let start = std::time::Instant::now();
+        let o = nimbus(&args);
+        assert!(!o.status.success(), "{args:?} must fail: {}", text(&o));
+        assert!(text(&o).contains(want), "{args:?}: {}", text(&o));
+        // Refused while parsing: nothing is rendered.
+        assert!(
+            start.elapsed().as_secs() < 10,
+            "{args:?} took {:?}",
+            start.elapsed()
+        );
+    }
+    let far = d.join("far.toml");
+    std::fs::write(
+        &far,
+        "[volume]\ngenerator = { kind = \"cumulus\", resolution = [8, 8, 8] }\n\
+         [sun]\ndirection = [0.0, 1.0, 0.0]\nirradiance = 1.0\n\
+         [camera]\norigin = [1e308, 0.0, 0.0]\ntarget = [-1e308, 0.0, 0.0]\nvfov_deg = 30\nwidth = 4\nheight = 4\n",
+    )
+    .unwrap();
+    let o = nimbus(&["render", far.to_str().unwrap(), "-q"]);
+    assert!(
+        !o.status.success() && text(&o).contains("far.toml") && text(&o).contains("camera.target"),
+        "{}",
+        text(&o)
+    );
+    // An all-black reference: relative metrics are undefined.
+    let black = nimbus_scene::Image::new(4, 4);
+    let (a, b) = (d.join("black_a.exr"), d.join("black_b.exr"));
+    black.write_exr(&a, None).unwrap();
+    black.write_exr(&b, None).unwrap();
+    let o = nimbus(&["compare", a.to_str().unwrap(), b.to_str().unwrap()]);
+    assert!(
+        !o.status.success() && text(&o).contains("black_b.exr") && text(&o).contains("undefined"),
+        "{}",
+        text(&o)
+    );
+}

@@ -40,6 +40,12 @@ impl Camera {
             ));
         }
         let f = target - origin;
+        if !f.is_finite() || !f.length().is_finite() {
+            return Err(FieldError::new(
+                "camera.target",
+                "the distance from camera.origin overflows (coordinates beyond ≈ 1e154); use a smaller scene scale",
+            ));
+        }
         if f.length() < 1e-12 {
             return Err(FieldError::new(
                 "camera.target",
@@ -48,6 +54,12 @@ impl Camera {
         }
         let forward = f.normalize();
         let r = forward.cross(up);
+        if !r.is_finite() || !r.length().is_finite() || !up.length().is_finite() {
+            return Err(FieldError::new(
+                "camera.up",
+                "its length overflows; use a unit vector",
+            ));
+        }
         if r.length() < 1e-9 * up.length().max(1e-300) || up.length() == 0.0 {
             return Err(FieldError::new(
                 "camera.up",

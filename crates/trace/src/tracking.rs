@@ -132,7 +132,15 @@ impl<'a> Tracker<'a> {
             }
             let mut t = ta;
             loop {
-                t -= (1.0 - rng.next_f64()).ln() / m;
+                let next = t - (1.0 - rng.next_f64()).ln() / m;
+                if next <= t {
+                    // The free-flight step is below the representable increment of t (σ̄ of
+                    // order 1e16 per unit length or more): the medium is opaque at this
+                    // resolution and the collision happens here. Without this the walk would
+                    // stall forever.
+                    return Some(t);
+                }
+                t = next;
                 if t >= tb {
                     break;
                 }
@@ -165,7 +173,13 @@ impl<'a> Tracker<'a> {
             }
             let mut t = ta;
             loop {
-                t -= (1.0 - rng.next_f64()).ln() / m;
+                let next = t - (1.0 - rng.next_f64()).ln() / m;
+                if next <= t {
+                    // Steps below the representable increment of t: an optically infinite
+                    // segment, transmittance 0 (see `sample_collision`).
+                    return 0.0;
+                }
+                t = next;
                 if t >= tb {
                     break;
                 }
@@ -195,6 +209,31 @@ mod tests {
             sigma,
         )
         .unwrap()
+    }
+
+    /// A majorant of 1e20 per unit length (one dense voxel in an otherwise empty grid, one
+    /// majorant cell): every free-flight step is below one ulp of t = 0.5, and where σ = 0 the
+    /// tentative collisions are all null, so t never moves. Tracking must still end: the walk
+    /// is ended as opaque (collision at t, transmittance 0), as documented.
+    #[test]
+    fn absurdly_dense_majorants_do_not_stall() {
+        let mut data = vec![0.0f32; 8 * 8 * 8];
+        data[8 * 8 * 8 - 1] = 1.0;
+        let v = Volume::new(
+            DensityGrid::new([8, 8, 8], data).unwrap(),
+            Aabb::new(DVec3::ZERO, DVec3::ONE).unwrap(),
+            1e20,
+        )
+        .unwrap();
+        let m = MajorantGrid::new(&v, [1, 1, 1]);
+        let t = Tracker::new(&v, &m);
+        let mut rng = Pcg32::new(1, 1);
+        let d = DVec3::X;
+        let o = DVec3::new(-0.4, 0.1, 0.1);
+        assert_eq!(v.sigma_t(o + d * 0.5), 0.0);
+        let hit = t.sample_collision(o, d, 0.5, 1.3, 1.0, &mut rng).unwrap();
+        assert_eq!(hit, 0.5);
+        assert_eq!(t.transmittance(o, d, 0.5, 1.3, 1.0, &mut rng), 0.0);
     }
 
     #[test]
