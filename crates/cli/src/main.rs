@@ -336,8 +336,9 @@ fn run(cli: Cli) -> Result<()> {
             let s = Scene::load(&scene)?;
             let mut opts = RenderOptions::from_scene(&s);
             if let Some(v) = spp {
-                if v == 0 {
-                    bail!("--spp must be at least 1");
+                // The same range as the scene's `render.spp`.
+                if !(1..=1 << 24).contains(&v) {
+                    bail!("--spp must lie in 1..=16777216 (as render.spp), got {v}");
                 }
                 opts.spp = v;
             }

@@ -449,6 +449,7 @@ fn flags_cameras_and_references_that_would_lie() {
         (vec!["render", s, "--exposure", "inf"], "--exposure"),
         (vec!["render", s, "--threads", "100000"], "--threads"),
         (vec!["render", s, "--threads", "0"], "--threads"),
+        (vec!["render", s, "--spp", "4294967295"], "--spp"),
         (
             vec!["render", s, "--method", "pm", "--beams", "0"],
             "--beams",

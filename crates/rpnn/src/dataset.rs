@@ -306,6 +306,46 @@ fn rows_of(path: &Path) -> Option<u64> {
     npy.shape().first().copied()
 }
 
+/// An advisory lock on `out/.lock` held for the whole run: a second concurrent writer to the
+/// same folder is refused, naming the process that holds it (the lock is released when the
+/// holder exits, even if it is killed).
+fn lock_out(out: &Path) -> Result<std::fs::File, DatagenError> {
+    use std::io::{Read, Seek, Write};
+    let path = out.join(".lock");
+    let err = |msg: String| DatagenError::Cloud {
+        cloud: path.display().to_string(),
+        msg,
+    };
+    let mut f = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .map_err(|e| err(e.to_string()))?;
+    match f.try_lock() {
+        Ok(()) => {
+            f.set_len(0).map_err(|e| err(e.to_string()))?;
+            f.seek(std::io::SeekFrom::Start(0))
+                .map_err(|e| err(e.to_string()))?;
+            write!(f, "{}", std::process::id()).map_err(|e| err(e.to_string()))?;
+            Ok(f)
+        }
+        Err(std::fs::TryLockError::WouldBlock) => {
+            let mut holder = String::new();
+            let _ = f.read_to_string(&mut holder);
+            Err(DatagenError::Cloud {
+                cloud: out.display().to_string(),
+                msg: format!(
+                    "another datagen (process {}) is writing to this folder; wait for it or use another --out",
+                    holder.trim()
+                ),
+            })
+        }
+        Err(std::fs::TryLockError::Error(e)) => Err(err(e.to_string())),
+    }
+}
+
 /// What determines the records of a set: written to `settings.json` when a run starts; a later
 /// run in the same folder must agree (it would otherwise mix old shards with new settings).
 fn settings_json(clouds: &[CloudSpec], opts: &DatagenOptions) -> serde_json::Value {
@@ -397,6 +437,7 @@ pub fn run(
         return Err(err("shard size must be at least 1".into()));
     }
     std::fs::create_dir_all(out).map_err(|e| err(e.to_string()))?;
+    let _lock = lock_out(out)?;
     check_settings(clouds, opts, out)?;
     let medium = medium(opts)?;
     let gpu = if opts.gpu {

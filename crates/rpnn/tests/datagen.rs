@@ -334,3 +334,44 @@ fn other_settings_refused_and_validation_split() {
         "{e}"
     );
 }
+
+/// A second writer to the same folder is refused while the first holds the lock, naming the
+/// holder; once the lock is released the folder can be used again.
+#[test]
+fn concurrent_writers_are_refused() {
+    use std::io::Write;
+    let d = tmp("lock");
+    std::fs::create_dir_all(&d).unwrap();
+    // Hold the lock as another process would.
+    let mut f = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(true)
+        .open(d.join(".lock"))
+        .unwrap();
+    f.try_lock().unwrap();
+    write!(f, "4242").unwrap();
+    let set: Vec<_> = dataset::generated_set(5, 1);
+    let mut o = opts(1);
+    o.records = 1;
+    o.test_records = 0;
+    let e = dataset::run(&set, &o, &d).unwrap_err().to_string();
+    assert!(
+        e.contains("process 4242") && e.contains("another --out"),
+        "{e}"
+    );
+    f.unlock().unwrap();
+    drop(f);
+    let set: Vec<_> = set
+        .into_iter()
+        .map(|mut c| {
+            if let dataset::CloudSource::Generated { resolution, .. } = &mut c.source {
+                *resolution = [24, 18, 24];
+            }
+            c
+        })
+        .collect();
+    o.max_samples = 256;
+    assert_eq!(dataset::run(&set, &o, &d).unwrap().records, 1);
+}
