@@ -127,10 +127,13 @@ pub fn folder_set(dir: &Path, density_scale: f64) -> Result<Vec<CloudSpec>, Data
         .map_err(|e| err(e.to_string()))?
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| {
-            matches!(
-                p.extension().and_then(|e| e.to_str()),
-                Some("vol" | "npy" | "vdb")
-            )
+            // Hidden files (e.g. an interrupted write's `.name.partial-PID.vol`) are not clouds.
+            !p.file_name()
+                .is_some_and(|n| n.to_string_lossy().starts_with('.'))
+                && matches!(
+                    p.extension().and_then(|e| e.to_str()),
+                    Some("vol" | "npy" | "vdb")
+                )
         })
         .collect();
     files.sort();

@@ -66,10 +66,12 @@ impl Image {
             Encoding::FAST_LOSSLESS,
             AnyChannels::sort(list.into()),
         );
-        exr::image::Image::from_layer(layer)
-            .write()
-            .to_file(path)
-            .map_err(|e| Error::parse(path, format!("cannot write EXR: {e}")))
+        crate::io::write_atomically(path, |tmp| {
+            exr::image::Image::from_layer(layer)
+                .write()
+                .to_file(tmp)
+                .map_err(|e| Error::parse(path, format!("cannot write EXR: {e}")))
+        })
     }
 
     /// Reads the RGB channels of the first layer of an EXR (Y-only images are broadcast).
@@ -159,14 +161,17 @@ impl Image {
 
     pub fn write_png(&self, path: impl AsRef<Path>, exposure: f64) -> Result<()> {
         let path = path.as_ref();
-        image::save_buffer(
-            path,
-            &self.to_srgb8(exposure),
-            self.width as u32,
-            self.height as u32,
-            image::ColorType::Rgb8,
-        )
-        .map_err(|e| Error::parse(path, format!("cannot write PNG: {e}")))
+        let px = self.to_srgb8(exposure);
+        crate::io::write_atomically(path, |tmp| {
+            image::save_buffer(
+                tmp,
+                &px,
+                self.width as u32,
+                self.height as u32,
+                image::ColorType::Rgb8,
+            )
+            .map_err(|e| Error::parse(path, format!("cannot write PNG: {e}")))
+        })
     }
 }
 
@@ -198,6 +203,23 @@ mod tests {
             .unwrap();
         assert!(Image::read_exr(dir.join("a.png")).is_err());
         assert!((srgb_oetf(1.0) - 1.0).abs() < 1e-12);
+        // A write that cannot complete (the target is a folder: the final rename fails) is an
+        // error naming the path and leaves neither a file nor a temporary behind.
+        let folder = dir.join("taken.png");
+        std::fs::create_dir_all(&folder).unwrap();
+        let e = img.write_png(&folder, 1.0).unwrap_err().to_string();
+        assert!(e.contains("taken.png"), "{e}");
+        let e = img
+            .write_exr(dir.join("no/such/dir/x.exr"), None)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("x.exr"), "{e}");
+        let leftovers: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .flatten()
+            .filter(|e| e.file_name().to_string_lossy().contains(".partial-"))
+            .collect();
+        assert!(leftovers.is_empty(), "{leftovers:?}");
         // Resizing a constant image keeps it constant; 2× up then down returns the original
         // for a linear ramp away from the borders.
         let up = img.resize_bilinear(6, 4);

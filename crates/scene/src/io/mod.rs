@@ -47,7 +47,41 @@ pub fn read_grid(path: impl AsRef<Path>) -> Result<GridFile> {
     }
 }
 
-/// Writes a grid, choosing the format from the extension (`.vol` or `.npy`).
+/// Writes `path` whole or not at all: `write` fills a temporary file beside it (same
+/// extension, so format choices by extension still work), which is flushed to disk and then
+/// renamed over `path`. On any failure (a full disk, a closed pipe, a bad path) the temporary
+/// file is removed and the error names `path`; nothing claims a file that is not there.
+pub fn write_atomically(
+    path: impl AsRef<Path>,
+    write: impl FnOnce(&Path) -> Result<()>,
+) -> Result<()> {
+    let path = path.as_ref();
+    let name = path
+        .file_name()
+        .ok_or_else(|| Error::parse(path, "not a file path"))?
+        .to_string_lossy();
+    let tmp = path.with_file_name(match path.extension() {
+        Some(ext) => format!(
+            ".{}.partial-{}.{}",
+            name,
+            std::process::id(),
+            ext.to_string_lossy()
+        ),
+        None => format!(".{}.partial-{}", name, std::process::id()),
+    });
+    let result = write(&tmp).and_then(|()| {
+        std::fs::File::open(&tmp)
+            .and_then(|f| f.sync_all())
+            .and_then(|()| std::fs::rename(&tmp, path))
+            .map_err(|e| Error::io(path, e))
+    });
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// Writes a grid, choosing the format from the extension (`.vol` or `.npy`), atomically.
 pub fn write_grid(
     path: impl AsRef<Path>,
     grid: &DensityGrid,
@@ -55,8 +89,8 @@ pub fn write_grid(
 ) -> Result<()> {
     let path = path.as_ref();
     match path.extension().and_then(|e| e.to_str()) {
-        Some("vol") => vol::write(path, grid, bounds),
-        Some("npy") => npy::write(path, grid),
+        Some("vol") => write_atomically(path, |t| vol::write(t, grid, bounds)),
+        Some("npy") => write_atomically(path, |t| npy::write(t, grid)),
         _ => Err(Error::parse(
             path,
             "can only write .vol or .npy volumes (choose one of these extensions)",
