@@ -500,3 +500,34 @@ fn flags_cameras_and_references_that_would_lie() {
         text(&o)
     );
 }
+
+/// Light values whose derived radiance would not fit the f32 images are refused by field
+/// (they used to write EXRs full of inf/NaN and say "wrote").
+#[test]
+fn lights_that_overflow_the_image_are_refused() {
+    let d = tmp();
+    let base = "[volume]\ngenerator = { kind = \"cumulus\", resolution = [8, 8, 8] }\n\
+                [camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nvfov_deg = 30\nwidth = 4\nheight = 4\n";
+    for (name, extra, field) in [
+        ("sky", "[sky]\nradiance = 1e39\n", "sky.radiance"),
+        (
+            "sun",
+            "[sun]\ndirection = [0.0, 1.0, 0.0]\nirradiance = 1e308\n",
+            "sun.irradiance",
+        ),
+        (
+            "disc",
+            "[sun]\ndirection = [0.0, 1.0, 0.0]\nirradiance = 1.0\nangular_radius_deg = 1e-300\n",
+            "sun.angular_radius_deg",
+        ),
+    ] {
+        let p = d.join(format!("light_{name}.toml"));
+        std::fs::write(&p, format!("{base}{extra}")).unwrap();
+        let o = nimbus(&["render", p.to_str().unwrap(), "-q", "--spp", "1"]);
+        let t = text(&o);
+        assert!(
+            !o.status.success() && t.contains(field) && !t.contains("wrote"),
+            "{name}: {t}"
+        );
+    }
+}

@@ -42,13 +42,33 @@ impl Sun {
                 format!("must lie in [0, 45], got {angular_radius_deg}"),
             ));
         }
+        if irradiance.max_element() > MAX_RADIANCE {
+            return Err(FieldError::new(
+                "sun.irradiance",
+                format!(
+                    "must be at most {MAX_RADIANCE:e} (images are stored as f32), got {irradiance}"
+                ),
+            ));
+        }
         let r = angular_radius_deg.to_radians();
-        Ok(Self {
+        let sun = Self {
             dir: direction.normalize(),
             irradiance,
             angular_radius: r,
             cos_max: r.cos(),
-        })
+        };
+        if !sun.is_delta() {
+            let l = sun.radiance().max_element();
+            if !(l.is_finite() && l <= MAX_RADIANCE) {
+                return Err(FieldError::new(
+                    "sun.angular_radius_deg",
+                    format!(
+                        "{angular_radius_deg} makes the disc's radiance irradiance / (π sin² r) = {l:e}, beyond {MAX_RADIANCE:e}; use 0 for a delta sun"
+                    ),
+                ));
+            }
+        }
+        Ok(sun)
     }
 
     pub fn is_delta(&self) -> bool {
@@ -170,10 +190,28 @@ pub struct EnvMap {
     total: f64,
 }
 
+/// The largest radiance or irradiance a scene may hold: images are f32 (max ≈ 3.4e38), and
+/// estimates multiply radiance by σ_t, phase values and sample weights, so 1e30 leaves room.
+pub const MAX_RADIANCE: f64 = 1e30;
+
 impl EnvMap {
     pub fn new(image: Image, scale: f64) -> Result<Self, FieldError> {
         if !(scale.is_finite() && scale >= 0.0) {
             return Err(FieldError::new("sky.scale", "must be finite and ≥ 0"));
+        }
+        let max = image
+            .pixels
+            .iter()
+            .flatten()
+            .fold(0.0f64, |m, v| m.max(*v as f64));
+        if max * scale > MAX_RADIANCE {
+            return Err(FieldError::new(
+                "sky.scale",
+                format!(
+                    "scale × brightest pixel = {:e} exceeds {MAX_RADIANCE:e}",
+                    max * scale
+                ),
+            ));
         }
         if image
             .pixels

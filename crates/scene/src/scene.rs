@@ -458,6 +458,17 @@ impl Scene {
                             "must be finite and ≥ 0",
                         ));
                     }
+                    if c.max_element() > crate::light::MAX_RADIANCE {
+                        return Err(Error::invalid(
+                            label,
+                            "sky.radiance",
+                            format!(
+                                "radiance × scale = {:e} exceeds {:e} (images are stored as f32)",
+                                c.max_element(),
+                                crate::light::MAX_RADIANCE
+                            ),
+                        ));
+                    }
                     Some(Sky::Constant(c))
                 }
                 (None, Some(e)) => Some(Sky::Env(EnvMap::load(&base_dir.join(e), s.scale)?)),
