@@ -17,9 +17,12 @@ macro_rules! say {
     }};
 }
 
+mod args;
 mod eval;
 mod rpnn;
 mod view;
+
+use args::{PmArgs, positive_finite, thread_count};
 
 use eval::{EvalArgs, StressArgs, SuiteArgs, bench_suite, compare_scene, stress};
 
@@ -52,68 +55,6 @@ enum Method {
     /// Radiance-predicting neural network (Kallweit et al. 2017): MC direct light, network
     /// indirect light.
     Rpnn,
-}
-
-#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
-enum PmVariantArg {
-    Exact,
-    Elek2012,
-}
-
-/// Photon-mapping settings shared by `render --method pm` and `animate`.
-#[derive(clap::Args)]
-struct PmArgs {
-    /// Photon mapping: beams traced per frame (n_g), 1..=2²⁶.
-    #[arg(long, default_value_t = 8192, value_parser = clap::value_parser!(u32).range(1..=1 << 26))]
-    beams: u32,
-    /// Photon mapping: `elek2012` (default, the paper: one cache for all scattering orders,
-    /// similarity σ√(1−g)) or `exact` (exact single scattering from a sun-transmittance
-    /// volume, the cache for scattered light only, similarity σ(1−g); see BENCHMARKS.md).
-    #[arg(long, value_enum, default_value = "elek2012")]
-    pm_variant: PmVariantArg,
-    /// Photon mapping: density-weighted deposits (cells hold the fluence where the medium is,
-    /// ⟨σφ⟩/⟨σ⟩, instead of the cell-volume average; experimental, see BENCHMARKS.md).
-    #[arg(long)]
-    pm_density_weighted: bool,
-    /// Photon mapping: partial caches in the ring (m).
-    #[arg(long, default_value_t = 100)]
-    ring: u32,
-    /// Photon mapping: cache resolution X,Y,Z (default: ≤ 2400 cells, the grid's proportions).
-    #[arg(long, value_delimiter = ',')]
-    cache_res: Option<Vec<u32>>,
-    /// Photon mapping: ray march at half resolution and upscale.
-    #[arg(long)]
-    half_res: bool,
-    /// Photon mapping: detail noise amplitude in density voxels (0 = off).
-    #[arg(long, default_value_t = 0.0)]
-    detail_noise: f32,
-    /// Photon mapping: similarity threshold t (switch to σ√(1−g), isotropic, after
-    /// log t / log|g| bounces; 0 = never switch); in [0, 1).
-    #[arg(long, default_value_t = 0.05, value_parser = unit_interval)]
-    similarity: f64,
-    /// Photon mapping: a beam stops after this many scatterings.
-    #[arg(long, default_value_t = 1024)]
-    max_order: u32,
-}
-
-impl PmArgs {
-    fn settings(&self, seed: u32) -> Result<nimbus_photon::PmSettings> {
-        Ok(nimbus_photon::PmSettings {
-            variant: match self.pm_variant {
-                PmVariantArg::Exact => nimbus_photon::PmVariant::Exact,
-                PmVariantArg::Elek2012 => nimbus_photon::PmVariant::Elek2012,
-            },
-            density_weighted: Some(self.pm_density_weighted),
-            beams_per_frame: self.beams,
-            ring: self.ring,
-            cache_res: triple(self.cache_res.clone(), "--cache-res")?,
-            seed,
-            detail_noise: self.detail_noise,
-            similarity_t: self.similarity,
-            max_order: self.max_order,
-            ..Default::default()
-        })
-    }
 }
 
 #[derive(Subcommand)]
@@ -755,55 +696,6 @@ fn mask_for(reference: &Path, mask: Option<PathBuf>) -> Option<PathBuf> {
         reference.with_extension("").display()
     ));
     mask.or_else(|| auto.exists().then_some(auto))
-}
-
-/// Three comma-separated values, or none.
-fn triple(v: Option<Vec<u32>>, name: &str) -> Result<Option<[u32; 3]>> {
-    match v {
-        Some(r) if r.len() != 3 => bail!("{name} needs three values X,Y,Z, got {r:?}"),
-        Some(r) => Ok(Some([r[0], r[1], r[2]])),
-        None => Ok(None),
-    }
-}
-
-/// A flag value that must be a finite number > 0 (an exposure of 0, NaN or ∞ writes an all-black
-/// or all-white image).
-fn positive_finite(s: &str) -> std::result::Result<f64, String> {
-    let v: f64 = s
-        .trim()
-        .parse()
-        .map_err(|_| format!("`{s}` is not a number"))?;
-    if v.is_finite() && v > 0.0 {
-        Ok(v)
-    } else {
-        Err(format!("must be a finite number > 0, got {s}"))
-    }
-}
-
-/// A thread count in 1..=1024 (more threads than that only exhaust the system's limits).
-fn thread_count(s: &str) -> std::result::Result<usize, String> {
-    let v: usize = s
-        .trim()
-        .parse()
-        .map_err(|_| format!("`{s}` is not a whole number"))?;
-    if (1..=1024).contains(&v) {
-        Ok(v)
-    } else {
-        Err(format!("must lie in 1..=1024, got {v}"))
-    }
-}
-
-/// A value in [0, 1).
-fn unit_interval(s: &str) -> std::result::Result<f64, String> {
-    let v: f64 = s
-        .trim()
-        .parse()
-        .map_err(|_| format!("`{s}` is not a number"))?;
-    if v.is_finite() && (0.0..1.0).contains(&v) {
-        Ok(v)
-    } else {
-        Err(format!("must lie in [0, 1), got {s}"))
-    }
 }
 
 fn print_metrics(test: &Path, reference: &Path, mask: Option<PathBuf>) -> Result<()> {

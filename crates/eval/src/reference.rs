@@ -316,25 +316,22 @@ pub fn block_noise(a: &[f64], b: &[f64], mask: &[bool], w: usize, h: usize) -> f
     if mean_cloud <= 0.0 {
         return 0.0;
     }
-    let (mut s, mut n) = (0.0, 0usize);
-    for by in 0..h / 4 {
-        for bx in 0..w / 4 {
-            let idx = (0..16).map(|k| (by * 4 + k / 4) * w + bx * 4 + k % 4);
-            if !idx.clone().all(|i| mask[i]) {
-                continue;
-            }
-            let d: f64 = idx.map(|i| a[i] - b[i]).sum::<f64>() / 16.0;
-            s += d * d / 4.0;
-            n += 1;
-        }
-    }
-    if n == 0 {
+    let blocks = crate::metrics::cloud_blocks(mask, w, h);
+    if blocks.is_empty() {
         let px = cloud
             .iter()
             .map(|&i| (a[i] - b[i]).powi(2) / 4.0)
             .sum::<f64>();
         return (px / cloud.len() as f64).sqrt() / mean_cloud;
     }
+    let s: f64 = blocks
+        .iter()
+        .map(|blk| {
+            let d = blk.iter().map(|&i| a[i] - b[i]).sum::<f64>() / 16.0;
+            d * d / 4.0
+        })
+        .sum();
+    let n = blocks.len();
     (s / n as f64).sqrt() / mean_cloud
 }
 

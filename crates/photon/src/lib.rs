@@ -13,6 +13,7 @@ pub mod impostor;
 pub mod mapper;
 
 pub mod reference;
+pub mod settings;
 
 pub use mapper::{PhotonMapper, PmError, PmSettings, PmVariant};
 pub use nimbus_gpu::params::PmParams;

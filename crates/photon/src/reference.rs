@@ -65,11 +65,7 @@ pub struct CellValue {
 /// shader): the divisor of density-weighted sums.
 pub fn cell_mean_density(p: &PmParams, density: &[f32], i: usize) -> f32 {
     let r = p.i_res;
-    let c = [
-        i as u32 % r[0],
-        (i as u32 / r[0]) % r[1],
-        i as u32 / (r[0] * r[1]),
-    ];
+    let c = coords(i, r);
     let ires = Vec3::new(r[0] as f32, r[1] as f32, r[2] as f32);
     let ext = v3(p.aabb_max) - v3(p.aabb_min);
     let lo = v3(p.aabb_min) + Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32) / ires * ext;
@@ -114,6 +110,12 @@ pub fn cell_value(p: &PmParams, density: &[f32], total: &[u32], i: usize) -> Cel
 
 fn v3(a: [f32; 3]) -> Vec3 {
     Vec3::from_array(a)
+}
+
+/// Grid coordinates of linear index `i` (x fastest), the inverse of [`index`].
+fn coords(i: usize, res: [u32; 3]) -> [u32; 3] {
+    let i = i as u32;
+    [i % res[0], (i / res[0]) % res[1], i / (res[0] * res[1])]
 }
 
 fn index(x: u32, y: u32, z: u32, res: [u32; 3]) -> usize {
@@ -349,11 +351,7 @@ pub fn perturb(p: &PmParams, x: Vec3) -> Vec3 {
 /// with half the smallest voxel as step from the voxel centre to the box boundary.
 pub fn sun_transmittance_voxel(p: &PmParams, density: &[f32], idx: usize) -> f32 {
     let r = p.d_res;
-    let v = [
-        idx as u32 % r[0],
-        (idx as u32 / r[0]) % r[1],
-        idx as u32 / (r[0] * r[1]),
-    ];
+    let v = coords(idx, r);
     let ext = v3(p.aabb_max) - v3(p.aabb_min);
     let resf = Vec3::new(r[0] as f32, r[1] as f32, r[2] as f32);
     let x = v3(p.aabb_min)
