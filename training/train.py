@@ -20,6 +20,13 @@ records and export it to ONNX.
   ``<run>/last.pt`` (resumable with ``--resume``) and ``<run>/best.pt`` when validation improves.
 - ``--export`` writes the best checkpoint as ONNX, checks it against torch with onnxruntime on
   real records (max relative difference < 1e-5) and writes the model card next to it.
+- Data-parallel: ``torchrun --nproc_per_node N training/train.py ...`` (``torch.distributed``
+  DDP; gloo on CPU, NCCL on GPUs). The global minibatch (``--batch``), its order, the mirroring
+  and the step-size schedule are those of the single-process run: every rank draws the same
+  global permutation, takes every N-th row of each global minibatch (reading only those rows
+  of the memory-mapped shards) and weighs its loss by its share, so the averaged gradient is the
+  single process's. Validation and test losses are summed over the ranks; rank 0 alone logs,
+  writes checkpoints (resumable as usual) and exports. See ``training/CLUSTER.md``.
 """
 
 from __future__ import annotations
@@ -46,7 +53,9 @@ from rpnn.model import LOSSES, RPNN, mirror_columns, parameter_count  # noqa: E4
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--data", required=True, type=Path, help="a `nimbus datagen --out` folder")
-    p.add_argument("--run", required=True, type=Path, help="folder for checkpoints, log and plot")
+    p.add_argument("--run", "--run-dir", dest="run", required=True, type=Path,
+                   help="folder for checkpoints, log and plot (write --run-dir under torchrun, "
+                        "whose own option --run-path makes --run ambiguous)")
     p.add_argument("--epochs", type=int, default=100)
     p.add_argument("--batch", type=int, default=1000, help="minibatch size (§5.2: 1000)")
     p.add_argument("--val-fraction", type=float, default=0.25)
@@ -84,12 +93,48 @@ def parse_args(argv=None):
     return args
 
 
-def pick_device(name: str) -> torch.device:
+def pick_device(name: str, local_rank: int = 0) -> torch.device:
     if name == "cuda" and not torch.cuda.is_available():
         raise SystemExit("--device cuda: torch sees no CUDA device")
     if name == "auto":
         name = "cuda" if torch.cuda.is_available() else "cpu"
-    return torch.device(name)
+    return torch.device(name, local_rank) if name == "cuda" else torch.device(name)
+
+
+class Dist:
+    """The process group of a ``torchrun`` launch (rank 0 of 1 without one)."""
+
+    def __init__(self):
+        self.world = int(os.environ.get("WORLD_SIZE", "1"))
+        self.rank = int(os.environ.get("RANK", "0"))
+        self.local_rank = int(os.environ.get("LOCAL_RANK", "0"))
+        self.on = self.world > 1
+
+    def start(self, device: torch.device) -> None:
+        if self.on and not torch.distributed.is_initialized():
+            backend = "nccl" if device.type == "cuda" else "gloo"
+            if device.type == "cuda":
+                torch.cuda.set_device(device)
+            torch.distributed.init_process_group(backend=backend)
+
+    def stop(self) -> None:
+        if self.on and torch.distributed.is_initialized():
+            torch.distributed.destroy_process_group()
+
+    def sum(self, values: list[float], device) -> list[float]:
+        """Element-wise sum over the ranks (float64)."""
+        if not self.on:
+            return values
+        t = torch.tensor(values, dtype=torch.float64, device=device)
+        torch.distributed.all_reduce(t)
+        return t.tolist()
+
+    def max(self, value: float, device) -> float:
+        if not self.on:
+            return value
+        t = torch.tensor([value], dtype=torch.float64, device=device)
+        torch.distributed.all_reduce(t, op=torch.distributed.ReduceOp.MAX)
+        return float(t.item())
 
 
 class Batches:
@@ -106,15 +151,26 @@ class Batches:
     def __len__(self):
         return len(self.idx)
 
-    def iterate(self, batch: int, order: np.ndarray | None):
-        """Yields (x, y) tensors on the device; ``order`` permutes the rows (None: in order)."""
+    def iterate(self, batch: int, order: np.ndarray | None, rank: int = 0, world: int = 1):
+        """Yields (x, y) tensors on the device; ``order`` permutes the rows (None: in order).
+        With ``world`` > 1: this rank's rows (every ``world``-th, from ``rank``) of each global
+        minibatch of ``batch`` rows."""
+        for x, y, _, _ in self.iterate_global(batch, order, rank, world):
+            yield x, y
+
+    def iterate_global(self, batch: int, order: np.ndarray | None, rank: int = 0,
+                       world: int = 1):
+        """Like ``iterate``, yielding (x, y, global minibatch size, positions of this rank's
+        rows in the global minibatch)."""
         n = len(self.idx)
         pos = np.arange(n) if order is None else order
-        chunks = [pos[i : i + batch] for i in range(0, n, batch)]
+        globs = [pos[i : i + batch] for i in range(0, n, batch)]
+        chunks = [g[rank::world] for g in globs]
+        where = [np.arange(len(g))[rank::world] for g in globs]
         if self.x is not None:
-            for c in chunks:
+            for c, g, w in zip(chunks, globs, where):
                 t = torch.from_numpy(c).to(self.device)
-                yield self.x[t], self.y[t]
+                yield self.x[t], self.y[t], len(g), w
             return
 
         def load(c):
@@ -128,17 +184,25 @@ class Batches:
                 if i + 1 < len(chunks):
                     fut = pool.submit(load, chunks[i + 1])
                 nb = self.device.type == "cuda"
-                yield x.to(self.device, non_blocking=nb), y.to(self.device, non_blocking=nb)
+                yield (x.to(self.device, non_blocking=nb), y.to(self.device, non_blocking=nb),
+                       len(globs[i]), where[i])
 
 
-def evaluate(model, batches: Batches, batch: int, loss_fn) -> float | None:
+def evaluate(model, batches: Batches, batch: int, loss_fn, dist: Dist | None = None,
+             device=None) -> float | None:
+    """Mean loss over ``batches``; with a process group, each rank takes its share of every
+    minibatch and the sums are added up over the ranks."""
     if len(batches) == 0:
         return None
     model.eval()
+    rank, world = (dist.rank, dist.world) if dist else (0, 1)
     total = 0.0
     with torch.no_grad():
-        for x, y in batches.iterate(batch, None):
-            total += float(loss_fn(model(x), y[:, None].expand(-1, model.outputs))) * len(y)
+        for x, y in batches.iterate(batch, None, rank, world):
+            if len(y):
+                total += float(loss_fn(model(x), y[:, None].expand(-1, model.outputs))) * len(y)
+    if dist:
+        total = dist.sum([total], device)[0]
     return total / len(batches)
 
 
@@ -209,10 +273,20 @@ def build_model(args) -> RPNN:
 
 
 def train(args) -> dict:
+    dist = Dist()
     if args.threads:
         torch.set_num_threads(args.threads)
-    device = pick_device(args.device)
-    say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
+    device = pick_device(args.device, dist.local_rank)
+    dist.start(device)
+    try:
+        return _train(args, dist, device)
+    finally:
+        dist.stop()
+
+
+def _train(args, dist: Dist, device) -> dict:
+    lead = dist.rank == 0
+    say = (lambda *a: None) if args.quiet or not lead else (lambda *a: print(*a, flush=True))
     manifest = rdata.read_manifest(args.data)
     train_shards = rdata.load_shards(args.data, "train")
     val_shards = rdata.load_shards(args.data, "val")
@@ -230,7 +304,9 @@ def train(args) -> dict:
         fit_idx, val_idx = rdata.split_indices(len(train_recs), args.val_fraction, args.seed)
         val_source = train_recs
     total_bytes = (len(train_recs) + len(val_recs) + len(test_recs)) * rdata.DESCRIPTOR_LEN * 4
-    preload = args.preload == "yes" or (args.preload == "auto" and total_bytes < 4 << 30)
+    # Every rank on one machine would hold its own copy: the 4 GiB are shared among them.
+    preload = args.preload == "yes" or (args.preload == "auto"
+                                        and total_bytes * dist.world < 4 << 30)
     fit = Batches(train_recs, fit_idx, device, preload)
     val = Batches(val_source, val_idx, device, preload)
     test = Batches(test_recs, np.arange(len(test_recs)), device, preload)
@@ -241,7 +317,8 @@ def train(args) -> dict:
     model.init_output_bias(float(np.mean(train_recs.gather(fit_idx[:200_000])[1])))
     model = model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
-    args.run.mkdir(parents=True, exist_ok=True)
+    if lead:
+        args.run.mkdir(parents=True, exist_ok=True)
     last, best = args.run / "last.pt", args.run / "best.pt"
     state = {"epoch": 0, "best_val": float("inf"), "best_epoch": 0, "log": [], "seconds": 0.0}
     if args.resume and last.exists():
@@ -253,7 +330,10 @@ def train(args) -> dict:
         opt.load_state_dict(ck["optimizer"])
         state = ck["state"]
         say(f"resumed from {last} after epoch {state['epoch']}")
-    say(f"RPNN {model.config()}: {parameter_count(model):,} parameters; device {device}; "
+    # DDP after loading: it broadcasts rank 0's parameters to the others.
+    net = torch.nn.parallel.DistributedDataParallel(model) if dist.on else model
+    ranks = f"; {dist.world} ranks ({'nccl' if device.type == 'cuda' else 'gloo'})" if dist.on else ""
+    say(f"RPNN {model.config()}: {parameter_count(model):,} parameters; device {device}{ranks}; "
         f"{len(fit)} fitting / {len(val)} validation / {len(test)} test records; "
         f"{'preloaded' if preload else 'memory-mapped'}; loss {args.loss}"
         f"{', mirrored' if mirror is not None else ''}")
@@ -262,8 +342,10 @@ def train(args) -> dict:
         # Epoch 0: the untrained network (a constant near the mean target), the baseline of the
         # learning curves.
         state["log"].append({"epoch": 0, "train_loss": None,
-                             "val_loss": evaluate(model, val, 4 * args.batch, loss_fn),
-                             "test_loss": evaluate(model, test, 4 * args.batch, loss_fn),
+                             "val_loss": evaluate(model, val, 4 * args.batch, loss_fn, dist,
+                                                  device),
+                             "test_loss": evaluate(model, test, 4 * args.batch, loss_fn, dist,
+                                                   device),
                              "seconds": 0.0})
     steps_per_epoch = -(-len(fit) // args.batch)
     for epoch in range(state["epoch"] + 1, args.epochs + 1):
@@ -271,48 +353,66 @@ def train(args) -> dict:
             say(f"stopping: {state['seconds'] / 60:.1f} min of training (--max-minutes)")
             break
         t0 = time.time()
-        model.train()
+        net.train()
+        # The same global order and mirroring on every rank (they depend on seed and epoch only).
         order = np.random.default_rng([args.seed, epoch]).permutation(len(fit))
         flip_rng = torch.Generator().manual_seed(args.seed * 1_000_003 + epoch)
         tl, tn = 0.0, 0
-        for step, (x, y) in enumerate(fit.iterate(args.batch, order)):
+        batches = fit.iterate_global(args.batch, order, dist.rank, dist.world)
+        for step, (x, y, n_global, where) in enumerate(batches):
             if args.schedule == "cosine":
                 t = ((epoch - 1) * steps_per_epoch + step) / max(args.epochs * steps_per_epoch, 1)
                 for gr in opt.param_groups:
                     gr["lr"] = args.lr * 0.5 * (1.0 + np.cos(np.pi * t))
             if mirror is not None:
-                flip = (torch.rand(len(y), generator=flip_rng) < 0.5).to(x.device)
+                flip = torch.rand(n_global, generator=flip_rng) < 0.5
+                flip = flip[torch.from_numpy(where)].to(x.device)
                 x = torch.where(flip[:, None], x[:, mirror], x)
+            # This rank's share of the global mean: DDP averages the gradients over the ranks.
+            share = len(y) * dist.world / n_global
+            if len(y) == 0:
+                # A last minibatch smaller than the world: take part in the gradient exchange
+                # with a zero-weight row.
+                x, y, share = torch.zeros((1, x.shape[1]), device=device), torch.ones(
+                    1, device=device), 0.0
             opt.zero_grad(set_to_none=True)
-            loss = loss_fn(model(x), y[:, None].expand(-1, model.outputs))
-            loss.backward()
+            loss = loss_fn(net(x), y[:, None].expand(-1, model.outputs))
+            (loss * share).backward()
             opt.step()
-            tl += float(loss.detach()) * len(y)
-            tn += len(y)
-        vl = evaluate(model, val, 4 * args.batch, loss_fn)
-        te = evaluate(model, test, 4 * args.batch, loss_fn)
-        dt = time.time() - t0
+            tl += float(loss.detach()) * len(y) * (share > 0)
+            tn += len(y) * (share > 0)
+        if dist.on:
+            tl, tn = dist.sum([tl, tn], device)
+        vl = evaluate(model, val, 4 * args.batch, loss_fn, dist, device)
+        te = evaluate(model, test, 4 * args.batch, loss_fn, dist, device)
+        # Every rank keeps the same clock (--max-minutes must stop them together).
+        dt = dist.max(time.time() - t0, device)
         state["seconds"] += dt
         state["epoch"] = epoch
         row = {"epoch": epoch, "train_loss": tl / max(tn, 1), "val_loss": vl,
                "test_loss": te, "seconds": state["seconds"]}
         state["log"].append(row)
-        if vl < state["best_val"]:
+        improved = vl < state["best_val"]
+        if improved:
             state["best_val"], state["best_epoch"] = vl, epoch
-            torch.save({"model": model.state_dict(), "config": model.config(), "epoch": epoch}, best)
-        torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(),
-                    "config": model.config(), "state": state}, last)
-        with open(args.run / "log.csv", "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(row))
-            w.writeheader()
-            w.writerows(state["log"])
-        plot(state["log"], args.run / "curves.png")
+        if lead:
+            if improved:
+                torch.save({"model": model.state_dict(), "config": model.config(),
+                            "epoch": epoch}, best)
+            torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(),
+                        "config": model.config(), "state": state}, last)
+            with open(args.run / "log.csv", "w", newline="") as f:
+                w = csv.DictWriter(f, fieldnames=list(row))
+                w.writeheader()
+                w.writerows(state["log"])
+            plot(state["log"], args.run / "curves.png")
         te_s = "" if te is None else f", test {te:.5g}"
         say(f"epoch {epoch}: train {row['train_loss']:.5g}, validation {vl:.5g}{te_s} ({dt:.1f} s)")
 
     result = {"state": state, "manifest": manifest, "fit": len(fit), "val": len(val),
-              "test": len(test), "device": str(device), "val_from_clouds": bool(len(val_recs))}
-    if args.export:
+              "test": len(test), "device": str(device), "val_from_clouds": bool(len(val_recs)),
+              "ranks": dist.world}
+    if args.export and lead:
         result["card"] = export(args, result, val_source, val_idx, test_recs, device)
         say(f"wrote {args.export} (export check: max relative difference "
             f"{result['card']['export_check']['max_relative_difference']:.2e})")
@@ -380,7 +480,8 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
                                         if r["epoch"] == s["best_epoch"]), None),
                      "train_rows": result["fit"], "val_rows": result["val"],
                      "batch": args.batch, "lr": args.lr, "seed": args.seed,
-                     "device": result["device"], "seconds": s["seconds"],
+                     "device": result["device"], "ranks": result.get("ranks", 1),
+                     "seconds": s["seconds"],
                      "torch": torch.__version__},
         "record_errors": errors,
         "export_check": check,

@@ -18,12 +18,14 @@ macro_rules! say {
 }
 
 mod args;
+mod datagen;
 mod eval;
 mod rpnn;
 mod view;
 
 use args::{PmArgs, positive_finite, thread_count};
 
+use datagen::{DatagenArgs, datagen};
 use eval::{EvalArgs, StressArgs, SuiteArgs, bench_suite, compare_scene, stress};
 
 use rpnn::{RpnnArgs, render_rpnn};
@@ -132,57 +134,9 @@ enum Command {
     /// generated cumulus. `--headless` runs the same loop without a window.
     View(ViewArgs),
     /// Generate RPNN training records (Kallweit 2017 §5.1): descriptors and path-traced indirect
-    /// radiance, sharded .npy files and manifest.json; resumable.
-    Datagen {
-        /// `gen:N` for N generated clouds, or a folder of .vol/.npy/.vdb files.
-        #[arg(long, default_value = "gen:40")]
-        clouds: String,
-        /// Training records.
-        #[arg(long)]
-        records: usize,
-        /// Records from the held-out test clouds (default: a quarter of --records).
-        #[arg(long)]
-        test_records: Option<usize>,
-        /// Records from the validation clouds (default: as many as --test-records).
-        #[arg(long)]
-        val_records: Option<usize>,
-        /// Training labels with exactly N samples each (unbiased, noisy; train with the
-        /// relative L2 loss). Default: to ±2 % at 95 % confidence, capped at --max-samples.
-        #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1 << 24))]
-        samples: Option<u64>,
-        /// Validation and test labels with exactly N samples each (default: converged).
-        #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1 << 24))]
-        eval_samples: Option<u64>,
-        /// Light directions: `sphere` (uniform, Kallweit §5.1) or `uniform-gamma` (the angle
-        /// to the view direction uniform in [0, π]).
-        #[arg(long, default_value = "sphere")]
-        light: String,
-        /// Density scales of generated clouds LO,HI (log-uniform).
-        #[arg(long, value_delimiter = ',', default_values_t = [10.0, 80.0])]
-        density_range: Vec<f64>,
-        #[arg(long, short)]
-        out: PathBuf,
-        /// Phase function: hg (g = 0.857) or mie (chopped, r_eff 8 µm).
-        #[arg(long, default_value = "hg")]
-        phase: String,
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-        #[arg(long, default_value_t = 1000)]
-        shard_size: usize,
-        /// Sample cap per record (records that reach it are kept and flagged as not converged).
-        #[arg(long, default_value_t = 1 << 18)]
-        max_samples: u64,
-        /// σ_t per unit grid value for clouds read from a folder.
-        #[arg(long, default_value_t = 30.0)]
-        density_scale: f64,
-        /// Estimate L_i on the CPU or the GPU (default: the GPU when a hardware adapter is
-        /// available and the phase function is HG; a software rasteriser is slower than the CPU
-        /// path tracer).
-        #[arg(long, value_enum)]
-        device: Option<Device>,
-        #[arg(long, short)]
-        quiet: bool,
-    },
+    /// radiance, sharded .npy files and manifest.json; resumable. `--shard K/N` writes part K of
+    /// N (one machine's share); `datagen merge PART… --out DIR` assembles the parts.
+    Datagen(DatagenArgs),
     /// Generate a procedural cloud and write it as .vol or .npy.
     Generate {
         /// cumulus, stratus or cirrus
@@ -463,80 +417,7 @@ fn run(cli: Cli) -> Result<()> {
                 out.display()
             );
         }
-        Command::Datagen {
-            clouds,
-            records,
-            test_records,
-            val_records,
-            samples,
-            eval_samples,
-            light,
-            density_range,
-            out,
-            phase,
-            seed,
-            shard_size,
-            max_samples,
-            density_scale,
-            device,
-            quiet,
-        } => {
-            use nimbus_rpnn::dataset;
-            let set = match clouds.strip_prefix("gen:") {
-                Some(n) => {
-                    let n: usize = n
-                        .parse()
-                        .with_context(|| format!("--clouds {clouds}: expected gen:N"))?;
-                    if n == 0 {
-                        bail!("--clouds gen:N needs N ≥ 1");
-                    }
-                    let ok = density_range.len() == 2
-                        && density_range.iter().all(|d| d.is_finite() && *d > 0.0)
-                        && density_range[0] <= density_range[1];
-                    if !ok {
-                        bail!(
-                            "--density-range needs LO,HI with 0 < LO <= HI, got {density_range:?}"
-                        );
-                    }
-                    dataset::generated_set_in(n, seed, [density_range[0], density_range[1]])
-                }
-                None => dataset::folder_set(Path::new(&clouds), density_scale)?,
-            };
-            let light = match light.as_str() {
-                "sphere" => nimbus_rpnn::datagen::LightSampling::Sphere,
-                "uniform-gamma" => nimbus_rpnn::datagen::LightSampling::UniformGamma,
-                other => bail!("--light {other}: expected sphere or uniform-gamma"),
-            };
-            let test_records = test_records.unwrap_or(records / 4);
-            let opts = dataset::DatagenOptions {
-                records,
-                test_records,
-                val_records: val_records.unwrap_or(test_records),
-                samples: samples.unwrap_or(0),
-                eval_samples: eval_samples.unwrap_or(0),
-                light,
-                shard_size,
-                seed,
-                max_samples,
-                albedo: 1.0,
-                gpu: match device {
-                    Some(d) => d == Device::Gpu,
-                    None => phase == "hg" && nimbus_gpu::Gpu::new().is_ok_and(|g| !g.is_software()),
-                },
-                phase,
-                progress: !quiet,
-            };
-            let r = dataset::run(&set, &opts, &out)?;
-            say!(
-                "{} records ({} computed now in {:.1} s, {:.2} records/s), {:.1} % converged -> {}",
-                r.records,
-                r.computed,
-                r.seconds,
-                r.computed as f64 / r.seconds.max(1e-9),
-                100.0 * r.converged as f64 / r.records.max(1) as f64,
-                out.join("manifest.json").display()
-            );
-        }
+        Command::Datagen(args) => datagen(args)?,
         Command::Generate {
             kind,
             seed,

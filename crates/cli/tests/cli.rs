@@ -1,6 +1,6 @@
 //! The `nimbus` binary end to end: generate → info → render, and clear errors on bad input.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 fn nimbus(args: &[&str]) -> Output {
@@ -296,6 +296,111 @@ fn datagen_end_to_end() {
     ]);
     assert!(
         !o.status.success() && text(&o).contains("gen:N"),
+        "{}",
+        text(&o)
+    );
+}
+
+/// `datagen --shard K/N` and `datagen merge`: two parts merge into the single run's files; bad
+/// part specifications and merges are clear errors.
+#[test]
+fn datagen_parts_and_merge() {
+    let d = tmp().join("parts");
+    let args = |out: &Path, shard: Option<&str>| {
+        let mut v: Vec<String> = [
+            "datagen",
+            "--clouds",
+            "gen:5",
+            "--records",
+            "3",
+            "--test-records",
+            "1",
+            "--val-records",
+            "1",
+            "--shard-size",
+            "1",
+            "--samples",
+            "16",
+            "--eval-samples",
+            "16",
+            "--device",
+            "cpu",
+            "-q",
+            "-o",
+        ]
+        .map(String::from)
+        .to_vec();
+        v.push(out.to_str().unwrap().into());
+        if let Some(s) = shard {
+            v.extend(["--shard".into(), s.into()]);
+        }
+        v
+    };
+    let run = |a: Vec<String>| nimbus(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    let o = run(args(&d.join("single"), None));
+    assert!(o.status.success(), "{}", text(&o));
+    for k in ["1/2", "2/2"] {
+        let o = run(args(&d.join(&k[..1]), Some(k)));
+        assert!(
+            o.status.success() && text(&o).contains(&format!("part {k}")),
+            "{}",
+            text(&o)
+        );
+    }
+    let (p1, p2, m) = (d.join("1"), d.join("2"), d.join("merged"));
+    let o = nimbus(&[
+        "datagen",
+        "merge",
+        p1.to_str().unwrap(),
+        p2.to_str().unwrap(),
+        "-o",
+        m.to_str().unwrap(),
+    ]);
+    assert!(
+        o.status.success() && text(&o).contains("2 parts, 5 shards, 5 records"),
+        "{}",
+        text(&o)
+    );
+    for f in [
+        "train_00002_y.npy",
+        "val_00000_x.npy",
+        "test_00000_meta.npy",
+    ] {
+        assert_eq!(
+            std::fs::read(d.join("single").join(f)).unwrap(),
+            std::fs::read(m.join(f)).unwrap(),
+            "{f}"
+        );
+    }
+    for (k, want) in [
+        ("0/2", "1 <= K <= N"),
+        ("3/2", "1 <= K <= N"),
+        ("1-2", "expected K/N"),
+    ] {
+        let o = run(args(&d.join("bad"), Some(k)));
+        assert!(
+            !o.status.success() && text(&o).contains(want),
+            "{k}: {}",
+            text(&o)
+        );
+    }
+    let o = nimbus(&[
+        "datagen",
+        "merge",
+        p1.to_str().unwrap(),
+        "-o",
+        m.to_str().unwrap(),
+    ]);
+    assert!(
+        !o.status.success() && text(&o).contains("part 2/2 is missing"),
+        "{}",
+        text(&o)
+    );
+    let o = nimbus(&["datagen", "merge", "-o", m.to_str().unwrap()]);
+    assert!(!o.status.success(), "{}", text(&o));
+    let o = nimbus(&["datagen", "--clouds", "gen:5", "-o", m.to_str().unwrap()]);
+    assert!(
+        !o.status.success() && text(&o).contains("--records"),
         "{}",
         text(&o)
     );

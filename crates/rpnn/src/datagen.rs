@@ -195,6 +195,9 @@ pub struct Record {
 pub enum DatagenError {
     #[error("cloud `{cloud}`: {msg}")]
     Cloud { cloud: String, msg: String },
+    /// A data-set folder or file (`what` names it).
+    #[error("{what}: {msg}")]
+    Set { what: String, msg: String },
 }
 
 /// A cloud prepared for data generation: the path tracer's scene and the descriptor pyramid.

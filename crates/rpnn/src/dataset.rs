@@ -11,7 +11,22 @@
 //!
 //! Record r of a split uses its own random stream (seed, split, r) and cloud r mod (clouds of
 //! the split), so a run is deterministic for a seed and resumable: finished shards (all three
-//! files present with the right row count) are kept, the rest are recomputed.
+//! files present with the right row count) are kept, the rest are recomputed. The manifest
+//! lists every shard file's SHA-256.
+//!
+//! ## Integrity on resume
+//! After its three `.npy` files, each shard gets `{split}_{k:05}.sha256` (their SHA-256, one per
+//! line). A resumed run keeps a shard only when the sidecar's sums match the files; a shard
+//! whose files were truncated, overwritten or changed (NaN written into it, …) is reported and
+//! recomputed. Shards of older runs without a sidecar are kept when their row counts agree and
+//! every value is finite (the sidecar is then written).
+//!
+//! ## Parts of a set (`--shard K/N`)
+//! A run with [`DatagenOptions::part`] = K/N writes only the shards whose global index (train
+//! shards first, then validation, then test) is ≡ K − 1 mod N — byte for byte the files a
+//! single run with the same settings writes for them — into its own folder, resumable on its
+//! own. [`crate::shards::merge`] checks N such folders (same settings, every shard exactly once,
+//! checksums) and assembles the single run's folder.
 //!
 //! ## Labels: converged or fixed-count
 //! Converged records (`samples` = 0) are path-traced until the 95 % interval is within ±2 %
@@ -60,7 +75,7 @@ fn split_of(i: usize) -> String {
 }
 
 /// Where a cloud comes from.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 #[serde(tag = "source")]
 pub enum CloudSource {
     Generated {
@@ -74,7 +89,7 @@ pub enum CloudSource {
 }
 
 /// A cloud of the set.
-#[derive(Debug, Clone, Serialize, PartialEq)]
+#[derive(Debug, Clone, Serialize, serde::Deserialize, PartialEq)]
 pub struct CloudSpec {
     pub name: String,
     #[serde(flatten)]
@@ -119,8 +134,8 @@ pub fn generated_set_in(n: usize, seed: u64, density: [f64; 2]) -> Vec<CloudSpec
 /// The clouds of a folder (.vol/.npy/.vdb, sorted); splits as for generated sets. The grids are
 /// placed in a box 2 units wide with cubic voxels (`.npy` has no box of its own).
 pub fn folder_set(dir: &Path, density_scale: f64) -> Result<Vec<CloudSpec>, DatagenError> {
-    let err = |msg: String| DatagenError::Cloud {
-        cloud: dir.display().to_string(),
+    let err = |msg: String| DatagenError::Set {
+        what: dir.display().to_string(),
         msg,
     };
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
@@ -221,33 +236,170 @@ pub struct DatagenOptions {
     pub progress: bool,
     /// Estimate L_i on the GPU (`shaders/pt.wgsl`) instead of the CPU path tracer.
     pub gpu: bool,
+    /// Write only part K of N of the set (see the module docs); `None`: all of it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub part: Option<Part>,
 }
 
-#[derive(Debug, Clone, Serialize)]
-struct ShardInfo {
-    split: String,
-    index: usize,
-    records: usize,
-    converged: usize,
-    x: String,
-    y: String,
-    meta: String,
+/// Part `index` (1-based) of `count` of a data set: the shards whose global index g satisfies
+/// g mod count = index − 1.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+pub struct Part {
+    pub index: usize,
+    pub count: usize,
 }
 
+impl Part {
+    /// Parses `K/N` with 1 ≤ K ≤ N.
+    pub fn parse(s: &str) -> Result<Self, String> {
+        let (k, n) = s
+            .split_once('/')
+            .ok_or_else(|| format!("`{s}`: expected K/N, e.g. 1/4"))?;
+        let parse = |v: &str, what: &str| {
+            v.trim()
+                .parse::<usize>()
+                .map_err(|e| format!("`{s}`: {what} `{v}` is not a whole number ({e})"))
+        };
+        let (index, count) = (parse(k, "K")?, parse(n, "N")?);
+        if count == 0 || index == 0 || index > count {
+            return Err(format!("`{s}`: needs 1 <= K <= N"));
+        }
+        Ok(Self { index, count })
+    }
+
+    /// Whether the shard with global index `g` belongs to this part.
+    pub fn owns(&self, g: usize) -> bool {
+        g % self.count == self.index - 1
+    }
+}
+
+impl std::fmt::Display for Part {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+/// One shard of a manifest: its files (relative to the set's folder) and their SHA-256.
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+pub struct ShardInfo {
+    pub split: String,
+    pub index: usize,
+    pub records: usize,
+    pub converged: usize,
+    pub x: String,
+    pub y: String,
+    pub meta: String,
+    /// Hex SHA-256 of the x, y and meta files.
+    pub sha256: [String; 3],
+}
+
+/// The format written in `manifest.json`.
+pub const FORMAT: &str = "nimbus-rpnn-records/2";
+/// Layout of a descriptor row, as written in `manifest.json`.
+pub const DESCRIPTOR_LAYOUT: &str = "level-major: [(k-1)*225 + p] = rho at stencil point p (p = ix + 5 iy + 25 iz) of level k = 1..10; [2250] = gamma (radians)";
+/// Names of the `_meta.npy` columns, as written in `manifest.json`.
+pub const META_NAMES: [&str; META_COLUMNS] = [
+    "cloud",
+    "x",
+    "y",
+    "z",
+    "view_x",
+    "view_y",
+    "view_z",
+    "light_x",
+    "light_y",
+    "light_z",
+    "samples",
+    "converged",
+    "rel_ci95",
+    "target_variance",
+    "light_weight",
+];
+
 #[derive(Debug, Clone, Serialize)]
-struct Manifest {
-    format: &'static str,
-    descriptor_len: usize,
-    descriptor_layout: &'static str,
-    meta_columns: [&'static str; META_COLUMNS],
-    settings: DatagenOptions,
-    clouds: Vec<CloudSpec>,
-    shards: Vec<ShardInfo>,
-    records: usize,
-    converged: usize,
-    convergence_rate: f64,
-    seconds_this_run: f64,
-    records_per_second_this_run: f64,
+pub(crate) struct Manifest<S: Serialize> {
+    pub format: &'static str,
+    pub descriptor_len: usize,
+    pub descriptor_layout: &'static str,
+    pub meta_columns: [&'static str; META_COLUMNS],
+    pub settings: S,
+    pub clouds: Vec<CloudSpec>,
+    pub shards: Vec<ShardInfo>,
+    pub records: usize,
+    pub converged: usize,
+    pub convergence_rate: f64,
+    pub seconds_this_run: f64,
+    pub records_per_second_this_run: f64,
+}
+
+impl<S: Serialize> Manifest<S> {
+    pub(crate) fn new(
+        settings: S,
+        clouds: Vec<CloudSpec>,
+        shards: Vec<ShardInfo>,
+        seconds: f64,
+        computed: usize,
+    ) -> Self {
+        let records = shards.iter().map(|s| s.records).sum();
+        let converged = shards.iter().map(|s| s.converged).sum();
+        Self {
+            format: FORMAT,
+            descriptor_len: DESCRIPTOR_LEN,
+            descriptor_layout: DESCRIPTOR_LAYOUT,
+            meta_columns: META_NAMES,
+            settings,
+            clouds,
+            shards,
+            records,
+            converged,
+            convergence_rate: if records > 0 {
+                converged as f64 / records as f64
+            } else {
+                0.0
+            },
+            seconds_this_run: seconds,
+            records_per_second_this_run: computed as f64 / seconds.max(1e-9),
+        }
+    }
+
+    /// Writes `dir/manifest.json` whole or not at all.
+    pub(crate) fn write(&self, dir: &Path) -> Result<(), DatagenError> {
+        let path = dir.join("manifest.json");
+        let text = serde_json::to_string_pretty(self).expect("a manifest serialises");
+        write_text(&path, &text)
+    }
+}
+
+/// Writes `text` to `path` through a temporary beside it and a rename.
+pub(crate) fn write_text(path: &Path, text: &str) -> Result<(), DatagenError> {
+    let tmp = path.with_extension("json.tmp");
+    std::fs::write(&tmp, text)
+        .and_then(|_| std::fs::rename(&tmp, path))
+        .map_err(|e| DatagenError::Set {
+            what: path.display().to_string(),
+            msg: e.to_string(),
+        })
+}
+
+/// Hex SHA-256 of a file's bytes.
+pub(crate) fn sha256_file(path: &Path) -> Result<String, DatagenError> {
+    use sha2::{Digest, Sha256};
+    use std::io::Read;
+    let err = |e: std::io::Error| DatagenError::Set {
+        what: path.display().to_string(),
+        msg: e.to_string(),
+    };
+    let mut f = std::fs::File::open(path).map_err(err)?;
+    let mut h = Sha256::new();
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let n = f.read(&mut buf).map_err(err)?;
+        if n == 0 {
+            break;
+        }
+        h.update(&buf[..n]);
+    }
+    Ok(h.finalize().iter().map(|b| format!("{b:02x}")).collect())
 }
 
 /// Summary of a run.
@@ -260,8 +412,8 @@ pub struct RunSummary {
 }
 
 fn medium(opts: &DatagenOptions) -> Result<Medium, DatagenError> {
-    let err = |msg: String| DatagenError::Cloud {
-        cloud: "medium".into(),
+    let err = |msg: String| DatagenError::Set {
+        what: "phase".into(),
         msg,
     };
     match opts.phase.as_str() {
@@ -284,8 +436,8 @@ fn medium(opts: &DatagenOptions) -> Result<Medium, DatagenError> {
 
 fn write_npy(path: &Path, shape: &[u64], data: &[f32]) -> Result<(), DatagenError> {
     use npyz::WriterBuilder;
-    let err = |e: std::io::Error| DatagenError::Cloud {
-        cloud: path.display().to_string(),
+    let err = |e: std::io::Error| DatagenError::Set {
+        what: path.display().to_string(),
         msg: e.to_string(),
     };
     let tmp = path.with_extension("npy.tmp");
@@ -303,20 +455,93 @@ fn write_npy(path: &Path, shape: &[u64], data: &[f32]) -> Result<(), DatagenErro
     std::fs::rename(&tmp, path).map_err(err)
 }
 
-fn rows_of(path: &Path) -> Option<u64> {
+pub(crate) fn rows_of(path: &Path) -> Option<u64> {
     let f = std::fs::File::open(path).ok()?;
     let npy = npyz::NpyFile::new(std::io::BufReader::new(f)).ok()?;
     npy.shape().first().copied()
 }
 
+/// Reads a whole `.npy` array of f32.
+fn read_f32(path: &Path) -> Result<Vec<f32>, String> {
+    let f = std::fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    npyz::NpyFile::new(std::io::BufReader::new(f))
+        .and_then(|f| f.into_vec::<f32>())
+        .map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// Whether a finished shard can be kept on resume: `Ok(Some((sums, converged)))` when its files
+/// are intact, `Ok(None)` when it is absent or unfinished, `Err(why)` when it is damaged.
+fn verify_shard(
+    files: [&PathBuf; 3],
+    sidecar: &Path,
+    n: u64,
+) -> Result<Option<([String; 3], usize)>, String> {
+    if files.iter().any(|f| !f.exists()) {
+        return Ok(None);
+    }
+    let rows = files.map(|f| rows_of(f));
+    if rows.iter().any(|r| *r != Some(n)) {
+        return Err(format!(
+            "{} rows in x, y and meta (expected {n} each)",
+            rows.map(|r| r.map_or("unreadable".to_string(), |r| r.to_string()))
+                .join(", ")
+        ));
+    }
+    let sums: Vec<String> = files
+        .iter()
+        .map(|f| sha256_file(f).map_err(|e| e.to_string()))
+        .collect::<Result<_, _>>()?;
+    let sums: [String; 3] = sums.try_into().expect("three files");
+    let meta = || read_f32(files[2]);
+    let converged = |m: &[f32]| m.chunks(META_COLUMNS).filter(|r| r[11] > 0.5).count();
+    match std::fs::read_to_string(sidecar) {
+        Ok(text) => {
+            let want: Vec<&str> = text.split_whitespace().collect();
+            for (i, f) in files.iter().enumerate() {
+                if want.get(i) != Some(&sums[i].as_str()) {
+                    return Err(format!(
+                        "{} does not match its checksum in {}",
+                        f.display(),
+                        sidecar.display()
+                    ));
+                }
+            }
+            Ok(Some((sums.clone(), converged(&meta()?))))
+        }
+        Err(_) => {
+            // A shard of an older run: whole and finite, or recomputed.
+            let m = meta()?;
+            let y = read_f32(files[1])?;
+            let x = read_f32(files[0])?;
+            for (f, v) in [(files[0], &x), (files[1], &y), (files[2], &m)] {
+                if let Some(i) = v.iter().position(|v| !v.is_finite()) {
+                    return Err(format!("{}: value {i} is {}", f.display(), v[i]));
+                }
+            }
+            write_sidecar(sidecar, &sums).map_err(|e| e.to_string())?;
+            Ok(Some((sums, converged(&m))))
+        }
+    }
+}
+
+fn write_sidecar(path: &Path, sums: &[String; 3]) -> Result<(), DatagenError> {
+    let tmp = path.with_extension("sha256.tmp");
+    std::fs::write(&tmp, sums.join("\n") + "\n")
+        .and_then(|_| std::fs::rename(&tmp, path))
+        .map_err(|e| DatagenError::Set {
+            what: path.display().to_string(),
+            msg: e.to_string(),
+        })
+}
+
 /// An advisory lock on `out/.lock` held for the whole run: a second concurrent writer to the
 /// same folder is refused, naming the process that holds it (the lock is released when the
 /// holder exits, even if it is killed).
-fn lock_out(out: &Path) -> Result<std::fs::File, DatagenError> {
+pub(crate) fn lock_out(out: &Path) -> Result<std::fs::File, DatagenError> {
     use std::io::{Read, Seek, Write};
     let path = out.join(".lock");
-    let err = |msg: String| DatagenError::Cloud {
-        cloud: path.display().to_string(),
+    let err = |msg: String| DatagenError::Set {
+        what: path.display().to_string(),
         msg,
     };
     let mut f = std::fs::OpenOptions::new()
@@ -337,8 +562,8 @@ fn lock_out(out: &Path) -> Result<std::fs::File, DatagenError> {
         Err(std::fs::TryLockError::WouldBlock) => {
             let mut holder = String::new();
             let _ = f.read_to_string(&mut holder);
-            Err(DatagenError::Cloud {
-                cloud: out.display().to_string(),
+            Err(DatagenError::Set {
+                what: out.display().to_string(),
                 msg: format!(
                     "another datagen (process {}) is writing to this folder; wait for it or use another --out",
                     holder.trim()
@@ -351,7 +576,7 @@ fn lock_out(out: &Path) -> Result<std::fs::File, DatagenError> {
 
 /// What determines the records of a set: written to `settings.json` when a run starts; a later
 /// run in the same folder must agree (it would otherwise mix old shards with new settings).
-fn settings_json(clouds: &[CloudSpec], opts: &DatagenOptions) -> serde_json::Value {
+pub(crate) fn settings_json(clouds: &[CloudSpec], opts: &DatagenOptions) -> serde_json::Value {
     let mut o = serde_json::to_value(opts).expect("options serialise");
     let m = o.as_object_mut().expect("an object");
     // Not part of what a record is: how it was computed or shown.
@@ -375,8 +600,8 @@ fn check_settings(
             return Ok(());
         }
         let have: serde_json::Value =
-            serde_json::from_str(&text).map_err(|e| DatagenError::Cloud {
-                cloud: path.display().to_string(),
+            serde_json::from_str(&text).map_err(|e| DatagenError::Set {
+                what: path.display().to_string(),
                 msg: format!("not valid JSON ({e}); remove it or use a new --out"),
             })?;
         {
@@ -404,8 +629,8 @@ fn check_settings(
                     }
                 })
                 .collect::<Vec<_>>();
-            return Err(DatagenError::Cloud {
-                cloud: out.display().to_string(),
+            return Err(DatagenError::Set {
+                what: out.display().to_string(),
                 msg: format!(
                     "holds records made with other settings: {}; use a new --out (or remove the folder)",
                     if differs.is_empty() {
@@ -417,13 +642,7 @@ fn check_settings(
             });
         }
     }
-    let tmp = out.join("settings.json.tmp");
-    std::fs::write(&tmp, &want_text)
-        .and_then(|_| std::fs::rename(&tmp, &path))
-        .map_err(|e| DatagenError::Cloud {
-            cloud: path.display().to_string(),
-            msg: e.to_string(),
-        })
+    write_text(&path, &want_text)
 }
 
 /// Generates (or completes) a data set in `out`.
@@ -432,8 +651,8 @@ pub fn run(
     opts: &DatagenOptions,
     out: &Path,
 ) -> Result<RunSummary, DatagenError> {
-    let err = |msg: String| DatagenError::Cloud {
-        cloud: out.display().to_string(),
+    let err = |msg: String| DatagenError::Set {
+        what: out.display().to_string(),
         msg,
     };
     if opts.shard_size == 0 {
@@ -460,7 +679,17 @@ pub fn run(
             )));
         }
     }
+    let part = opts.part.unwrap_or(Part { index: 1, count: 1 });
+    if part.index == 0 || part.index > part.count {
+        return Err(err(format!("part {part}: needs 1 <= K <= N")));
+    }
+    // Global index of each split's first shard (train, then validation, then test).
+    let mut first_shard = 0usize;
     for (split, count) in SPLITS.into_iter().zip(counts) {
+        let n_shards = count.div_ceil(opts.shard_size);
+        let shard0 = first_shard;
+        first_shard += n_shards;
+        let owned: Vec<usize> = (0..n_shards).filter(|k| part.owns(shard0 + k)).collect();
         let n_samples = if split == "train" {
             opts.samples
         } else {
@@ -474,7 +703,7 @@ pub fn run(
         let members: Vec<usize> = (0..clouds.len())
             .filter(|&i| clouds[i].split == split)
             .collect();
-        if count == 0 {
+        if owned.is_empty() {
             continue;
         }
         // Build the clouds of this split (volume + pyramid), in parallel.
@@ -482,9 +711,12 @@ pub fn run(
             .par_iter()
             .map(|&i| CloudData::new(&clouds[i].name, build_volume(&clouds[i])?, medium.clone()))
             .collect::<Result<_, _>>()?;
-        let n_shards = count.div_ceil(opts.shard_size);
+        let owned_records: usize = owned
+            .iter()
+            .map(|k| ((k + 1) * opts.shard_size).min(count) - k * opts.shard_size)
+            .sum();
         let bar = if opts.progress {
-            ProgressBar::with_draw_target(Some(count as u64), ProgressDrawTarget::stderr())
+            ProgressBar::with_draw_target(Some(owned_records as u64), ProgressDrawTarget::stderr())
         } else {
             ProgressBar::hidden()
         };
@@ -496,7 +728,7 @@ pub fn run(
             .progress_chars("=> "),
         );
         bar.set_prefix(split);
-        for k in 0..n_shards {
+        for k in owned {
             let lo = k * opts.shard_size;
             let hi = ((k + 1) * opts.shard_size).min(count);
             let name = |what: &str| format!("{split}_{k:05}_{what}.npy");
@@ -506,28 +738,40 @@ pub fn run(
                 out.join(name("meta")),
             );
             let n = (hi - lo) as u64;
-            let shard = |converged| ShardInfo {
-                split: split.into(),
-                index: k,
-                records: n as usize,
-                converged,
-                x: name("x"),
-                y: name("y"),
-                meta: name("meta"),
+            let shard = |converged| -> Result<ShardInfo, DatagenError> {
+                Ok(ShardInfo {
+                    split: split.into(),
+                    index: k,
+                    records: n as usize,
+                    converged,
+                    x: name("x"),
+                    y: name("y"),
+                    meta: name("meta"),
+                    sha256: [sha256_file(&px)?, sha256_file(&py)?, sha256_file(&pm)?],
+                })
             };
-            if rows_of(&px) == Some(n) && rows_of(&py) == Some(n) && rows_of(&pm) == Some(n) {
-                // Finished earlier: keep it, but count its convergence.
-                let meta: Vec<f32> = npyz::NpyFile::new(std::io::BufReader::new(
-                    std::fs::File::open(&pm).map_err(|e| err(e.to_string()))?,
-                ))
-                .and_then(|f| f.into_vec::<f32>())
-                .map_err(|e| err(e.to_string()))?;
-                let conv = meta.chunks(META_COLUMNS).filter(|r| r[11] > 0.5).count();
-                converged += conv;
-                total += n as usize;
-                shards.push(shard(conv));
-                bar.inc(n);
-                continue;
+            let sidecar = out.join(format!("{split}_{k:05}.sha256"));
+            match verify_shard([&px, &py, &pm], &sidecar, n) {
+                Ok(Some((sums, conv))) => {
+                    converged += conv;
+                    total += n as usize;
+                    shards.push(ShardInfo {
+                        split: split.into(),
+                        index: k,
+                        records: n as usize,
+                        converged: conv,
+                        x: name("x"),
+                        y: name("y"),
+                        meta: name("meta"),
+                        sha256: sums,
+                    });
+                    bar.inc(n);
+                    continue;
+                }
+                Ok(None) => {}
+                Err(why) => bar.suspend(|| {
+                    eprintln!("{split} shard {k}: {why}; recomputing it");
+                }),
             }
             // train 0 and test 1 as before the validation split existed (same records).
             let split_id = match split {
@@ -598,53 +842,21 @@ pub fn run(
                 ]);
                 conv += r.converged as usize;
             }
+            let _ = std::fs::remove_file(&sidecar);
             write_npy(&px, &[n, DESCRIPTOR_LEN as u64], &xs)?;
             write_npy(&py, &[n], &ys)?;
             write_npy(&pm, &[n, META_COLUMNS as u64], &ms)?;
+            let info = shard(conv)?;
+            write_sidecar(&sidecar, &info.sha256)?;
             computed += n as usize;
             total += n as usize;
             converged += conv;
-            shards.push(shard(conv));
+            shards.push(info);
         }
         bar.finish_and_clear();
     }
     let seconds = start.elapsed().as_secs_f64();
-    let manifest = Manifest {
-        format: "nimbus-rpnn-records/2",
-        descriptor_len: DESCRIPTOR_LEN,
-        descriptor_layout: "level-major: [(k-1)*225 + p] = rho at stencil point p (p = ix + 5 iy + 25 iz) of level k = 1..10; [2250] = gamma (radians)",
-        meta_columns: [
-            "cloud",
-            "x",
-            "y",
-            "z",
-            "view_x",
-            "view_y",
-            "view_z",
-            "light_x",
-            "light_y",
-            "light_z",
-            "samples",
-            "converged",
-            "rel_ci95",
-            "target_variance",
-            "light_weight",
-        ],
-        settings: opts.clone(),
-        clouds: clouds.to_vec(),
-        shards,
-        records: total,
-        converged,
-        convergence_rate: if total > 0 {
-            converged as f64 / total as f64
-        } else {
-            0.0
-        },
-        seconds_this_run: seconds,
-        records_per_second_this_run: computed as f64 / seconds.max(1e-9),
-    };
-    let text = serde_json::to_string_pretty(&manifest).map_err(|e| err(e.to_string()))?;
-    std::fs::write(out.join("manifest.json"), text).map_err(|e| err(e.to_string()))?;
+    Manifest::new(opts.clone(), clouds.to_vec(), shards, seconds, computed).write(out)?;
     Ok(RunSummary {
         records: total,
         computed,

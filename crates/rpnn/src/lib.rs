@@ -2,7 +2,8 @@
 //!
 //! Radiance-predicting neural networks (Kallweit et al. 2017): the Gaussian density pyramid and
 //! the hierarchical stencil descriptor (§4.2) on the CPU ([`descriptor`]) and the GPU
-//! ([`gpu`]); training records ([`datagen`]) and sharded data sets ([`dataset`]).
+//! ([`gpu`]); training records ([`datagen`]), sharded data sets ([`dataset`]) and sets assembled from
+//! parts written on several machines ([`shards`]).
 
 pub mod datagen;
 pub mod dataset;
@@ -13,6 +14,7 @@ pub mod model;
 pub mod ort_backend;
 pub mod pyramid;
 pub mod render;
+pub mod shards;
 
 pub use descriptor::{Config, DESCRIPTOR_LEN, LEVELS, POINTS, descriptor, descriptors};
 pub use pyramid::{Pyramid, PyramidError};

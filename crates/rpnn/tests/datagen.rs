@@ -95,6 +95,7 @@ fn opts(seed: u64) -> DatagenOptions {
         phase: "hg".into(),
         progress: false,
         gpu: false,
+        part: None,
     }
 }
 
@@ -374,4 +375,176 @@ fn concurrent_writers_are_refused() {
         .collect();
     o.max_samples = 256;
     assert_eq!(dataset::run(&set, &o, &d).unwrap().records, 1);
+}
+
+/// The small generated set of the tests above (5 clouds: 3 train, 1 validation, 1 test).
+fn small_set() -> Vec<dataset::CloudSpec> {
+    dataset::generated_set(5, 1)
+        .into_iter()
+        .map(|mut c| {
+            if let dataset::CloudSource::Generated { resolution, .. } = &mut c.source {
+                *resolution = [24, 18, 24];
+            }
+            c
+        })
+        .collect()
+}
+
+#[test]
+fn parts_merge_into_the_single_run() {
+    use nimbus_rpnn::dataset::Part;
+    use nimbus_rpnn::shards::merge;
+    let set = small_set();
+    let o = |part: Option<Part>| DatagenOptions {
+        records: 7,
+        val_records: 3,
+        test_records: 3,
+        shard_size: 2,
+        samples: 32,
+        eval_samples: 64,
+        part,
+        ..opts(9)
+    };
+    let single = tmp("single");
+    dataset::run(&set, &o(None), &single).unwrap();
+    // Three parts of 4 + 2 + 2 = 8 shards (global index mod 3).
+    let parts: Vec<_> = (1..=3).map(|k| tmp(&format!("part{k}"))).collect();
+    for (k, dir) in parts.iter().enumerate() {
+        let part = Part {
+            index: k + 1,
+            count: 3,
+        };
+        dataset::run(&set, &o(Some(part)), dir).unwrap();
+    }
+    let merged = tmp("merged");
+    let m = merge(&parts, &merged).unwrap();
+    assert_eq!((m.parts, m.shards, m.records), (3, 8, 13));
+    // Record for record: every shard file byte-identical, the same shard list (checksums
+    // included) and the same settings.json.
+    let manifest = |d: &std::path::Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(d.join("manifest.json")).unwrap()).unwrap()
+    };
+    let (ms, mm) = (manifest(&single), manifest(&merged));
+    assert_eq!(ms["shards"], mm["shards"]);
+    assert_eq!(ms["shards"].as_array().unwrap().len(), 8);
+    for s in ms["shards"].as_array().unwrap() {
+        for f in ["x", "y", "meta"] {
+            let f = s[f].as_str().unwrap();
+            assert_eq!(
+                std::fs::read(single.join(f)).unwrap(),
+                std::fs::read(merged.join(f)).unwrap(),
+                "{f}"
+            );
+        }
+    }
+    assert_eq!(
+        std::fs::read(single.join("settings.json")).unwrap(),
+        std::fs::read(merged.join("settings.json")).unwrap()
+    );
+    fn msg<T: std::fmt::Debug>(r: Result<T, nimbus_rpnn::datagen::DatagenError>) -> String {
+        r.unwrap_err().to_string()
+    }
+    // A part folder refuses to be resumed as another part.
+    let e = msg(dataset::run(
+        &set,
+        &o(Some(Part { index: 2, count: 3 })),
+        &parts[0],
+    ));
+    assert!(e.contains("part"), "{e}");
+    // Gaps, overlaps, other settings and a changed file are refused, naming the culprit.
+    let e = msg(merge(&parts[..2], &tmp("m1")));
+    assert!(e.contains("part 3/3 is missing"), "{e}");
+    let e = msg(merge(
+        &[parts[0].clone(), parts[1].clone(), parts[1].clone()],
+        &tmp("m2"),
+    ));
+    assert!(e.contains("each part is given once"), "{e}");
+    let other = tmp("other");
+    dataset::run(
+        &set,
+        &DatagenOptions {
+            seed: 10,
+            ..o(Some(Part { index: 3, count: 3 }))
+        },
+        &other,
+    )
+    .unwrap();
+    let e = msg(merge(
+        &[parts[0].clone(), parts[1].clone(), other.clone()],
+        &tmp("m3"),
+    ));
+    assert!(e.contains("other settings") && e.contains("`seed`"), "{e}");
+    let bad = parts[1].join("train_00001_y.npy");
+    let mut bytes = std::fs::read(&bad).unwrap();
+    let last = bytes.len() - 1;
+    bytes[last] ^= 1;
+    // Break the hard link first so that the merged copy stays intact.
+    std::fs::remove_file(&bad).unwrap();
+    std::fs::write(&bad, bytes).unwrap();
+    let m4 = tmp("m4");
+    let e = msg(merge(&parts, &m4));
+    assert!(
+        e.contains("train_00001_y.npy") && e.contains("SHA-256"),
+        "{e}"
+    );
+    assert!(!m4.exists(), "nothing is written when a check fails");
+    // A missing shard (a part that did not finish) is a gap naming its part.
+    std::fs::remove_file(&bad).unwrap();
+    let mut m: serde_json::Value = manifest(&parts[1]);
+    m["shards"]
+        .as_array_mut()
+        .unwrap()
+        .retain(|s| !(s["split"] == "train" && s["index"] == 1));
+    std::fs::write(parts[1].join("manifest.json"), m.to_string()).unwrap();
+    let e = msg(merge(&parts, &tmp("m5")));
+    assert!(e.contains("train shard 1 is missing (part 2/3"), "{e}");
+}
+
+#[test]
+fn damaged_shards_are_recomputed_on_resume() {
+    let set = small_set();
+    let d = tmp("damaged");
+    let o = DatagenOptions {
+        samples: 64,
+        ..opts(6)
+    };
+    dataset::run(&set, &o, &d).unwrap();
+    let read = |f: &str| std::fs::read(d.join(f)).unwrap();
+    let (x0, y1, m0) = (
+        read("train_00000_x.npy"),
+        read("train_00001_y.npy"),
+        read("test_00000_meta.npy"),
+    );
+    // A truncated descriptor file (rows in the header, bytes missing) ...
+    std::fs::write(d.join("train_00000_x.npy"), &x0[..x0.len() - 1000]).unwrap();
+    // ... a NaN written over a target, size unchanged ...
+    let mut y = y1.clone();
+    let at = y.len() - 4;
+    y[at..].copy_from_slice(&f32::NAN.to_le_bytes());
+    std::fs::write(d.join("train_00001_y.npy"), &y).unwrap();
+    // ... and an older run's shard (no checksum file) with a NaN in its metadata.
+    std::fs::remove_file(d.join("test_00000.sha256")).unwrap();
+    let mut m = m0.clone();
+    let at = m.len() - 4;
+    m[at..].copy_from_slice(&f32::NAN.to_le_bytes());
+    std::fs::write(d.join("test_00000_meta.npy"), &m).unwrap();
+    let r = dataset::run(&set, &o, &d).unwrap();
+    // All three shards (4 + 2 training, 2 test records: all of them) are recomputed, byte for
+    // byte as first written.
+    assert_eq!((r.records, r.computed), (8, 8));
+    assert_eq!(read("train_00000_x.npy"), x0);
+    assert_eq!(read("train_00001_y.npy"), y1);
+    assert_eq!(read("test_00000_meta.npy"), m0);
+    assert!(d.join("test_00000.sha256").exists());
+    // Intact shards of an older run (no checksum files) are kept, and get one.
+    for f in [
+        "train_00000.sha256",
+        "train_00001.sha256",
+        "test_00000.sha256",
+    ] {
+        std::fs::remove_file(d.join(f)).unwrap();
+    }
+    let r = dataset::run(&set, &o, &d).unwrap();
+    assert_eq!(r.computed, 0);
+    assert!(d.join("train_00001.sha256").exists());
 }

@@ -1,0 +1,162 @@
+//! `nimbus datagen` and `nimbus datagen merge`: arguments, checked and handed to
+//! [`nimbus_rpnn::dataset`] and [`nimbus_rpnn::shards`].
+
+use std::path::PathBuf;
+
+use anyhow::{Result, bail};
+use clap::{Args, Subcommand};
+use nimbus_rpnn::datagen::LightSampling;
+use nimbus_rpnn::dataset::{self, Part};
+
+use crate::Device;
+
+#[derive(Args)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+pub struct DatagenArgs {
+    #[command(subcommand)]
+    action: Option<DatagenAction>,
+    /// `gen:N` for N generated clouds, or a folder of .vol/.npy/.vdb files.
+    #[arg(long, default_value = "gen:40")]
+    clouds: String,
+    /// Training records.
+    #[arg(long, required = true)]
+    records: Option<usize>,
+    /// Records from the held-out test clouds (default: a quarter of --records).
+    #[arg(long)]
+    test_records: Option<usize>,
+    /// Records from the validation clouds (default: as many as --test-records).
+    #[arg(long)]
+    val_records: Option<usize>,
+    /// Training labels with exactly N samples each (unbiased, noisy; train with the
+    /// relative L2 loss). Default: to ±2 % at 95 % confidence, capped at --max-samples.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1 << 24))]
+    samples: Option<u64>,
+    /// Validation and test labels with exactly N samples each (default: converged).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1 << 24))]
+    eval_samples: Option<u64>,
+    /// Light directions: `sphere` (uniform, Kallweit §5.1) or `uniform-gamma` (the angle
+    /// to the view direction uniform in [0, π]).
+    #[arg(long, default_value = "sphere")]
+    light: String,
+    /// Density scales of generated clouds LO,HI (log-uniform).
+    #[arg(long, value_delimiter = ',', default_values_t = [10.0, 80.0])]
+    density_range: Vec<f64>,
+    #[arg(long, short, required = true)]
+    out: Option<PathBuf>,
+    /// Phase function: hg (g = 0.857) or mie (chopped, r_eff 8 µm).
+    #[arg(long, default_value = "hg")]
+    phase: String,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    #[arg(long, default_value_t = 1000)]
+    shard_size: usize,
+    /// Write part K of N of the set: the shards whose global index is K − 1 mod N, exactly the
+    /// files a single run writes for them (run the N parts on N machines, then
+    /// `nimbus datagen merge`).
+    #[arg(long, value_parser = Part::parse)]
+    shard: Option<Part>,
+    /// Sample cap per record (records that reach it are kept and flagged as not converged).
+    #[arg(long, default_value_t = 1 << 18)]
+    max_samples: u64,
+    /// σ_t per unit grid value for clouds read from a folder.
+    #[arg(long, default_value_t = 30.0)]
+    density_scale: f64,
+    /// Estimate L_i on the CPU or the GPU (default: the GPU when a hardware adapter is
+    /// available and the phase function is HG; a software rasteriser is slower than the CPU
+    /// path tracer).
+    #[arg(long, value_enum)]
+    device: Option<Device>,
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+#[derive(Subcommand)]
+enum DatagenAction {
+    /// Check the parts written by `datagen --shard K/N` (same settings, every shard exactly once,
+    /// checksums) and assemble them in OUT as one single run's set.
+    Merge {
+        /// The N part folders.
+        #[arg(required = true)]
+        parts: Vec<PathBuf>,
+        #[arg(long, short)]
+        out: PathBuf,
+        #[arg(long, short)]
+        quiet: bool,
+    },
+}
+
+pub fn datagen(a: DatagenArgs) -> Result<()> {
+    if let Some(DatagenAction::Merge { parts, out, quiet }) = a.action {
+        let m = nimbus_rpnn::shards::merge(&parts, &out)?;
+        if !quiet {
+            say!(
+                "{} parts, {} shards, {} records ({} files linked, {} copied) -> {}",
+                m.parts,
+                m.shards,
+                m.records,
+                m.linked,
+                3 * m.shards - m.linked,
+                out.join("manifest.json").display()
+            );
+        }
+        return Ok(());
+    }
+    let (Some(records), Some(out)) = (a.records, a.out) else {
+        bail!("datagen needs --records and --out");
+    };
+    let set = match a.clouds.strip_prefix("gen:") {
+        Some(n) => {
+            let n: usize = n
+                .parse()
+                .map_err(|e| anyhow::anyhow!("--clouds {}: expected gen:N ({e})", a.clouds))?;
+            if n == 0 {
+                bail!("--clouds gen:N needs N ≥ 1");
+            }
+            let d = &a.density_range;
+            if !(d.len() == 2 && d.iter().all(|d| d.is_finite() && *d > 0.0) && d[0] <= d[1]) {
+                bail!("--density-range needs LO,HI with 0 < LO <= HI, got {d:?}");
+            }
+            dataset::generated_set_in(n, a.seed, [d[0], d[1]])
+        }
+        None => dataset::folder_set(std::path::Path::new(&a.clouds), a.density_scale)?,
+    };
+    let light = match a.light.as_str() {
+        "sphere" => LightSampling::Sphere,
+        "uniform-gamma" => LightSampling::UniformGamma,
+        other => bail!("--light {other}: expected sphere or uniform-gamma"),
+    };
+    let test_records = a.test_records.unwrap_or(records / 4);
+    let opts = dataset::DatagenOptions {
+        records,
+        test_records,
+        val_records: a.val_records.unwrap_or(test_records),
+        samples: a.samples.unwrap_or(0),
+        eval_samples: a.eval_samples.unwrap_or(0),
+        light,
+        shard_size: a.shard_size,
+        seed: a.seed,
+        max_samples: a.max_samples,
+        albedo: 1.0,
+        gpu: match a.device {
+            Some(d) => d == Device::Gpu,
+            None => a.phase == "hg" && nimbus_gpu::Gpu::new().is_ok_and(|g| !g.is_software()),
+        },
+        phase: a.phase,
+        progress: !a.quiet,
+        part: a.shard,
+    };
+    let r = dataset::run(&set, &opts, &out)?;
+    {
+        say!(
+            "{}{} records ({} computed now in {:.1} s, {:.2} records/s), {:.1} % converged -> {}",
+            a.shard.map(|p| format!("part {p}: ")).unwrap_or_default(),
+            r.records,
+            r.computed,
+            r.seconds,
+            r.computed as f64 / r.seconds.max(1e-9),
+            100.0 * r.converged as f64 / r.records.max(1) as f64,
+            out.join("manifest.json").display()
+        );
+    }
+    Ok(())
+}
