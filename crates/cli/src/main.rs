@@ -40,6 +40,15 @@ use view::{ViewArgs, view};
 struct Cli {
     #[command(subcommand)]
     cmd: Command,
+    /// Memory budget for any allocation sized by input (grids, images, files read whole),
+    /// e.g. 6G or 512M; over it, a clear error instead of an abort. Default: NIMBUS_MAX_MEMORY,
+    /// else 3/4 of the physical memory.
+    #[arg(long, global = true, value_parser = memory_size)]
+    max_memory: Option<u64>,
+}
+
+fn memory_size(s: &str) -> Result<u64, String> {
+    nimbus_scene::memory::parse_size(s)
 }
 
 #[derive(Clone, Copy, ValueEnum, PartialEq)]
@@ -206,6 +215,13 @@ fn main() {
 }
 
 fn run(cli: Cli) -> Result<()> {
+    if let Some(b) = cli.max_memory {
+        nimbus_scene::memory::set_budget(b);
+    } else if let Ok(v) = std::env::var(nimbus_scene::memory::ENV) {
+        let b = nimbus_scene::memory::parse_size(&v)
+            .map_err(|e| anyhow::anyhow!("{}={v}: {e}", nimbus_scene::memory::ENV))?;
+        nimbus_scene::memory::set_budget(b);
+    }
     match cli.cmd {
         Command::Render {
             scene,

@@ -636,3 +636,71 @@ fn lights_that_overflow_the_image_are_refused() {
         );
     }
 }
+
+/// Inputs that size an allocation (a sparse VDB's index box, a generator's resolution, an EXR's
+/// data window) are checked against the memory budget: a clear error naming the field, the bytes
+/// and the budget, never an allocator abort.
+#[test]
+fn memory_budget_refuses_instead_of_aborting() {
+    let d = tmp().join("budget");
+    std::fs::create_dir_all(&d).unwrap();
+    // 11 kB written by OpenVDB's own bindings (make_far_tiles.py): 1288³ voxels densified.
+    let vdb = root().join("crates/scene/tests/data/far_tiles.vdb");
+    let o = nimbus(&["info", vdb.to_str().unwrap(), "--max-memory", "2G"]);
+    let t = text(&o);
+    assert!(!o.status.success(), "{t}");
+    assert!(
+        t.contains("far_tiles.vdb")
+            && t.contains("grid.bounds")
+            && t.contains("1288×1288×1288")
+            && t.contains("8.0 GiB")
+            && t.contains("2.0 GiB"),
+        "{t}"
+    );
+    let vol = d.join("big.vol");
+    let o = Command::new(env!("CARGO_BIN_EXE_nimbus"))
+        .env("NIMBUS_MAX_MEMORY", "4G")
+        .args(["generate", "cumulus", "--res", "1290,1290,1290", "-o"])
+        .arg(&vol)
+        .output()
+        .unwrap();
+    let t = text(&o);
+    assert!(
+        !o.status.success() && t.contains("resolution") && t.contains("8.0 GiB"),
+        "{t}"
+    );
+    assert!(!vol.exists());
+    // An EXR whose data window claims 10⁶ × 10⁶ pixels (11.4 TiB as RGB floats).
+    let small = d.join("small.exr");
+    nimbus_scene::Image::new(4, 3)
+        .write_exr(&small, None)
+        .unwrap();
+    let mut bytes = std::fs::read(&small).unwrap();
+    let key = b"dataWindow\0box2i\0";
+    let at = bytes
+        .windows(key.len())
+        .position(|w| w == key)
+        .expect("an EXR header has a data window")
+        + key.len()
+        + 4;
+    for (i, v) in [0i32, 0, 999_999, 999_999].iter().enumerate() {
+        bytes[at + 4 * i..at + 4 * i + 4].copy_from_slice(&v.to_le_bytes());
+    }
+    let huge = d.join("huge.exr");
+    std::fs::write(&huge, &bytes).unwrap();
+    let o = nimbus(&["compare", huge.to_str().unwrap(), small.to_str().unwrap()]);
+    let t = text(&o);
+    assert!(
+        !o.status.success()
+            && t.contains("huge.exr")
+            && t.contains("dataWindow")
+            && t.contains("TiB"),
+        "{t}"
+    );
+    let o = nimbus(&["info", vdb.to_str().unwrap(), "--max-memory", "lots"]);
+    assert!(
+        !o.status.success() && text(&o).contains("--max-memory"),
+        "{}",
+        text(&o)
+    );
+}

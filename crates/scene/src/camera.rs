@@ -80,6 +80,11 @@ impl Camera {
                 ));
             }
         }
+        crate::memory::check(
+            width as u128 * height as u128 * 12,
+            "camera.width",
+            &format!("a {width}×{height} RGB float image"),
+        )?;
         let right = r.normalize();
         Ok(Self {
             origin,

@@ -187,27 +187,28 @@ pub fn generate(kind: CloudKind, seed: u64, res: [usize; 3]) -> Result<DensityGr
     let scale = 2.0 / res[0] as f64;
     let depth = res[2] as f64 * scale;
     let [nx, ny, nz] = res;
-    let mut data: Vec<f32> = (0..nx * ny * nz)
-        .into_par_iter()
+    let what = format!("a {nx}×{ny}×{nz} grid");
+    let mut data = crate::memory::filled(nx * ny * nz, 0.0f32, "resolution", &what)?;
+    data.par_iter_mut()
+        .enumerate()
         .with_min_len(4096)
-        .map_init(
+        .for_each_init(
             || make_field(kind, seed, res),
-            |field, i| {
+            |field, (i, v)| {
                 let x = i % nx;
                 let y = (i / nx) % ny;
                 let z = i / (nx * ny);
                 if x == 0 || y == 0 || z == 0 || x == nx - 1 || y == ny - 1 || z == nz - 1 {
-                    return 0.0;
+                    return;
                 }
                 let p = [
                     (x as f64 + 0.5) * scale - 1.0,
                     (y as f64 + 0.5) * scale,
                     (z as f64 + 0.5) * scale - depth / 2.0,
                 ];
-                field(p).max(0.0) as f32
+                *v = field(p).max(0.0) as f32;
             },
-        )
-        .collect();
+        );
     let max = data.iter().cloned().fold(0.0f32, f32::max);
     if max <= 0.0 {
         return Err(FieldError::new(

@@ -84,7 +84,8 @@ impl DensityGrid {
         let n = check_resolution(res.map(|r| r as i64), "resolution")?
             .iter()
             .product();
-        Self::new(res, vec![value; n])
+        let what = format!("a {}×{}×{} grid", res[0], res[1], res[2]);
+        Self::new(res, crate::memory::filled(n, value, "resolution", &what)?)
     }
 
     pub fn res(&self) -> [usize; 3] {

@@ -77,6 +77,19 @@ impl Image {
     /// Reads the RGB channels of the first layer of an EXR (Y-only images are broadcast).
     pub fn read_exr(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
+        // The data window sizes the image: checked against the memory budget before the
+        // pixels are allocated (a 10 kB file can claim 10⁶ × 10⁶ pixels).
+        let meta = exr::meta::MetaData::read_from_file(path, false)
+            .map_err(|e| Error::parse(path, format!("cannot read EXR header: {e}")))?;
+        for header in meta.headers.iter().take(1) {
+            let size = header.layer_size;
+            crate::memory::check(
+                size.width() as u128 * size.height() as u128 * 12,
+                "dataWindow",
+                &format!("a {}×{} RGB float image", size.width(), size.height()),
+            )
+            .map_err(|e| e.at(path))?;
+        }
         let img = exr::prelude::read_first_rgba_layer_from_file(
             path,
             |res, _| Image::new(res.width(), res.height()),

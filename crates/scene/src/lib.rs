@@ -27,6 +27,7 @@ pub mod image;
 pub mod io;
 pub mod light;
 pub mod medium;
+pub mod memory;
 pub mod phase;
 pub mod scene;
 pub mod volume;

@@ -136,12 +136,15 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<DensityGrid> {
 /// Reads any little-endian float32/float64 C-order array as (shape, f32 values) — used for
 /// auxiliary arrays such as the references' optical-depth masks.
 pub fn read_array(path: &Path) -> Result<(Vec<usize>, Vec<f32>)> {
+    crate::memory::check_file(path, 2)?;
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let (shape, data) = parse_array(&bytes, path)?;
     Ok((shape.into_iter().map(|v| v as usize).collect(), data))
 }
 
 pub fn read(path: &Path) -> Result<DensityGrid> {
+    // The file's bytes and the grid are held at once (float64 files: 1.5×).
+    crate::memory::check_file(path, 2)?;
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     parse(&bytes, path)
 }
@@ -184,7 +187,22 @@ pub fn write_array(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
 }
 
 pub fn write(path: &Path, grid: &DensityGrid) -> Result<()> {
-    std::fs::write(path, to_bytes(grid)).map_err(|e| Error::io(path, e))
+    // Streamed: no second copy of the grid in memory.
+    let r = grid.res();
+    let f = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
+    let mut buf = std::io::BufWriter::new(f);
+    let io = |e: std::io::Error| Error::io(path, e);
+    {
+        let mut w = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(&[r[2] as u64, r[1] as u64, r[0] as u64])
+            .writer(&mut buf)
+            .begin_nd()
+            .map_err(io)?;
+        w.extend(grid.data().iter().copied()).map_err(io)?;
+        w.finish().map_err(io)?;
+    }
+    std::io::Write::flush(&mut buf).map_err(io)
 }
 
 #[cfg(test)]

@@ -142,7 +142,14 @@ fn parse_inner(bytes: &[u8]) -> std::result::Result<Parsed, (String, String)> {
         "grid.bounds",
     )
     .map_err(|e| (e.field, e.msg))?;
-    let mut data = vec![0.0f32; res[0] * res[1] * res[2]];
+    // Active voxels and tiles fill the index box densely: its size is checked against the
+    // memory budget before anything is allocated.
+    let what = format!(
+        "the dense {}×{}×{} grid spanning its active voxels",
+        res[0], res[1], res[2]
+    );
+    let mut data = crate::memory::filled(res[0] * res[1] * res[2], 0.0f32, "grid.bounds", &what)
+        .map_err(|e| (e.field, e.msg))?;
     for (o, v, s) in items {
         for z in o[2]..o[2] + s {
             for y in o[1]..o[1] + s {

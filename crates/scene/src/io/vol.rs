@@ -89,32 +89,51 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<GridFile> {
 }
 
 pub fn read(path: &Path) -> Result<GridFile> {
+    // The file's bytes and the grid are held at once.
+    crate::memory::check_file(path, 2)?;
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     parse(&bytes, path)
 }
 
 /// Serialises a grid as `.vol` bytes.
 pub fn to_bytes(grid: &DensityGrid, bounds: (DVec3, DVec3)) -> Vec<u8> {
-    let r = grid.res();
     let mut out = Vec::with_capacity(HEADER_LEN + 4 * grid.data().len());
-    out.extend_from_slice(b"VOL");
-    out.push(3);
+    write_to(&mut out, grid, bounds).expect("writing to memory cannot fail");
+    out
+}
+
+/// Streams a grid as `.vol` bytes (no second copy of the grid in memory).
+pub fn write_to(
+    out: &mut impl std::io::Write,
+    grid: &DensityGrid,
+    bounds: (DVec3, DVec3),
+) -> std::io::Result<()> {
+    let r = grid.res();
+    let mut header = Vec::with_capacity(HEADER_LEN);
+    header.extend_from_slice(b"VOL");
+    header.push(3);
     for v in [1i32, r[0] as i32, r[1] as i32, r[2] as i32, 1] {
-        out.extend_from_slice(&v.to_le_bytes());
+        header.extend_from_slice(&v.to_le_bytes());
     }
     for v in [
         bounds.0.x, bounds.0.y, bounds.0.z, bounds.1.x, bounds.1.y, bounds.1.z,
     ] {
-        out.extend_from_slice(&(v as f32).to_le_bytes());
+        header.extend_from_slice(&(v as f32).to_le_bytes());
     }
-    for v in grid.data() {
-        out.extend_from_slice(&v.to_le_bytes());
+    out.write_all(&header)?;
+    for chunk in grid.data().chunks(1 << 16) {
+        let bytes: Vec<u8> = chunk.iter().flat_map(|v| v.to_le_bytes()).collect();
+        out.write_all(&bytes)?;
     }
-    out
+    Ok(())
 }
 
 pub fn write(path: &Path, grid: &DensityGrid, bounds: (DVec3, DVec3)) -> Result<()> {
-    std::fs::write(path, to_bytes(grid, bounds)).map_err(|e| Error::io(path, e))
+    let f = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
+    let mut w = std::io::BufWriter::new(f);
+    write_to(&mut w, grid, bounds)
+        .and_then(|()| std::io::Write::flush(&mut w))
+        .map_err(|e| Error::io(path, e))
 }
 
 #[cfg(test)]
