@@ -23,10 +23,27 @@ struct LiTask { x: vec4<f32>, view: vec4<f32>, to_light: vec4<f32> };
 @group(0) @binding(3) var<storage, read> li_tasks: array<LiTask>;
 @group(0) @binding(4) var<storage, read_write> out: array<vec4<f32>>;
 
+// Half the smallest voxel edge: the step through empty space where free-flight steps fall
+// below the resolution of t.
+fn half_voxel() -> f32 {
+    let v = (P.aabb_max - P.aabb_min) / vec3<f32>(P.d_res);
+    return 0.5 * min(v.x, min(v.y, v.z));
+}
+
 fn delta_track(o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32, rng: ptr<function, Rng>) -> f32 {
     var t = t0;
     loop {
-        t -= log(1.0 - rand(rng)) / P.sigma_max;
+        var next = t - log(1.0 - rand(rng)) / P.sigma_max;
+        if (next <= t) {
+            // A step below the representable increment of t (σ̄ beyond ≈ 1e7 per unit at
+            // t ≈ 1), where a null collision would repeat forever: where there is density the
+            // medium is opaque at this resolution and the collision happens here; where there
+            // is none the walk moves on by half a voxel (the CPU's majorant grid skips such
+            // cells, `tracking.rs`).
+            if (density_at(o + d * t) > 0.0) { return t; }
+            next = t + half_voxel();
+        }
+        t = next;
         if (t >= t1) { return -1.0; }
         if (rand(rng) * P.sigma_max < P.density_scale * density_at(o + d * t)) { return t; }
     }
@@ -39,7 +56,14 @@ fn ratio_track(o: vec3<f32>, d: vec3<f32>, rng: ptr<function, Rng>) -> f32 {
     var tr = 1.0;
     var t = hit.x;
     loop {
-        t -= log(1.0 - rand(rng)) / P.sigma_max;
+        var next = t - log(1.0 - rand(rng)) / P.sigma_max;
+        if (next <= t) {
+            // Below one ulp of t: opaque where there is density, else half a voxel on (see
+            // `delta_track`).
+            if (density_at(o + d * t) > 0.0) { return 0.0; }
+            next = t + half_voxel();
+        }
+        t = next;
         if (t >= hit.y) { break; }
         tr *= max(1.0 - P.density_scale * density_at(o + d * t) / P.sigma_max, 0.0);
         if (tr < 0.1) {

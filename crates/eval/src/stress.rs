@@ -52,12 +52,17 @@ pub struct Case {
     pub id: String,
     pub axis: &'static str,
     pub value: String,
-    /// The scene must be refused when loaded.
+    /// The scene must be refused when loaded, with a message naming the file and this field.
     pub expect_reject: bool,
+    reject_field: &'static str,
     g: f64,
     density: f64,
     albedo: f64,
     sun: DVec3,
+    /// Sun irradiance per channel is this × [1, 0.95, 0.87].
+    irradiance: f64,
+    /// Camera origin and target.
+    camera: (DVec3, DVec3),
     grid: GridSpec,
 }
 
@@ -70,10 +75,13 @@ fn base(id: &str, axis: &'static str, value: String) -> Case {
         axis,
         value,
         expect_reject: false,
+        reject_field: "voxel[",
         g: 0.857,
         density: BASE_DENSITY,
         albedo: 1.0,
         sun: DVec3::new(1.0, 0.5, 0.3).normalize(),
+        irradiance: 3.0,
+        camera: (CAMERA, DVec3::ZERO),
         grid: GridSpec::Generated,
     }
 }
@@ -148,6 +156,26 @@ pub fn cases() -> Vec<Case> {
         c.expect_reject = true;
         v.push(c);
     }
+    // Values whose derived quantities leave the floating-point range: σ̄ so large that a
+    // free-flight step is below one ulp of t (the walk must end, not stall), a camera whose
+    // forward vector overflows, a sun whose radiance overflows the f32 image.
+    let mut c = base("density_1e20", "extreme value", "density × 1e20".into());
+    c.density = BASE_DENSITY * 1e20;
+    v.push(c);
+    let mut c = base(
+        "camera_overflow",
+        "extreme value",
+        "origin 1e308, target −1e308".into(),
+    );
+    c.camera = (DVec3::new(1e308, 0.0, 0.0), DVec3::new(-1e308, 0.0, 0.0));
+    c.expect_reject = true;
+    c.reject_field = "camera.";
+    v.push(c);
+    let mut c = base("sun_1e308", "extreme value", "sun irradiance 1e308".into());
+    c.irradiance = 1e308;
+    c.expect_reject = true;
+    c.reject_field = "sun.irradiance";
+    v.push(c);
     // Combined extremes.
     for (id, g, s, a) in [
         ("combo_g0.999_density1e5", 0.999, 1e5, 1.0),
@@ -177,6 +205,9 @@ pub fn subset() -> Vec<Case> {
         "grid_empty",
         "grid_512x4x4",
         "voxel_nan",
+        "density_1e20",
+        "camera_overflow",
+        "sun_1e308",
     ];
     cases()
         .into_iter()
@@ -218,11 +249,27 @@ pub fn write_case(c: &Case, dir: &Path) -> Result<PathBuf> {
     let s = c.sun;
     let text = format!(
         "# nimbus stress case `{}` ({} = {})\n[volume]\n{volume}\ndensity_scale = {:e}\nalbedo = {}\nphase = {phase}\n\n\
-         [sun]\ndirection = [{}, {}, {}]\nirradiance = [3.0, 2.85, 2.6]\nangular_radius_deg = 0.27\n\n\
+         [sun]\ndirection = [{}, {}, {}]\nirradiance = [{:e}, {:e}, {:e}]\nangular_radius_deg = 0.27\n\n\
          [sky]\nradiance = [0.12, 0.2, 0.38]\n\n\
-         [camera]\norigin = [{}, {}, {}]\ntarget = [0.0, 0.0, 0.0]\nvfov_deg = 32.0\nwidth = 24\nheight = 16\n\n\
+         [camera]\norigin = [{:e}, {:e}, {:e}]\ntarget = [{:e}, {:e}, {:e}]\nvfov_deg = 32.0\nwidth = 24\nheight = 16\n\n\
          [render]\nspp = 4\nseed = 1\n",
-        c.id, c.axis, c.value, c.density, c.albedo, s.x, s.y, s.z, CAMERA.x, CAMERA.y, CAMERA.z
+        c.id,
+        c.axis,
+        c.value,
+        c.density,
+        c.albedo,
+        s.x,
+        s.y,
+        s.z,
+        c.irradiance,
+        c.irradiance * 0.95,
+        c.irradiance * 0.87,
+        c.camera.0.x,
+        c.camera.0.y,
+        c.camera.0.z,
+        c.camera.1.x,
+        c.camera.1.y,
+        c.camera.1.z,
     );
     let p = dir.join(format!("{}.toml", c.id));
     std::fs::write(&p, text).with_context(|| format!("cannot write {}", p.display()))?;
@@ -423,8 +470,8 @@ pub fn run_case(exe: &Path, case: &Case, scene: &Path, method: Method, limit: Du
     let file = scene.file_stem().unwrap_or_default().to_string_lossy();
     match (case.expect_reject, r.status.as_str()) {
         (true, "rejected") => {
-            // The message must name the file and the offending voxel.
-            out.pass = r.msg.contains(file.as_ref()) && r.msg.contains("voxel[");
+            // The message must name the file and the offending field (voxel, camera, light).
+            out.pass = r.msg.contains(file.as_ref()) && r.msg.contains(case.reject_field);
             out.verdict = "rejected".into();
             out.detail = r.msg;
         }

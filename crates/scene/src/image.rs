@@ -40,6 +40,25 @@ impl Image {
         (p[0] as f64 + p[1] as f64 + p[2] as f64) / 3.0
     }
 
+    /// An image about to be written to `path` must be finite: NaN or infinite pixels are an
+    /// error with their count and the first one, and nothing is written.
+    pub fn check_finite(&self, path: &Path) -> Result<()> {
+        let bad = |p: &[f32; 3]| p.iter().any(|v| !v.is_finite());
+        let n = self.pixels.iter().filter(|p| bad(p)).count();
+        if let Some(i) = self.pixels.iter().position(bad) {
+            return Err(Error::invalid(
+                path,
+                format!("pixel[{},{}]", i % self.width, i / self.width),
+                format!(
+                    "{n} of {} pixels are NaN or infinite (this one: {:?}): a scene value overflows 32-bit floats or the estimator diverged; nothing was written",
+                    self.pixels.len(),
+                    self.pixels[i]
+                ),
+            ));
+        }
+        Ok(())
+    }
+
     /// Writes a float32 EXR with channels R, G, B and, when given, `variance` (the estimated
     /// variance of each pixel's mean luminance).
     pub fn write_exr(&self, path: impl AsRef<Path>, variance: Option<&[f32]>) -> Result<()> {
@@ -47,6 +66,7 @@ impl Image {
             AnyChannel, AnyChannels, Encoding, FlatSamples, Layer, LayerAttributes, WritableImage,
         };
         let path = path.as_ref();
+        self.check_finite(path)?;
         let (w, h) = (self.width, self.height);
         let chan = |name: &str, f: &dyn Fn(usize) -> f32| {
             AnyChannel::new(name, FlatSamples::F32((0..w * h).map(f).collect()))
@@ -174,6 +194,7 @@ impl Image {
 
     pub fn write_png(&self, path: impl AsRef<Path>, exposure: f64) -> Result<()> {
         let path = path.as_ref();
+        self.check_finite(path)?;
         let px = self.to_srgb8(exposure);
         crate::io::write_atomically(path, |tmp| {
             image::save_buffer(
@@ -200,6 +221,29 @@ pub fn srgb_oetf(v: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn non_finite_images_are_not_written() {
+        let dir = std::env::temp_dir().join(format!("nimbus-img-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut img = Image::new(4, 2);
+        img.pixels[5] = [f32::NAN, 0.0, 0.0];
+        img.pixels[6] = [f32::INFINITY, 1.0, 1.0];
+        for path in [dir.join("bad.exr"), dir.join("bad.png")] {
+            let e = if path.extension().unwrap() == "exr" {
+                img.write_exr(&path, None)
+            } else {
+                img.write_png(&path, 1.0)
+            }
+            .unwrap_err()
+            .to_string();
+            assert!(
+                e.contains("pixel[1,1]") && e.contains("2 of 8 pixels"),
+                "{e}"
+            );
+            assert!(!path.exists());
+        }
+    }
 
     #[test]
     fn exr_round_trip() {

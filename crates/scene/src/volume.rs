@@ -88,6 +88,18 @@ impl Volume {
                 format!("must be finite and ≥ 0, got {density_scale}"),
             ));
         }
+        // σ_t = scale × density must stay within the 32-bit floats of the GPU estimators and the
+        // images (an infinite majorant stalls or poisons every estimator).
+        let vmax = grid.data().iter().fold(0.0f32, |a, &b| a.max(b)) as f64;
+        if density_scale * vmax > f32::MAX as f64 {
+            return Err(FieldError::new(
+                "density_scale",
+                format!(
+                    "{density_scale:e} × the largest voxel {vmax:e} = {:e} exceeds the 32-bit float range (3.4e38) of the estimators",
+                    density_scale * vmax
+                ),
+            ));
+        }
         let r = grid.res();
         let to_index = DVec3::new(r[0] as f64, r[1] as f64, r[2] as f64) / aabb.extent();
         Ok(Self {
@@ -256,6 +268,17 @@ mod tests {
             2.0,
         )
         .unwrap()
+    }
+
+    #[test]
+    fn sigma_t_beyond_f32_is_refused() {
+        let grid = DensityGrid::new([2, 1, 1], vec![1.0, 10.0]).unwrap();
+        let b = Aabb::new(DVec3::ZERO, DVec3::ONE).unwrap();
+        // 1e38 × 10 = 1e39 > f32::MAX ≈ 3.4e38; 1e37 × 10 fits.
+        let e = Volume::new(grid.clone(), b, 1e38).unwrap_err();
+        assert_eq!(e.field, "density_scale");
+        assert!(e.msg.contains("1e39") && e.msg.contains("32-bit"), "{e}");
+        assert!(Volume::new(grid, b, 1e37).is_ok());
     }
 
     #[test]

@@ -18,6 +18,11 @@
 //!   clouds (τ ≲ 10³ with g ≈ 0.86, transport depth ≲ 150) paths surviving 2¹⁸ scatterings
 //!   have negligible probability (diffusion decay ~e^(−n π² / 3τ_tr²): e^(−38) at n = 2¹⁸), so the
 //!   cap does not change the image.
+//! - A path whose next vertex is its current one (x + t·d == x in f64: σ_t so large — 10²⁰ per
+//!   unit, `nimbus stress` — that free flights fall below the resolution of the coordinates)
+//!   cannot move: it ends there, dark (the light an optically infinite albedo-1 medium would
+//!   diffuse back out is dropped), and is counted in [`PathStats::stuck`]. Without this such a
+//!   walk takes [`MAX_SCATTERINGS`] steps on the spot for every path.
 //!
 //! With a chopped Mie phase function the first vertex uses the full function and the later
 //! segments the reduced density (Kallweit 2017 §3.1), see [`nimbus_scene::Medium`].
@@ -41,6 +46,8 @@ pub const MAJORANT_BLOCK: usize = 8;
 #[derive(Debug, Default, Clone, Copy)]
 pub struct PathStats {
     pub scatterings: u64,
+    /// Paths that ended because their next vertex was their current one (see the module docs).
+    pub stuck: u64,
 }
 
 /// The path tracer for one scene.
@@ -113,6 +120,10 @@ impl<'a> PathTracer<'a> {
                 break;
             }
             let x = o + d * t;
+            if x == o {
+                stats.stuck += 1;
+                break;
+            }
             scatterings += 1;
             stats.scatterings += 1;
             let (albedo, phase) = medium.vertex(scatterings);
