@@ -396,11 +396,13 @@ def _train(args, dist: Dist, device) -> dict:
         if improved:
             state["best_val"], state["best_epoch"] = vl, epoch
         if lead:
+            # Whole or absent: a run killed while saving keeps the previous checkpoint.
             if improved:
-                torch.save({"model": model.state_dict(), "config": model.config(),
-                            "epoch": epoch}, best)
-            torch.save({"model": model.state_dict(), "optimizer": opt.state_dict(),
-                        "config": model.config(), "state": state}, last)
+                rexport.replace_atomically(best, lambda t: torch.save(
+                    {"model": model.state_dict(), "config": model.config(), "epoch": epoch}, t))
+            rexport.replace_atomically(last, lambda t: torch.save(
+                {"model": model.state_dict(), "optimizer": opt.state_dict(),
+                 "config": model.config(), "state": state}, t))
             with open(args.run / "log.csv", "w", newline="") as f:
                 w = csv.DictWriter(f, fieldnames=list(row))
                 w.writeheader()

@@ -10,6 +10,7 @@ can refuse a graph that is not an RPNN.
 from __future__ import annotations
 
 import json
+import os
 import warnings
 from pathlib import Path
 
@@ -25,13 +26,32 @@ OPSET = 17
 # is relative to the typical output, not to itself.
 
 
+def replace_atomically(path: Path, write) -> None:
+    """Calls ``write(tmp)`` for a hidden temporary beside ``path``, syncs it and renames it to
+    ``path``: the file is whole or absent (a failed or interrupted write leaves the old one)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+    try:
+        write(tmp)
+        with open(tmp, "rb+") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
 def export_onnx(model: torch.nn.Module, path: Path, extra_metadata: dict | None = None) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    replace_atomically(path, lambda tmp: _export_onnx(model, tmp, extra_metadata))
+
+
+def _export_onnx(model: torch.nn.Module, path: Path, extra_metadata: dict | None) -> None:
     import onnx
 
     model = model.eval().cpu()
     dummy = torch.zeros(2, model.input_len)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     with warnings.catch_warnings():
         # The TorchScript exporter gives a plain graph of MatMul/Gemm, Add, Relu, Slice and
         # Concat nodes with the parameters as named initializers, which is what Nimbus' own
@@ -114,7 +134,7 @@ def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
     path_onnx = Path(path_onnx)
     pj = path_onnx.with_suffix(".json")
     pm = path_onnx.with_suffix(".md")
-    pj.write_text(json.dumps(card, indent=2) + "\n")
+    replace_atomically(pj, lambda t: t.write_text(json.dumps(card, indent=2) + "\n"))
     a, d, t, e = card["architecture"], card["data"], card["training"], card["export_check"]
     lines = [
         f"# Model card: `{path_onnx.name}`",
@@ -167,5 +187,5 @@ def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
         "```",
         "",
     ]
-    pm.write_text("\n".join(lines))
+    replace_atomically(pm, lambda t: t.write_text("\n".join(lines)))
     return pj, pm

@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import onnx
+import pytest
 import torch
 
 import train
@@ -61,3 +62,22 @@ def test_train_exports_model_and_card(record_set, tmp_path):
     assert card["reproduce"] == "make it so"
     md = onnx_path.with_suffix(".md").read_text()
     assert "make it so" in md and "passed" in md
+
+
+def test_outputs_are_whole_or_absent(tmp_path):
+    """A write that fails half-way leaves the previous file and no temporary behind."""
+    from rpnn.export import replace_atomically
+
+    target = tmp_path / "model.onnx"
+    target.write_bytes(b"old")
+
+    def fails(tmp):
+        tmp.write_bytes(b"half")
+        raise OSError("disk full")
+
+    with pytest.raises(OSError):
+        replace_atomically(target, fails)
+    assert target.read_bytes() == b"old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.onnx"]
+    replace_atomically(target, lambda t: t.write_bytes(b"new"))
+    assert target.read_bytes() == b"new" and len(list(tmp_path.iterdir())) == 1
