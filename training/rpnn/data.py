@@ -28,9 +28,21 @@ class DataError(ValueError):
 
 @dataclass
 class Shard:
-    x: np.ndarray  # [n, 2251] float32 (memory-mapped)
+    x: np.ndarray  # [n, 2251] float32 or float16 (memory-mapped)
     y: np.ndarray  # [n] float32
     path: Path
+    # float16 descriptors: gamma in float32, recomputed from the meta's directions (the network
+    # is sensitive to gamma's rounding: 2.6e-3 relative with a float16 gamma, 7e-4 without).
+    gamma: np.ndarray | None = None
+
+
+def gamma_of(meta: np.ndarray) -> np.ndarray:
+    """gamma = angle(view, light) from meta columns 4..6 and 7..9, as the descriptor computes it
+    (atan2(|v x l|, v . l))."""
+    v = meta[:, 4:7].astype(np.float64)
+    l = meta[:, 7:10].astype(np.float64)
+    return np.arctan2(np.linalg.norm(np.cross(v, l), axis=1), (v * l).sum(axis=1)).astype(
+        np.float32)
 
 
 def manifest_hash(root: Path) -> str:
@@ -56,15 +68,16 @@ def read_manifest(root: Path) -> dict:
     return m
 
 
-def _load(path: Path, shape_tail: tuple) -> np.ndarray:
+def _load(path: Path, shape_tail: tuple, dtypes=(np.float32,)) -> np.ndarray:
     try:
         a = np.load(path, mmap_mode="r")
     except FileNotFoundError:
         raise DataError(f"{path}: not found (the manifest lists it)") from None
     except ValueError as e:
         raise DataError(f"{path}: not a readable .npy file ({e})") from None
-    if a.dtype != np.float32 or a.shape[1:] != shape_tail:
-        raise DataError(f"{path}: expected float32 [n{''.join(f', {d}' for d in shape_tail)}], "
+    if a.dtype not in dtypes or a.shape[1:] != shape_tail:
+        names = " or ".join(np.dtype(d).name for d in dtypes)
+        raise DataError(f"{path}: expected {names} [n{''.join(f', {d}' for d in shape_tail)}], "
                         f"got {a.dtype} {list(a.shape)}")
     return a
 
@@ -80,8 +93,18 @@ def load_shards(root: Path, split: str, check: bool = True) -> list[Shard]:
         for key in ("x", "y", "records"):
             if key not in s:
                 raise DataError(f"{root / 'manifest.json'}: shards[{i}] has no field '{key}'")
-        x = _load(root / s["x"], (DESCRIPTOR_LEN,))
+        x = _load(root / s["x"], (DESCRIPTOR_LEN,), (np.float32, np.float16))
         y = _load(root / s["y"], ())
+        gamma = None
+        if x.dtype == np.float16:
+            if "meta" not in s:
+                raise DataError(f"{root / 'manifest.json'}: shards[{i}] has float16 descriptors "
+                                f"but no field 'meta' (gamma is taken from it)")
+            meta = np.load(root / s["meta"], mmap_mode="r")
+            if meta.ndim != 2 or meta.shape[0] != len(x) or meta.shape[1] < 10:
+                raise DataError(f"{root / s['meta']}: expected [n >= {len(x)}, >= 10] meta, "
+                                f"got {list(meta.shape)}")
+            gamma = gamma_of(np.asarray(meta))
         if len(x) != s["records"] or len(y) != s["records"]:
             raise DataError(f"{root / s['x']}: {len(x)} rows of x and {len(y)} of y, "
                             f"manifest field shards[{i}].records says {s['records']}")
@@ -92,7 +115,7 @@ def load_shards(root: Path, split: str, check: bool = True) -> list[Shard]:
             rows = np.flatnonzero(~np.isfinite(x).all(axis=1))
             if rows.size:
                 raise DataError(f"{root / s['x']}: row {rows[0]} has a non-finite descriptor value")
-        shards.append(Shard(x=x, y=y, path=root / s["x"]))
+        shards.append(Shard(x=x, y=y, path=root / s["x"], gamma=gamma))
     return shards
 
 
@@ -117,8 +140,11 @@ class Records:
             sel = np.flatnonzero(shard_of == s)
             local = idx[sel] - self.offsets[s]
             order = np.argsort(local)  # sorted reads are sequential on a memory map
-            x[sel[order]] = self.shards[s].x[local[order]]
-            y[sel[order]] = self.shards[s].y[local[order]]
+            sh = self.shards[s]
+            x[sel[order]] = sh.x[local[order]]
+            if sh.gamma is not None:
+                x[sel[order], -1] = sh.gamma[local[order]]
+            y[sel[order]] = sh.y[local[order]]
         return x, y
 
 

@@ -55,6 +55,10 @@ pub struct DatagenArgs {
     /// `nimbus datagen merge`).
     #[arg(long, value_parser = Part::parse)]
     shard: Option<Part>,
+    /// Store descriptors as float16 (half the size; γ is recomputed in float32 by the trainer;
+    /// predictions move by < 1e-3 relative).
+    #[arg(long)]
+    f16: bool,
     /// Sample cap per record (records that reach it are kept and flagged as not converged).
     #[arg(long, default_value_t = 1 << 18)]
     max_samples: u64,
@@ -144,6 +148,7 @@ pub fn datagen(a: DatagenArgs) -> Result<()> {
         phase: a.phase,
         progress: !a.quiet,
         part: a.shard,
+        f16_descriptors: a.f16,
     };
     let r = dataset::run(&set, &opts, &out)?;
     {

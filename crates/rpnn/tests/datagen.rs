@@ -96,6 +96,7 @@ fn opts(seed: u64) -> DatagenOptions {
         progress: false,
         gpu: false,
         part: None,
+        f16_descriptors: false,
     }
 }
 
@@ -547,4 +548,45 @@ fn damaged_shards_are_recomputed_on_resume() {
     let r = dataset::run(&set, &o, &d).unwrap();
     assert_eq!(r.computed, 0);
     assert!(d.join("train_00001.sha256").exists());
+}
+
+#[test]
+fn f16_descriptors_halve_x_and_keep_everything_else() {
+    let set = small_set();
+    let (a, b) = (tmp("f32"), tmp("f16"));
+    let o = |f16| DatagenOptions {
+        samples: 32,
+        f16_descriptors: f16,
+        ..opts(3)
+    };
+    dataset::run(&set, &o(false), &a).unwrap();
+    dataset::run(&set, &o(true), &b).unwrap();
+    let x32 = npyz::NpyFile::new(&std::fs::read(a.join("train_00000_x.npy")).unwrap()[..])
+        .unwrap()
+        .into_vec::<f32>()
+        .unwrap();
+    let x16 = npyz::NpyFile::new(&std::fs::read(b.join("train_00000_x.npy")).unwrap()[..])
+        .unwrap()
+        .into_vec::<half::f16>()
+        .unwrap();
+    assert_eq!(x32.len(), x16.len());
+    // Round to nearest: within half a float16 ulp (2⁻¹¹ relative) or below its smallest normal.
+    for (p, q) in x32.iter().zip(&x16) {
+        let q = q.to_f32();
+        assert!((p - q).abs() <= p.abs() * 4.9e-4 + 6.2e-5, "{p} vs {q}");
+    }
+    for f in [
+        "train_00000_y.npy",
+        "train_00001_meta.npy",
+        "test_00000_y.npy",
+    ] {
+        assert_eq!(
+            std::fs::read(a.join(f)).unwrap(),
+            std::fs::read(b.join(f)).unwrap(),
+            "{f}"
+        );
+    }
+    // The option is a setting of the set: a resume with the other one is refused.
+    let e = dataset::run(&set, &o(false), &b).unwrap_err().to_string();
+    assert!(e.contains("f16_descriptors"), "{e}");
 }
