@@ -263,10 +263,8 @@ fn run(cli: Cli) -> Result<()> {
                     .with_extension("exr")
             });
             let (exr, png) = (out.with_extension("exr"), out.with_extension("png"));
-            if let Some(dir) = exr.parent().filter(|d| !d.as_os_str().is_empty()) {
-                std::fs::create_dir_all(dir)
-                    .with_context(|| format!("cannot create {}", dir.display()))?;
-            }
+            // Checked (and the folder made) before the render, not after it.
+            io::check_writable(&exr)?;
             let image = match method {
                 Method::Pt if device == Device::Gpu => {
                     let gpu = nimbus_gpu::Gpu::new()?;
@@ -441,6 +439,8 @@ fn run(cli: Cli) -> Result<()> {
             out,
         } => {
             let kind: CloudKind = kind.parse().map_err(|e| anyhow::anyhow!("{e}"))?;
+            // The output is checked before the (possibly long) generation.
+            io::check_grid_output(&out)?;
             let res = match res {
                 Some(r) if r.len() != 3 => bail!("--res needs three values X,Y,Z, got {r:?}"),
                 Some(r) => nimbus_scene::grid::check_resolution([r[0], r[1], r[2]], "--res")

@@ -157,6 +157,44 @@ fn bad_input_is_a_clear_error() {
     );
     // A clean error, not a panic.
     assert!(!text(&nimbus(&["info", garbage.to_str().unwrap()])).contains("panicked"));
+    // I/O errors say their cause once.
+    let t = text(&nimbus(&["info", d.join("missing.vol").to_str().unwrap()]));
+    assert_eq!(t.matches("No such file").count(), 1, "{t}");
+    // The output is checked before the work: a 1000³ grid (4 GB, minutes) is not generated for
+    // a path that cannot take it. With a 1 MiB budget the generation would fail on memory, so
+    // the message shows which check came first.
+    let o = nimbus(&[
+        "generate",
+        "cumulus",
+        "--res",
+        "1000,1000,1000",
+        "--max-memory",
+        "1M",
+        "-o",
+        d.join("x.txt").to_str().unwrap(),
+    ]);
+    assert!(
+        !o.status.success() && text(&o).contains(".vol or .npy") && !text(&o).contains("budget"),
+        "{}",
+        text(&o)
+    );
+    let blocker = d.join("a_file");
+    std::fs::write(&blocker, b"x").unwrap();
+    let o = nimbus(&[
+        "generate",
+        "cumulus",
+        "--res",
+        "1000,1000,1000",
+        "--max-memory",
+        "1M",
+        "-o",
+        blocker.join("x.vol").to_str().unwrap(),
+    ]);
+    let t = text(&o);
+    assert!(
+        !o.status.success() && t.contains("a_file") && !t.contains("budget"),
+        "{t}"
+    );
 }
 
 fn root() -> PathBuf {

@@ -81,6 +81,37 @@ pub fn write_atomically(
     result
 }
 
+/// Checks, before long work, that `path` can be written: its folder exists (it is created
+/// when missing) and accepts a new file (probed with a hidden temporary that is removed).
+pub fn check_writable(path: impl AsRef<Path>) -> Result<()> {
+    let path = path.as_ref();
+    if path.file_name().is_none() {
+        return Err(Error::parse(path, "not a file path"));
+    }
+    let dir = path
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(path, e))?;
+    let probe = dir.join(format!(".nimbus-write-probe-{}", std::process::id()));
+    std::fs::File::create(&probe).map_err(|e| Error::io(path, e))?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
+}
+
+/// Checks a grid output path before the grid is made: a `.vol` or `.npy` extension and a
+/// writable folder ([`check_writable`]).
+pub fn check_grid_output(path: impl AsRef<Path>) -> Result<()> {
+    let path = path.as_ref();
+    match path.extension().and_then(|e| e.to_str()) {
+        Some("vol") | Some("npy") => check_writable(path),
+        _ => Err(Error::parse(
+            path,
+            "can only write .vol or .npy volumes (choose one of these extensions)",
+        )),
+    }
+}
+
 /// Writes a grid, choosing the format from the extension (`.vol` or `.npy`), atomically.
 pub fn write_grid(
     path: impl AsRef<Path>,

@@ -83,8 +83,16 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<GridFile> {
         .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
         .collect();
     let grid = DensityGrid::new(res, data).map_err(|e| e.at(path))?;
-    let bounds =
-        (bmin.is_finite() && bmax.is_finite() && bmax.cmpgt(bmin).all()).then_some((bmin, bmax));
+    // A non-finite corner is a damaged header, not a missing box (writers without a box store
+    // zeros: those, and other empty boxes, mean "no box" and the scene must give one).
+    if !(bmin.is_finite() && bmax.is_finite()) {
+        return Err(Error::invalid(
+            path,
+            "header.bbox",
+            format!("corners {bmin} and {bmax} are not finite"),
+        ));
+    }
+    let bounds = bmax.cmpgt(bmin).all().then_some((bmin, bmax));
     Ok(GridFile { grid, bounds })
 }
 
@@ -142,6 +150,22 @@ mod tests {
 
     fn sample() -> DensityGrid {
         DensityGrid::new([3, 2, 1], vec![0.0, 0.5, 1.0, 1.5, 2.0, 2.5]).unwrap()
+    }
+
+    #[test]
+    fn non_finite_box_is_a_damaged_header() {
+        let mut bytes = to_bytes(&sample(), (DVec3::ZERO, DVec3::ONE));
+        bytes[28..32].copy_from_slice(&f32::NAN.to_le_bytes());
+        let e = parse(&bytes, Path::new("nan_box.vol"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("nan_box.vol") && e.contains("header.bbox"),
+            "{e}"
+        );
+        // A zero box means "no box".
+        let zero = to_bytes(&sample(), (DVec3::ZERO, DVec3::ZERO));
+        assert!(parse(&zero, Path::new("z.vol")).unwrap().bounds.is_none());
     }
 
     #[test]
