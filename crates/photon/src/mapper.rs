@@ -31,6 +31,22 @@ pub enum PmError {
 
 pub use crate::settings::{PmSettings, PmVariant, default_cache_res, similarity_order};
 
+/// `shaders/photon_trace.wgsl` with its workgroup-shared cell count set to `shared_cap`: the
+/// shader declares `const SHARED_CELLS: u32 = 1600u;` ([`SHARED_CELLS`]), and a larger cap is
+/// patched in when the adapter's workgroup storage allows it. A source that no longer carries
+/// that exact declaration is an error, not a silently unpatched shader (both variants are
+/// validated by naga in the tests).
+pub fn trace_source(shared_cap: u32) -> Result<String, String> {
+    let src = shaders::source("photon_trace.wgsl");
+    let decl = format!("const SHARED_CELLS: u32 = {SHARED_CELLS}u;");
+    if src.matches(&decl).count() != 1 {
+        return Err(format!(
+            "shaders/photon_trace.wgsl must declare `{decl}` exactly once (it is patched for large workgroup storage)"
+        ));
+    }
+    Ok(src.replace(&decl, &format!("const SHARED_CELLS: u32 = {shared_cap}u;")))
+}
+
 struct Stage {
     pipeline: wgpu::ComputePipeline,
     bind: wgpu::BindGroup,
@@ -266,13 +282,7 @@ impl<'g> PhotonMapper<'g> {
             pipeline: sun_p,
         };
         let slot_buf = gpu.uniform("ring slot", &[0u32; 4]);
-        let mut trace_src = shaders::source("photon_trace.wgsl");
-        if shared_cap != SHARED_CELLS {
-            trace_src = trace_src.replace(
-                &format!("const SHARED_CELLS: u32 = {SHARED_CELLS}u;"),
-                &format!("const SHARED_CELLS: u32 = {shared_cap}u;"),
-            );
-        }
+        let trace_src = trace_source(shared_cap).map_err(PmError::Unsupported)?;
         let trace_p = gpu.pipeline("photon trace", &trace_src, "trace");
         let trace = Stage {
             bind: gpu.bind(&trace_p, &[(0, &params_buf), (1, &density), (2, &h_new)]),
@@ -735,5 +745,28 @@ impl<'g> PhotonMapper<'g> {
         self.converge();
         self.upsample();
         self.raymarch(camera)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Both workgroup-shared variants of the trace shader parse and validate, and the patch
+    /// really changes the constant.
+    #[test]
+    fn patched_trace_shader_is_valid() {
+        for cap in [SHARED_CELLS, SHARED_CELLS_LARGE] {
+            let src = trace_source(cap).unwrap();
+            assert!(src.contains(&format!("const SHARED_CELLS: u32 = {cap}u;")));
+            let module = naga::front::wgsl::parse_str(&src)
+                .unwrap_or_else(|e| panic!("cap {cap}: {}", e.emit_to_string(&src)));
+            naga::valid::Validator::new(
+                naga::valid::ValidationFlags::all(),
+                naga::valid::Capabilities::all(),
+            )
+            .validate(&module)
+            .unwrap_or_else(|e| panic!("cap {cap}: {e:?}"));
+        }
     }
 }
