@@ -70,7 +70,8 @@ pub(crate) fn render_rpnn(
         }
         say!("{w}");
     }
-    let pyr = nimbus_rpnn::Pyramid::for_rendering(&s.volume);
+    let pyr = nimbus_rpnn::Pyramid::for_rendering(&s.volume)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", s.source.display()))?;
     let gpu = match args.backend {
         NetBackend::Ort => None,
         NetBackend::Wgpu => Some(nimbus_gpu::Gpu::new()?),

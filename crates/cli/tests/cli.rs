@@ -726,6 +726,27 @@ fn memory_budget_refuses_instead_of_aborting() {
     }
     let huge = d.join("huge.exr");
     std::fs::write(&huge, &bytes).unwrap();
+    // RPNN's density pyramid (3 grids at its peak) is sized before it is built.
+    let o = Command::new(env!("CARGO_BIN_EXE_nimbus"))
+        .current_dir(root())
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .args([
+            "render",
+            "scenes/demo-cumulus.toml",
+            "--method",
+            "rpnn",
+            "--backend",
+            "ort",
+        ])
+        .args(["--spp", "1", "-q", "--max-memory", "10M", "-o"])
+        .arg(d.join("p.exr"))
+        .output()
+        .unwrap();
+    let t = text(&o);
+    assert!(
+        !o.status.success() && t.contains("RPNN density pyramid") && t.contains("18.0 MiB"),
+        "{t}"
+    );
     let o = nimbus(&["compare", huge.to_str().unwrap(), small.to_str().unwrap()]);
     let t = text(&o);
     assert!(

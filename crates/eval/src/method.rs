@@ -331,7 +331,7 @@ pub fn sweep(
                 .clone()
                 .unwrap_or_else(nimbus_rpnn::model::default_model_path);
             let model = nimbus_rpnn::model::Rpnn::load(&path)?;
-            let pyr = nimbus_rpnn::Pyramid::for_rendering(&scene.volume);
+            let pyr = nimbus_rpnn::Pyramid::for_rendering(&scene.volume)?;
             let use_gpu = match settings.rpnn_gpu {
                 Some(v) => v,
                 None => gpu.get().is_ok_and(|g| !g.is_software()),

@@ -43,6 +43,9 @@ pub enum PyramidError {
         "the cloud has no non-zero voxel (or a zero density scale): one mean free path is undefined"
     )]
     Empty,
+    /// The pyramid does not fit the memory budget.
+    #[error("{0}")]
+    Memory(#[from] nimbus_scene::FieldError),
 }
 
 fn gauss_kernel(sigma: f64) -> Vec<f32> {
@@ -79,6 +82,7 @@ fn blur(data: &[f32], res: [usize; 3], sigma: f64) -> Vec<f32> {
     let k = gauss_kernel(sigma);
     let a = blur_axis(data, res, 0, &k);
     let b = blur_axis(&a, res, 1, &k);
+    drop(a);
     blur_axis(&b, res, 2, &k)
 }
 
@@ -140,17 +144,17 @@ impl Pyramid {
         if count == 0 || volume.density_scale() <= 0.0 {
             return Err(PyramidError::Empty);
         }
-        Ok(Self::build(
-            volume,
-            volume.density_scale() * sum / count as f64,
-        ))
+        Self::build(volume, volume.density_scale() * sum / count as f64)
     }
 
     /// For rendering: like [`Pyramid::new`], but an empty cloud gets a unit normalisation
     /// instead of an error — a renderer never finds a collision in it, so no descriptor is
     /// ever taken, and the image is the sky (found by `nimbus stress`).
-    pub fn for_rendering(volume: &Volume) -> Self {
-        Self::new(volume).unwrap_or_else(|_| Self::build(volume, 1.0))
+    pub fn for_rendering(volume: &Volume) -> Result<Self, PyramidError> {
+        match Self::new(volume) {
+            Err(PyramidError::Empty) => Self::build(volume, 1.0),
+            other => other,
+        }
     }
 
     fn nonzero(volume: &Volume) -> (f64, usize) {
@@ -162,38 +166,48 @@ impl Pyramid {
             .fold((0.0f64, 0usize), |a, v| (a.0 + *v as f64, a.1 + 1))
     }
 
-    fn build(volume: &Volume, mean_sigma: f64) -> Self {
+    fn build(volume: &Volume, mean_sigma: f64) -> Result<Self, PyramidError> {
         let g = volume.grid();
+        let [x, y, z] = g.res();
+        // Peak: the scaled copy and two blur passes (3 grids of f32), then the levels
+        // (≈ 1.15 grids in all, held with one pass of the next level's blur).
+        nimbus_scene::memory::check(
+            3 * g.data().len() as u128 * 4,
+            "volume",
+            &format!("the RPNN density pyramid of a {x}×{y}×{z} grid"),
+        )?;
         let scale = (volume.density_scale() / mean_sigma) as f32;
         let raw: Vec<f32> = g.data().iter().map(|v| v * scale).collect();
-        let mut res = g.res();
-        let mut cur = blur(&raw, res, 1.0);
+        let first = blur(&raw, g.res(), 1.0);
+        drop(raw);
         let mut levels = vec![Level {
-            res,
-            data: cur.clone(),
+            res: g.res(),
+            data: first,
             sigma_voxels: 1.0,
         }];
         let mut sigma = 1.0;
-        while res.iter().any(|&r| r > 1) && levels.len() < 16 {
-            let b = blur(&cur, res, 3f64.sqrt());
-            let (d, nr) = downsample(&b, res);
+        loop {
+            let prev = levels.last().expect("level 0");
+            if !(prev.res.iter().any(|&r| r > 1) && levels.len() < 16) {
+                break;
+            }
+            let b = blur(&prev.data, prev.res, 3f64.sqrt());
+            let (d, nr) = downsample(&b, prev.res);
             sigma *= 2.0;
-            cur = d;
-            res = nr;
             levels.push(Level {
-                res,
-                data: cur.clone(),
+                res: nr,
+                data: d,
                 sigma_voxels: sigma,
             });
         }
         let cell = volume.cell_size();
-        Self {
+        Ok(Self {
             levels,
             aabb_min: volume.aabb().min,
             aabb_max: volume.aabb().max,
             mean_sigma,
             voxel: cell.min_element(),
-        }
+        })
     }
 
     /// Pyramid level used by stencil level `k` (1-based): the stencil's point spacing is

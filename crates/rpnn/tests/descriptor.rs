@@ -220,7 +220,7 @@ fn degenerate_inputs() {
     .unwrap();
     assert!(matches!(Pyramid::new(&empty), Err(PyramidError::Empty)));
     // Rendering an empty cloud needs no descriptor: a unit-normalised, all-zero pyramid.
-    let p = Pyramid::for_rendering(&empty);
+    let p = Pyramid::for_rendering(&empty).unwrap();
     assert_eq!(p.mean_sigma, 1.0);
     assert!(p.levels.iter().all(|l| l.data.iter().all(|&v| v == 0.0)));
 }

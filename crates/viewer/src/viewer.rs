@@ -658,7 +658,8 @@ impl<'g> Viewer<'g> {
     fn start_rpnn(&self) -> Result<RpnnView<'g>, String> {
         let model =
             nimbus_rpnn::model::Rpnn::load(&self.opts.rpnn_model).map_err(|e| e.to_string())?;
-        let pyr = nimbus_rpnn::Pyramid::for_rendering(&self.scene.volume);
+        let pyr =
+            nimbus_rpnn::Pyramid::for_rendering(&self.scene.volume).map_err(|e| e.to_string())?;
         let backend = if self.gpu.is_software() {
             nimbus_rpnn::render::Backend::Ort(
                 nimbus_rpnn::ort_backend::OrtModel::load(&self.opts.rpnn_model, 0)
