@@ -181,6 +181,9 @@ enum Command {
         aabb_min: Option<Vec<f64>>,
         #[arg(long, value_delimiter = ',')]
         aabb_max: Option<Vec<f64>>,
+        /// The float grid of a .vdb file to read (default: `density`).
+        #[arg(long)]
+        grid: Option<String>,
     },
     /// `compare scene.toml --methods pt,pm,rpnn --out report/`: error against render time of
     /// each method's budget sweep versus a cached high-spp path-traced reference (report.csv,
@@ -467,6 +470,7 @@ fn run(cli: Cli) -> Result<()> {
             density_scale,
             aabb_min,
             aabb_max,
+            grid,
         } => {
             if gpu {
                 let adapters = nimbus_gpu::list_adapters();
@@ -482,7 +486,7 @@ fn run(cli: Cli) -> Result<()> {
             let Some(file) = file else {
                 return Ok(());
             };
-            let f = io::read_grid(&file)?;
+            let f = io::read_grid_named(&file, grid.as_deref())?;
             let (lo, hi) = match (aabb_min, aabb_max) {
                 (Some(a), Some(b)) if a.len() != 3 || b.len() != 3 => {
                     bail!("--aabb-min and --aabb-max need three values X,Y,Z")

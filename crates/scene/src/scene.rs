@@ -4,6 +4,7 @@
 //! ```toml
 //! [volume]
 //! file = "cloud.vol"            # .vol, .npy or .vdb — or instead:
+//! # grid = "density"             # .vdb only: the float grid to read (default `density`)
 //! # generator = { kind = "cumulus", seed = 7, resolution = [128, 96, 128] }
 //! aabb_min = [-1.0, -0.75, -1.0] # world box the grid fills (default: the file header's box,
 //! aabb_max = [1.0, 0.75, 1.0]    #  or for generated clouds 2 units wide, centred, cubic voxels)
@@ -142,6 +143,7 @@ struct RawScene {
 #[serde(deny_unknown_fields)]
 struct RawVolume {
     file: Option<PathBuf>,
+    grid: Option<String>,
     generator: Option<RawGenerator>,
     aabb_min: Option<[f64; 3]>,
     aabb_max: Option<[f64; 3]>,
@@ -364,10 +366,17 @@ impl Scene {
             }
             (Some(f), None) => {
                 let p = base_dir.join(f);
-                let gf = io::read_grid(&p)?;
+                let gf = io::read_grid_named(&p, v.grid.as_deref())?;
                 (gf.grid, gf.bounds, VolumeSource::File(p))
             }
             (None, Some(g)) => {
+                if v.grid.is_some() {
+                    return Err(Error::invalid(
+                        label,
+                        "volume.grid",
+                        "names a grid of a .vdb `file`; a generator makes its own",
+                    ));
+                }
                 let kind: CloudKind = g
                     .kind
                     .parse()

@@ -265,3 +265,54 @@ fn moving_the_sun_recolours_it_like_a_scene_written_that_way() {
     plain.set_sun_dir(glam::DVec3::new(1.0, 0.05, 0.0));
     assert_eq!(plain.sun.as_ref().unwrap().irradiance, e);
 }
+
+/// A `.vdb` whose fog grid is not called `density` (written by OpenVDB's own bindings,
+/// `make_named_grid.py`): refused by default with the names in the file and how to choose, read
+/// by name from the API and from a scene's `grid` key; naming a grid of another format or next
+/// to a generator is an error.
+#[test]
+fn vdb_grids_are_chosen_by_name() {
+    let path = data("smoke_grid.vdb");
+    let e = io::read_grid(&path).unwrap_err().to_string();
+    assert!(
+        e.contains("smoke_grid.vdb") && e.contains("\"smoke\"") && e.contains("grid = "),
+        "{e}"
+    );
+    let f = io::read_grid_named(&path, Some("smoke")).unwrap();
+    // A 6³ block of 0.5 at index 2..=7: 216 voxels, all 0.5, box from voxel corners.
+    assert_eq!(f.grid.res(), [6, 6, 6]);
+    assert!(f.grid.data().iter().all(|&v| v == 0.5));
+    let (lo, hi) = f.bounds.unwrap();
+    assert_eq!((lo.x, hi.x), (1.5, 7.5));
+    let t = io::read_grid_named(&path, Some("temperature")).unwrap();
+    assert_eq!(t.grid.res(), [4, 4, 4]);
+    let e = io::read_grid_named(data("small_density.vdb"), Some("smoke"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("no grid named `smoke`"), "{e}");
+    let dir = std::env::temp_dir().join(format!("nimbus-grid-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let cam =
+        "[camera]\norigin = [0, 0, 20]\ntarget = [4, 4, 4]\nvfov_deg = 30\nwidth = 4\nheight = 4\n";
+    let scene = |vol: &str| {
+        let p = dir.join("s.toml");
+        std::fs::write(&p, format!("[volume]\n{vol}\n{cam}")).unwrap();
+        nimbus_scene::Scene::load(&p)
+    };
+    let s = scene(&format!(
+        "file = {:?}\ngrid = \"smoke\"",
+        path.to_str().unwrap()
+    ))
+    .unwrap();
+    assert_eq!(s.volume.grid().res(), [6, 6, 6]);
+    let e = scene("generator = { kind = \"cumulus\", resolution = [8, 8, 8] }\ngrid = \"smoke\"")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("volume.grid"), "{e}");
+    let vol = dir.join("a.vol");
+    io::write_grid(&vol, &f.grid, (lo, hi)).unwrap();
+    let e = io::read_grid_named(&vol, Some("smoke"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("only .vdb files hold named grids"), "{e}");
+}

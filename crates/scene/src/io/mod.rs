@@ -31,15 +31,28 @@ pub struct GridFile {
 
 /// Reads a grid, choosing the format from the extension.
 pub fn read_grid(path: impl AsRef<Path>) -> Result<GridFile> {
+    read_grid_named(path, None)
+}
+
+/// Like [`read_grid`]; `grid` names the grid of a `.vdb` file (default `density`). Other formats
+/// hold one unnamed grid: naming one is an error.
+pub fn read_grid_named(path: impl AsRef<Path>, grid: Option<&str>) -> Result<GridFile> {
     let path = path.as_ref();
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(|e| e.to_ascii_lowercase());
+    if grid.is_some() && ext.as_deref() != Some("vdb") {
+        return Err(Error::invalid(
+            path,
+            "grid",
+            "only .vdb files hold named grids",
+        ));
+    }
     match ext.as_deref() {
         Some("vol") => vol::read(path),
         Some("npy") => npy::read(path).map(|grid| GridFile { grid, bounds: None }),
-        Some("vdb") => vdb::read(path),
+        Some("vdb") => vdb::read_named(path, grid.unwrap_or(vdb::GRID_NAME)),
         _ => Err(Error::parse(
             path,
             "unknown volume format: expected a .vol, .npy or .vdb file",

@@ -24,16 +24,22 @@ use crate::grid::{DensityGrid, check_resolution};
 /// The grid name looked up in `.vdb` files.
 pub const GRID_NAME: &str = "density";
 
-/// Parses `.vdb` bytes; `path` only labels errors.
+/// Parses `.vdb` bytes, grid [`GRID_NAME`]; `path` only labels errors.
 pub fn parse(bytes: &[u8], path: &Path) -> Result<GridFile> {
+    parse_named(bytes, path, GRID_NAME)
+}
+
+/// Parses `.vdb` bytes, the float grid called `name`; `path` only labels errors.
+pub fn parse_named(bytes: &[u8], path: &Path, name: &str) -> Result<GridFile> {
     let owned = bytes.to_vec();
+    let name = name.to_string();
     // vdb-rs panics on malformed input ("Not supported", index errors — found by
     // `cargo fuzz run vdb`); the panic becomes an error naming the file. The default hook would
     // print the panic and a backtrace before that error, so a silent hook stands in meanwhile
     // (process-wide: a panic on another thread in this window would go unprinted).
     let hook = std::panic::take_hook();
     std::panic::set_hook(Box::new(|_| {}));
-    let result = std::panic::catch_unwind(move || parse_inner(&owned));
+    let result = std::panic::catch_unwind(move || parse_inner(&owned, &name));
     std::panic::set_hook(hook);
     match result {
         Ok(Ok(v)) => {
@@ -61,7 +67,7 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<GridFile> {
 
 type Parsed = ([usize; 3], Vec<f32>, (DVec3, DVec3));
 
-fn parse_inner(bytes: &[u8]) -> std::result::Result<Parsed, (String, String)> {
+fn parse_inner(bytes: &[u8], name: &str) -> std::result::Result<Parsed, (String, String)> {
     let err = |f: &str, m: String| (f.to_string(), m);
     if bytes.len() < 8 || bytes[0..4] != [0x20, 0x42, 0x44, 0x56] {
         return Err(err(
@@ -72,17 +78,19 @@ fn parse_inner(bytes: &[u8]) -> std::result::Result<Parsed, (String, String)> {
     let mut reader = vdb_rs::VdbReader::new(Cursor::new(bytes))
         .map_err(|e| err("header", format!("cannot read the OpenVDB header: {e}")))?;
     let names = reader.available_grids();
-    let Some(desc) = reader.grid_descriptors.get(GRID_NAME).cloned() else {
+    let Some(desc) = reader.grid_descriptors.get(name).cloned() else {
         return Err(err(
             "grid",
-            format!("no grid named `{GRID_NAME}` (grids in file: {names:?})"),
+            format!(
+                "no grid named `{name}` (grids in file: {names:?}); choose one with `grid = \"…\"` in [volume] or `--grid`"
+            ),
         ));
     };
     if !desc.grid_type.starts_with("Tree_float_5_4_3") {
         return Err(err(
             "grid.type",
             format!(
-                "grid `{GRID_NAME}` has type {}; only float grids (Tree_float_5_4_3) are supported",
+                "grid `{name}` has type {}; only float grids (Tree_float_5_4_3) are supported",
                 desc.grid_type
             ),
         ));
@@ -91,13 +99,13 @@ fn parse_inner(bytes: &[u8]) -> std::result::Result<Parsed, (String, String)> {
         return Err(err(
             "grid.is_saved_as_half_float",
             format!(
-                "grid `{GRID_NAME}` is stored as half floats, which are not supported; re-save it with full floats"
+                "grid `{name}` is stored as half floats, which are not supported; re-save it with full floats"
             ),
         ));
     }
     let grid = reader
-        .read_grid::<f32>(GRID_NAME)
-        .map_err(|e| err("grid", format!("cannot read grid `{GRID_NAME}`: {e}")))?;
+        .read_grid::<f32>(name)
+        .map_err(|e| err("grid", format!("cannot read grid `{name}`: {e}")))?;
     let (voxel_size, translation) = match &grid.transform {
         vdb_rs::Map::UniformScaleMap { voxel_size, .. } => (
             DVec3::new(voxel_size.x, voxel_size.y, voxel_size.z),
@@ -132,10 +140,7 @@ fn parse_inner(bytes: &[u8]) -> std::result::Result<Parsed, (String, String)> {
         items.push((o, v, s));
     }
     if items.is_empty() {
-        return Err(err(
-            "grid",
-            format!("grid `{GRID_NAME}` has no active voxels"),
-        ));
+        return Err(err("grid", format!("grid `{name}` has no active voxels")));
     }
     let res = check_resolution(
         [hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, hi[2] - lo[2] + 1],
@@ -177,6 +182,13 @@ fn parse_inner(bytes: &[u8]) -> std::result::Result<Parsed, (String, String)> {
 }
 
 pub fn read(path: &Path) -> Result<GridFile> {
+    read_named(path, GRID_NAME)
+}
+
+/// Reads the float grid called `name`.
+pub fn read_named(path: &Path, name: &str) -> Result<GridFile> {
+    // The file's bytes, a copy for the reader and the grid are held at once.
+    crate::memory::check_file(path, 3)?;
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    parse(&bytes, path)
+    parse_named(&bytes, path, name)
 }
