@@ -83,7 +83,7 @@ pub(crate) fn render_rpnn(
             gpu,
             &pyr,
             &model,
-            1 << 16,
+            nimbus_rpnn::gpu_mlp::DEFAULT_BATCH,
         )?)),
     };
     let ro = RpnnOptions {

@@ -338,7 +338,12 @@ pub fn sweep(
             };
             let (mut backend, device) = if use_gpu {
                 let g = gpu.get()?;
-                let b = nimbus_rpnn::gpu_mlp::GpuRpnn::new(g, &pyr, &model, 1 << 16)?;
+                let b = nimbus_rpnn::gpu_mlp::GpuRpnn::new(
+                    g,
+                    &pyr,
+                    &model,
+                    nimbus_rpnn::gpu_mlp::DEFAULT_BATCH,
+                )?;
                 (
                     Backend::Wgpu(Box::new(b)),
                     format!("wgpu on {}", g.describe()),

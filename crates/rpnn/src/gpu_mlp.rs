@@ -288,6 +288,11 @@ pub struct GpuRpnn<'g> {
     pub last_ms: (f64, f64),
 }
 
+/// Network queries per GPU dispatch that the renderers ask for (the CLI, the evaluation and the
+/// viewer alike); [`GpuMlp::new`] lowers it to what the adapter's storage-binding limit holds
+/// (2¹⁶ descriptors of 2 251 floats are 590 MB).
+pub const DEFAULT_BATCH: usize = 1 << 16;
+
 impl<'g> GpuRpnn<'g> {
     pub fn new(
         gpu: &'g Gpu,

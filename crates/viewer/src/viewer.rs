@@ -667,8 +667,13 @@ impl<'g> Viewer<'g> {
             )
         } else {
             nimbus_rpnn::render::Backend::Wgpu(Box::new(
-                nimbus_rpnn::gpu_mlp::GpuRpnn::new(self.gpu, &pyr, &model, 1 << 16)
-                    .map_err(|e| e.to_string())?,
+                nimbus_rpnn::gpu_mlp::GpuRpnn::new(
+                    self.gpu,
+                    &pyr,
+                    &model,
+                    nimbus_rpnn::gpu_mlp::DEFAULT_BATCH,
+                )
+                .map_err(|e| e.to_string())?,
             ))
         };
         Ok(RpnnView {
