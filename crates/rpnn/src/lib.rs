@@ -14,6 +14,7 @@ pub mod model;
 pub mod ort_backend;
 pub mod pyramid;
 pub mod render;
+mod shard_files;
 pub mod shards;
 
 pub use descriptor::{Config, DESCRIPTOR_LEN, LEVELS, POINTS, descriptor, descriptors};

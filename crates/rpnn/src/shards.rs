@@ -16,9 +16,8 @@ use std::path::{Path, PathBuf};
 use serde_json::Value;
 
 use crate::datagen::DatagenError;
-use crate::dataset::{
-    CloudSpec, Manifest, Part, SPLITS, ShardInfo, lock_out, rows_of, sha256_file, write_text,
-};
+use crate::dataset::{CloudSpec, Manifest, Part, SPLITS, ShardInfo};
+use crate::shard_files::{lock_out, rows_of, sha256_file, write_text};
 
 /// What [`merge`] assembled.
 #[derive(Debug, Clone, PartialEq)]

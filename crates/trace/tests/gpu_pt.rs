@@ -21,6 +21,13 @@ fn gpu_sun_disc_matches_cpu() {
     check(Some(2.0));
 }
 
+/// The scene's camera at `w` × `h` pixels (small images keep lavapipe quick).
+fn resize(scene: &mut Scene, w: usize, h: usize) {
+    let c = &scene.camera;
+    scene.camera =
+        nimbus_scene::Camera::new(c.origin, c.target(), c.up_hint(), c.vfov_deg(), w, h).unwrap();
+}
+
 fn check(disc_deg: Option<f64>) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let mut scene = Scene::load(root.join("scenes/refs/cube_iso.toml")).unwrap();
@@ -28,15 +35,7 @@ fn check(disc_deg: Option<f64>) {
         let s = scene.sun.clone().unwrap();
         scene.sun = Some(nimbus_scene::Sun::new(s.dir, s.irradiance, r).unwrap());
     }
-    scene.camera = nimbus_scene::Camera::new(
-        scene.camera.origin,
-        scene.camera.target(),
-        scene.camera.up_hint(),
-        scene.camera.vfov_deg(),
-        64,
-        48,
-    )
-    .unwrap();
+    resize(&mut scene, 64, 48);
     let gpu = nimbus_gpu::Gpu::new().expect("GPU adapter (mesa-vulkan-drivers)");
     let mut gpt = GpuPathTracer::new(&gpu, &scene).unwrap();
     let (gimg, gvar) = gpt.render(64, 3).unwrap();
@@ -96,15 +95,7 @@ fn unsupported_scenes_are_refused() {
 fn absurd_majorants_end_and_leave_empty_space_empty() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let mut scene = Scene::load(root.join("scenes/refs/cube_iso.toml")).unwrap();
-    scene.camera = nimbus_scene::Camera::new(
-        scene.camera.origin,
-        scene.camera.target(),
-        scene.camera.up_hint(),
-        scene.camera.vfov_deg(),
-        32,
-        24,
-    )
-    .unwrap();
+    resize(&mut scene, 32, 24);
     let gpu = nimbus_gpu::Gpu::new().expect("GPU adapter (mesa-vulkan-drivers)");
     let image = |scale: f64, corner: f32| {
         let mut data = vec![0.0f32; 8 * 8 * 8];
