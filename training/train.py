@@ -75,6 +75,10 @@ def parse_args(argv=None):
     p.add_argument("--max-minutes", type=float, default=0.0,
                    help="stop after this much training time (0: no limit); the best checkpoint "
                         "is exported as usual")
+    p.add_argument("--select", default="val", choices=["val", "last"],
+                   help="the checkpoint kept as best.pt and exported: the lowest validation "
+                        "loss (default) or the last epoch (with --schedule cosine the step size "
+                        "has decayed to 0 there; a small validation set is noisier than that)")
     p.add_argument("--resume", action="store_true", help="continue from <run>/last.pt")
     p.add_argument("--preload", default="auto", choices=["auto", "yes", "no"],
                    help="copy the records into memory (GPU memory on CUDA) instead of reading "
@@ -392,7 +396,7 @@ def _train(args, dist: Dist, device) -> dict:
         row = {"epoch": epoch, "train_loss": tl / max(tn, 1), "val_loss": vl,
                "test_loss": te, "seconds": state["seconds"]}
         state["log"].append(row)
-        improved = vl < state["best_val"]
+        improved = vl < state["best_val"] or args.select == "last"
         if improved:
             state["best_val"], state["best_epoch"] = vl, epoch
         if lead:

@@ -36,6 +36,18 @@ def test_validation_loss_falls(record_set, tmp_path):
     assert (tmp_path / "run" / "best.pt").exists()
 
 
+def test_select_last_keeps_the_last_epoch(record_set, tmp_path):
+    import torch
+    res = run(record_set, tmp_path, "--epochs", "3", "--select", "last")
+    assert res["state"]["best_epoch"] == 3
+    assert res["state"]["best_val"] == res["state"]["log"][-1]["val_loss"]
+    best = torch.load(tmp_path / "run" / "best.pt", weights_only=False)
+    last = torch.load(tmp_path / "run" / "last.pt", weights_only=False)
+    assert best["epoch"] == 3
+    for k, v in best["model"].items():
+        assert torch.equal(v, last["model"][k]), k
+
+
 def test_resume_continues_and_matches_an_uninterrupted_run(record_set, tmp_path):
     full = run(record_set, tmp_path / "a", "--epochs", "4")
     run(record_set, tmp_path / "b", "--epochs", "2")
