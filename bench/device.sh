@@ -55,10 +55,10 @@ for spec in "altostratus 15,10,15" "cumulus_congestus 10,12,18" "wide_cloud 15,1
   scene=$(sized "scenes/bench/$1.toml" "$W" "$H")
   "$nimbus" animate "$scene" --frames "$FRAMES" --sun-speed 0.5 --beams "$BEAMS" --ring 100 \
     --cache-res "$2" -o "$out/pm_$1" > /dev/null
-  awk -F, -v s="$1" -v set="${W}x${H} I=$(echo "$2" | tr , x) n_g=$BEAMS" 'NR>2 { t+=$6; u+=$7; p+=$8; r+=$9; n++ }
+  awk -F, -v s="$1" -v set="${W}x${H} I=$(echo "$2" | tr , x) n_g=$BEAMS" 'NR>2 { t+=$6; u+=$7; p+=$8; r+=$9; x+=$10; n++ }
     END { if (n == 0) exit 1;
-          printf "pm_trace_ms,%s,%s,%.3f,ms\npm_update_ms,%s,%s,%.3f,ms\npm_upsample_ms,%s,%s,%.3f,ms\npm_raymarch_ms,%s,%s,%.3f,ms\npm_frame_ms,%s,%s,%.3f,ms\n",
-            s,set,t/n, s,set,u/n, s,set,p/n, s,set,r/n, s,set,(t+u+p+r)/n }' \
+          printf "pm_trace_ms,%s,%s,%.3f,ms\npm_update_ms,%s,%s,%.3f,ms\npm_upsample_ms,%s,%s,%.3f,ms\npm_raymarch_ms,%s,%s,%.3f,ms\npm_sun_transmittance_ms,%s,%s,%.3f,ms\npm_frame_ms,%s,%s,%.3f,ms\n",
+            s,set,t/n, s,set,u/n, s,set,p/n, s,set,r/n, s,set,x/n, s,set,(t+u+p+r+x)/n }' \
     "$out/pm_$1/timings.csv" >> "$csv"
 done
 

@@ -1,17 +1,20 @@
 #!/usr/bin/env bash
 # Per-stage GPU timings of photon mapping on the Elek 2012 Table 1 resolutions at 1920×1200,
 # n_g = 8192 beams per frame (819 k beams in a ring of m = 100). A sun turning at 0.5°/s makes
-# every frame trace, update, upsample and ray march. Prints the mean over frames 2..N.
-# Usage: bash bench/pm_table1.sh [FRAMES]   (after cargo build --release -p nimbus-cli)
+# every frame trace, update, upsample and ray march (the exact variant also rebuilds its
+# sun-transmittance volume, column "sun"). Prints the mean over frames 2..N.
+# Usage: [VARIANT=exact|elek2012] bash bench/pm_table1.sh [FRAMES]
+#        (after cargo build --release -p nimbus-cli)
 set -euo pipefail
 frames=${1:-12}
+variant=${VARIANT:-exact}
 export XDG_RUNTIME_DIR=${XDG_RUNTIME_DIR:-/tmp}
-printf "%-20s %-12s %-10s %9s %9s %9s %9s %9s\n" scene D I tracing update upsample raymarch total
+printf "%-20s %-12s %-10s %9s %9s %9s %9s %9s %9s\n" scene D I tracing update upsample raymarch sun total
 for spec in "altostratus 70x22x71 15,10,15" "cumulus_congestus 48x62x90 10,12,18" "wide_cloud 100x40x100 15,10,15"; do
   set -- $spec
-  out=out/bench_pm/$1
+  out=out/bench_pm/$variant/$1
   ./target/release/nimbus animate scenes/bench/$1.toml --frames "$frames" --sun-speed 0.5 \
-    --beams 8192 --ring 100 --cache-res "$3" -o "$out" > /dev/null
-  awk -F, -v s="$1" -v d="$2" -v i="$3" 'NR>2 { t+=$6; u+=$7; p+=$8; r+=$9; n++ }
-    END { printf "%-20s %-12s %-10s %9.2f %9.2f %9.2f %9.2f %9.2f\n", s, d, i, t/n, u/n, p/n, r/n, (t+u+p+r)/n }' "$out/timings.csv"
+    --beams 8192 --ring 100 --cache-res "$3" --pm-variant "$variant" -o "$out" > /dev/null
+  awk -F, -v s="$1" -v d="$2" -v i="$3" 'NR>2 { t+=$6; u+=$7; p+=$8; r+=$9; x+=$10; n++ }
+    END { printf "%-20s %-12s %-10s %9.2f %9.2f %9.2f %9.2f %9.2f %9.2f\n", s, d, i, t/n, u/n, p/n, r/n, x/n, (t+u+p+r+x)/n }' "$out/timings.csv"
 done

@@ -392,7 +392,7 @@ fn run(cli: Cli) -> Result<()> {
                 half_res: pm_args.half_res,
             };
             let mut csv = String::from(
-                "frame,sun_azimuth_deg,traced,upsampled,impostor,tracing_ms,update_ms,upsampling_ms,raymarching_ms,gpu_total_ms,wall_ms\n",
+                "frame,sun_azimuth_deg,traced,upsampled,impostor,tracing_ms,update_ms,upsampling_ms,raymarching_ms,sun_transmittance_ms,gpu_total_ms,wall_ms\n",
             );
             let mut fixed_exposure = exposure;
             animate(&mut pm, &s, &opts, |img, r| {
@@ -406,20 +406,21 @@ fn run(cli: Cli) -> Result<()> {
                         .map(|(_, v)| v)
                         .sum::<f64>()
                 };
-                let (t, u, up, rm) = (
+                let (t, u, up, rm, st) = (
                     ms("tracing"),
                     ms("update"),
                     ms("upsampl") + ms("conversion"),
                     ms("ray"),
+                    ms("sun transmittance"),
                 );
                 csv += &format!(
-                    "{},{:.4},{},{},{},{t:.4},{u:.4},{up:.4},{rm:.4},{:.4},{:.3}\n",
+                    "{},{:.4},{},{},{},{t:.4},{u:.4},{up:.4},{rm:.4},{st:.4},{:.4},{:.3}\n",
                     r.frame,
                     r.sun_azimuth_deg,
                     r.traced as u8,
                     r.upsampled as u8,
                     r.refresh.map_or("reuse", |x| x.name()),
-                    t + u + up + rm,
+                    t + u + up + rm + st,
                     r.wall_ms
                 );
                 Ok(())
