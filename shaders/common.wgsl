@@ -19,7 +19,7 @@ struct Params {
     similarity_order: u32, max_order: u32, use_shared: u32, filtered: u32,
     width: u32, height: u32, beam_threshold: f32, reduced_factor: f32,
     sun_norm: f32, sky_norm: f32, noise_amplitude: f32, noise_frequency: f32,
-    single_scatter: u32, density_weighted: u32, pad1: u32, pad2: u32,
+    single_scatter: u32, density_weighted: u32, lobe_axis: u32, lobe_split: u32,
 };
 
 const PI: f32 = 3.14159265358979;

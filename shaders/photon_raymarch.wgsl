@@ -5,6 +5,11 @@
 //   L_s = σ_s(x) [ E_sun J_sun(x) p_HG(ω·ω_sun | g g'(x)) + L_sky J_sky(x) / 4π ],
 // i.e. the incident HG lobe of anisotropy g' convolved with the medium's HG(g) (self-convolution
 // property). Behind the cloud: the sky radiance and, for a sun disc, the sun.
+// The lobe's axis ω_sun is the sun's propagation direction (the paper) or, with `P.lobe_axis`,
+// the local mean sun-flux direction (`j_dir`, upsampled like J; Elek Appendix C: "storing the
+// direction separately for each cell"). At the shadowed and the
+// camera-facing sides of a cloud the scattered light flows outwards, not along the sun: with
+// the sun axis a side view loses ≈ 1/3 of the multiply scattered light (BENCHMARKS.md).
 // Detail (Elek §4.4): when `noise_amplitude` > 0, the lookup positions of D and J are displaced
 // by three octaves of vector value noise (amplitudes 1, ½, ¼; frequencies f, 2f, 4f), which
 // adds sub-voxel detail to a smooth density field.
@@ -12,6 +17,58 @@
 @group(0) @binding(2) var<storage, read> j_in: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> image: array<vec4<f32>>;
 @group(0) @binding(4) var<storage, read> t_sun: array<f32>;
+// Per density voxel (flux axes only): the upsampled mean propagation vector of the low-order
+// (or, without a split, all) sun light with the high-order fluence, and that of the high-order
+// sun light (photon_upsample.wgsl).
+@group(0) @binding(5) var<storage, read> j_dir: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read> j_hi: array<vec4<f32>>;
+
+fn interp_dir(p: vec3<f32>, hi: bool) -> vec4<f32> {
+    let t = trilinear(p, P.d_res);
+    let r = P.d_res;
+    let f = t.f;
+    let i000 = grid_index(t.i0.x, t.i0.y, t.i0.z, r);
+    let i100 = grid_index(t.i1.x, t.i0.y, t.i0.z, r);
+    let i010 = grid_index(t.i0.x, t.i1.y, t.i0.z, r);
+    let i110 = grid_index(t.i1.x, t.i1.y, t.i0.z, r);
+    let i001 = grid_index(t.i0.x, t.i0.y, t.i1.z, r);
+    let i101 = grid_index(t.i1.x, t.i0.y, t.i1.z, r);
+    let i011 = grid_index(t.i0.x, t.i1.y, t.i1.z, r);
+    let i111 = grid_index(t.i1.x, t.i1.y, t.i1.z, r);
+    if (hi) {
+        let c00 = mix(j_hi[i000], j_hi[i100], f.x);
+        let c10 = mix(j_hi[i010], j_hi[i110], f.x);
+        let c01 = mix(j_hi[i001], j_hi[i101], f.x);
+        let c11 = mix(j_hi[i011], j_hi[i111], f.x);
+        return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
+    }
+    let c00 = mix(j_dir[i000], j_dir[i100], f.x);
+    let c10 = mix(j_dir[i010], j_dir[i110], f.x);
+    let c01 = mix(j_dir[i001], j_dir[i101], f.x);
+    let c11 = mix(j_dir[i011], j_dir[i111], f.x);
+    return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
+}
+
+// HG(ω | g·|v|) for a lobe v (axis × g') seen along the camera ray d: light along v scattered
+// towards the camera (−d).
+fn lobe_phase(v: vec3<f32>, d: vec3<f32>) -> f32 {
+    let gl = length(v);
+    var mu = 0.0;
+    if (gl > 1.0e-6) { mu = dot(-d, v / gl); }
+    return hg_eval(P.g * min(gl, 0.999), mu);
+}
+
+// Sun fluence per unit irradiance times the phase of its lobes towards the camera: one lobe
+// along the sun with J's g' (the paper), or per-cell flux lobes — one for all orders, or one
+// for the low and one for the high orders (`P.lobe_split`).
+fn sun_in_scatter(x: vec3<f32>, jv: vec4<f32>, d: vec3<f32>) -> f32 {
+    if (P.lobe_axis == 0u) { return jv.x * lobe_phase(-P.sun_dir * jv.z, d); }
+    let lo = interp_dir(x, false);
+    if (P.lobe_split == 0u) { return jv.x * lobe_phase(lo.xyz, d); }
+    let hi = interp_dir(x, true);
+    let f_hi = clamp(lo.w, 0.0, jv.x);
+    return (jv.x - f_hi) * lobe_phase(lo.xyz, d) + f_hi * lobe_phase(hi.xyz, d);
+}
 
 fn t_sun_at(p: vec3<f32>) -> f32 {
     let t = trilinear(p, P.d_res);
@@ -87,7 +144,8 @@ fn raymarch(@builtin(global_invocation_id) gid: vec3<u32>) {
             let sigma_t = P.density_scale * dens;
             if (sigma_t > 0.0) {
                 let jv = j_at(x);
-                var ls = sigma_s_scale * dens * (P.sun_irradiance * (jv.x * hg_eval(P.g * jv.z, mu))
+                // Light along the axis a scattered towards the camera (−d): cos = a·(−d).
+                var ls = sigma_s_scale * dens * (P.sun_irradiance * sun_in_scatter(x, jv, d)
                     + P.sky_radiance * (jv.y / (4.0 * PI)));
                 if (P.single_scatter != 0u) {
                     ls += sigma_s_scale * dens * P.sun_irradiance * (t_sun_at(x) * hg_eval(P.g, mu));

@@ -9,9 +9,16 @@
 // after `similarity_order` scatterings the beam switches to σ' = σ √(1 − g) and isotropic
 // scattering (Elek §4.1.1). Beams end when they leave the box or after `max_order` scatterings.
 //
-// Per cache cell, 5 u32 (fixed point, scale W = 4096 per unit weight, stochastic rounding):
-//   0: Σ w (sun)   1: Σ w (sky)   2: Σ w (cos θ + 1)/2 (sun; θ to the sun's propagation)
-//   3: Σ min(order, 1023)   4: number of deposits
+// Per cache cell, CELL_WORDS = 11 u32 (fixed point, scale W = 4096 per unit weight, stochastic
+// rounding):
+//   0: Σ w (sun)   1: Σ w (sky)   2, 3, 4: Σ w (d_k + 1)/2 for k = x, y, z (sun beams; d the
+//   beam's propagation direction, so Σ w d = 2 (slots 2–4) − Σ w: the cell's net sun flux)
+//   5: Σ min(order, 1023)   6: number of deposits
+//   7, 8, 9, 10: slots 0 and 2–4 again for the sun deposits of order ≥ `P.lobe_split` only
+//   (0: no split, these stay 0), so high and low orders get lobes of their own.
+// The paper projects each photon on the sun direction only (§4.1.2); the flux vector gives that
+// projection (`cells` in photon_upsample.wgsl) and also the per-cell lobe axis that Appendix C
+// allows ("storing the direction separately for each cell").
 // Workgroup-shared accumulation when the grid fits (SHARED_CELLS), else global atomics.
 // With `P.density_weighted` every deposit is weighted by σ(x)/σ̄ (see `cells` in
 // photon_upsample.wgsl). With exact single scattering (`P.single_scatter` = 1) an unscattered sun beam (order 0)
@@ -20,10 +27,11 @@
 
 @group(0) @binding(2) var<storage, read_write> h_new: array<atomic<u32>>;
 
-const SHARED_CELLS: u32 = 1600u;
+const SHARED_CELLS: u32 = 256u;
+const CELL_WORDS: u32 = 11u;
 const WG: u32 = 64u;
 const W_SCALE: f32 = 4096.0;
-var<workgroup> sh: array<atomic<u32>, SHARED_CELLS * 5u>;
+var<workgroup> sh: array<atomic<u32>, SHARED_CELLS * CELL_WORDS>;
 
 fn deposit(slot: u32, v: u32) {
     if (v == 0u) { return; }
@@ -70,7 +78,6 @@ fn trace_beam(index: u32) {
     var w = 1.0;
     var order = 0u;
     var steps = 0u;
-    let sun_prop = -P.sun_dir;
     loop {
         steps++;
         if (steps > 1000000u) { break; }
@@ -79,7 +86,7 @@ fn trace_beam(index: u32) {
         if (exit.x > exit.y || t >= exit.y) { break; }
         x = x + d * t;
         let skip = is_sun && order == 0u && P.single_scatter != 0u;
-        let cell = cell_of(x) * 5u;
+        let cell = cell_of(x) * CELL_WORDS;
         // Density-weighted deposits (a collision estimator): weight σ(x)/σ̄, so a cell sums
         // σφ and the `cells` pass divides by the cell's mean σ.
         let sigma_here = P.density_scale * density_at(x);
@@ -88,17 +95,26 @@ fn trace_beam(index: u32) {
         let wu = u32(floor(w * dw * W_SCALE + rand(&rng)));
         // The random numbers drawn do not depend on `skip` (the paper variant is unchanged).
         if (is_sun) {
-            let cu = u32(floor(f32(wu) * 0.5 * (dot(d, sun_prop) + 1.0) + rand(&rng)));
+            let cu = vec3<u32>(floor(f32(wu) * 0.5 * (d + vec3<f32>(1.0))
+                + vec3<f32>(rand(&rng), rand(&rng), rand(&rng))));
             if (!skip) {
                 deposit(cell, wu);
-                deposit(cell + 2u, cu);
+                deposit(cell + 2u, cu.x);
+                deposit(cell + 3u, cu.y);
+                deposit(cell + 4u, cu.z);
+                if (P.lobe_split != 0u && order >= P.lobe_split) {
+                    deposit(cell + 7u, wu);
+                    deposit(cell + 8u, cu.x);
+                    deposit(cell + 9u, cu.y);
+                    deposit(cell + 10u, cu.z);
+                }
             }
         } else {
             deposit(cell + 1u, wu);
         }
         if (!skip) {
-            deposit(cell + 3u, min(order, 1023u));
-            deposit(cell + 4u, 1u);
+            deposit(cell + 5u, min(order, 1023u));
+            deposit(cell + 6u, 1u);
         }
         let reduced = order >= P.similarity_order;
         var sigma = sigma_here;
@@ -124,7 +140,7 @@ fn trace(@builtin(global_invocation_id) gid: vec3<u32>,
          @builtin(num_workgroups) nwg: vec3<u32>) {
     let cells = P.i_res.x * P.i_res.y * P.i_res.z;
     if (P.use_shared != 0u) {
-        for (var i = lid; i < cells * 5u; i += WG) { atomicStore(&sh[i], 0u); }
+        for (var i = lid; i < cells * CELL_WORDS; i += WG) { atomicStore(&sh[i], 0u); }
     }
     workgroupBarrier();
     let index = gid.x + gid.y * nwg.x * WG;
@@ -133,7 +149,7 @@ fn trace(@builtin(global_invocation_id) gid: vec3<u32>,
     }
     workgroupBarrier();
     if (P.use_shared != 0u) {
-        for (var i = lid; i < cells * 5u; i += WG) {
+        for (var i = lid; i < cells * CELL_WORDS; i += WG) {
             let v = atomicLoad(&sh[i]);
             if (v != 0u) { atomicAdd(&h_new[i], v); }
         }

@@ -11,7 +11,10 @@
 // of I is used. With `filtered == 0` (I and J of equal resolution) J is I converted to
 // physical units, without filtering.
 // J layout: 4 floats per voxel: sun fluence per unit irradiance, sky fluence per unit radiance,
-// g', γ.
+// g', γ. The lobe's axis: the sun's propagation direction (`P.lobe_axis` = 0, the paper, g' =
+// the mean cosine to it), or each cell's mean sun-flux direction (1, Appendix C's per-cell
+// direction; g' = |mean propagation vector|), kept per coarse cell in `cell_dir` and
+// interpolated by the ray marcher.
 
 @group(0) @binding(2) var<storage, read> total: array<u32>;
 @group(0) @binding(3) var<storage, read_write> j_out: array<vec4<f32>>;
@@ -19,8 +22,26 @@
 // (sun fluence, sky fluence, g', γ) and (D at the cell centre, has sun flux, 0, 0).
 @group(0) @binding(4) var<storage, read_write> cell_vals: array<vec4<f32>>;
 @group(0) @binding(5) var<storage, read_write> cell_aux: array<vec4<f32>>;
+// Per coarse cell, two entries: the mean propagation vector Σ w d / Σ w of its low-order sun
+// light (orders below `P.lobe_split`; all orders when that is 0) with 1 when there is such
+// light, and that of its high-order sun light with the high-order fluence.
+@group(0) @binding(6) var<storage, read_write> cell_dirs: array<vec4<f32>>;
+// Per fine voxel (flux axes only): the upsampled mean propagation vectors, Σ w_L v(q) / Σ w_L
+// over the cells with such light (a flux is linear in the deposits: averaged as a vector, its
+// length falls where directions diverge, which widens the lobe as it should). j_dir: low
+// orders and the upsampled high-order fluence; j_hi: high orders.
+@group(0) @binding(7) var<storage, read_write> j_dir: array<vec4<f32>>;
+@group(0) @binding(8) var<storage, read_write> j_hi: array<vec4<f32>>;
 
-struct CellValue { sun: f32, sky: f32, g: f32, gamma: f32, has_sun: bool };
+const CELL_WORDS: u32 = 11u;
+
+struct CellValue {
+    sun: f32, sky: f32, g: f32, gamma: f32, has_sun: bool,
+    // Low-order (or, without a split, all) sun light: mean propagation vector, present.
+    dir: vec3<f32>, has_lo: bool,
+    // High-order sun light: fluence (part of `sun`) and mean propagation vector.
+    sun_hi: f32, dir_hi: vec3<f32>,
+};
 
 // Mean density over coarse cell c (4×4×4 stratified samples of the trilinear field): the
 // divisor of density-weighted sums, which estimate ⟨σφ⟩ over the cell.
@@ -36,14 +57,30 @@ fn cell_mean_density(c: vec3<u32>) -> f32 {
 }
 
 fn cell_value(i: u32) -> CellValue {
-    let b = i * 5u;
+    let b = i * CELL_WORDS;
     let w_sun = f32(total[b]);
     let w_sky = f32(total[b + 1u]);
-    let cw = f32(total[b + 2u]);
-    let ord = f32(total[b + 3u]);
-    let n = f32(total[b + 4u]);
+    let cw = vec3<f32>(f32(total[b + 2u]), f32(total[b + 3u]), f32(total[b + 4u]));
+    let ord = f32(total[b + 5u]);
+    let n = f32(total[b + 6u]);
     var g = 0.0;
-    if (w_sun > 0.0) { g = clamp(2.0 * cw / w_sun - 1.0, -0.999, 0.999); }
+    if (w_sun > 0.0) {
+        let all = 2.0 * cw / w_sun - vec3<f32>(1.0);
+        if (P.lobe_axis != 0u) {
+            g = min(length(all), 0.999);
+        } else {
+            g = clamp(dot(all, -P.sun_dir), -0.999, 0.999);
+        }
+    }
+    // High orders (slots 7–10, a subset of the sums in 0 and 2–4) and the rest, in integers.
+    let hi_u = total[b + 7u];
+    let cw_hi_u = vec3<u32>(total[b + 8u], total[b + 9u], total[b + 10u]);
+    let lo_u = total[b] - hi_u;
+    let cw_lo = vec3<f32>(vec3<u32>(total[b + 2u], total[b + 3u], total[b + 4u]) - cw_hi_u);
+    var dir = vec3<f32>(0.0);
+    if (lo_u > 0u) { dir = 2.0 * cw_lo / f32(lo_u) - vec3<f32>(1.0); }
+    var dir_hi = vec3<f32>(0.0);
+    if (hi_u > 0u) { dir_hi = 2.0 * vec3<f32>(cw_hi_u) / f32(hi_u) - vec3<f32>(1.0); }
     var gamma = 0.0;
     if (n > 0.0) { gamma = ord / n; }
     var scale = 1.0;
@@ -52,7 +89,8 @@ fn cell_value(i: u32) -> CellValue {
         let m = cell_mean_density(c) / P.d_max;
         scale = select(0.0, 1.0 / m, m > 0.0);
     }
-    return CellValue(w_sun * P.sun_norm * scale, w_sky * P.sky_norm * scale, g, gamma, w_sun > 0.0);
+    return CellValue(w_sun * P.sun_norm * scale, w_sky * P.sky_norm * scale, g, gamma, w_sun > 0.0,
+        dir, lo_u > 0u, f32(hi_u) * P.sun_norm * scale, dir_hi);
 }
 
 @compute @workgroup_size(64)
@@ -64,6 +102,8 @@ fn cells(@builtin(global_invocation_id) gid: vec3<u32>) {
     cell_vals[i] = vec4<f32>(cv.sun, cv.sky, cv.g, cv.gamma);
     let c = vec3<u32>(i % P.i_res.x, (i / P.i_res.x) % P.i_res.y, i / (P.i_res.x * P.i_res.y));
     cell_aux[i] = vec4<f32>(density_at(coarse_centre(c)), select(0.0, 1.0, cv.has_sun), 0.0, 0.0);
+    cell_dirs[2u * i] = vec4<f32>(cv.dir, select(0.0, 1.0, cv.has_lo));
+    cell_dirs[2u * i + 1u] = vec4<f32>(cv.dir_hi, cv.sun_hi);
 }
 
 fn coarse_centre(c: vec3<u32>) -> vec3<f32> {
@@ -100,10 +140,11 @@ fn gamma_at(p: vec3<f32>) -> f32 {
     return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
 }
 
-fn trilinear_fluence(p: vec3<f32>) -> vec2<f32> {
+// Trilinear (sun, sky, high-order sun) fluence of the coarse cells.
+fn trilinear_fluence(p: vec3<f32>) -> vec3<f32> {
     let t = trilinear(p, P.i_res);
     let r = P.i_res;
-    var acc = vec2<f32>(0.0);
+    var acc = vec3<f32>(0.0);
     for (var k = 0u; k < 8u; k++) {
         let sx = (k & 1u) != 0u;
         let sy = (k & 2u) != 0u;
@@ -114,7 +155,8 @@ fn trilinear_fluence(p: vec3<f32>) -> vec2<f32> {
         let wx = select(1.0 - t.f.x, t.f.x, sx);
         let wy = select(1.0 - t.f.y, t.f.y, sy);
         let wz = select(1.0 - t.f.z, t.f.z, sz);
-        acc += cell_vals[grid_index(ix, iy, iz, r)].xy * (wx * wy * wz);
+        let ci = grid_index(ix, iy, iz, r);
+        acc += vec3<f32>(cell_vals[ci].xy, cell_dirs[2u * ci + 1u].w) * (wx * wy * wz);
     }
     return acc;
 }
@@ -130,6 +172,10 @@ fn upsample(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     let z = idx / (res.x * res.y);
     if (P.filtered == 0u) {
         j_out[idx] = cell_vals[idx];
+        if (P.lobe_axis != 0u) {
+            j_dir[idx] = vec4<f32>(cell_dirs[2u * idx].xyz, cell_dirs[2u * idx + 1u].w);
+            j_hi[idx] = vec4<f32>(cell_dirs[2u * idx + 1u].xyz, 0.0);
+        }
         return;
     }
     let ext = P.aabb_max - P.aabb_min;
@@ -147,6 +193,11 @@ fn upsample(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     var s_sky = 0.0;
     var swg = 0.0;
     var s_g = 0.0;
+    var s_dir = vec3<f32>(0.0);
+    var sw_dir = 0.0;
+    var s_hi = 0.0;
+    var s_dir_hi = vec3<f32>(0.0);
+    var sw_dir_hi = 0.0;
     for (var dz = -1; dz <= 1; dz++) {
         for (var dy = -1; dy <= 1; dy++) {
             for (var dx = -1; dx <= 1; dx++) {
@@ -164,6 +215,19 @@ fn upsample(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
                 sw += wl;
                 s_sun += wl * cv.x;
                 s_sky += wl * cv.y;
+                if (P.lobe_axis != 0u) {
+                    let lo = cell_dirs[2u * qi];
+                    let hi = cell_dirs[2u * qi + 1u];
+                    s_hi += wl * hi.w;
+                    if (lo.w > 0.0) {
+                        s_dir += wl * lo.xyz;
+                        sw_dir += wl;
+                    }
+                    if (hi.w > 0.0) {
+                        s_dir_hi += wl * hi.xyz;
+                        sw_dir_hi += wl;
+                    }
+                }
                 if (aux.y > 0.0) {
                     var wg = 1.0;
                     if (abs(P.g) >= 1.0e-6) { wg = exp(clamp((gp - cv.w) * lng, -60.0, 60.0)); }
@@ -174,12 +238,23 @@ fn upsample(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
         }
     }
     var out: vec4<f32>;
+    var hi_f = 0.0;
     if (sw > 0.0) {
         out = vec4<f32>(s_sun / sw, s_sky / sw, 0.0, gp);
+        hi_f = s_hi / sw;
     } else {
         let f = trilinear_fluence(p);
         out = vec4<f32>(f.x, f.y, 0.0, gp);
+        hi_f = f.z;
     }
     if (swg > 0.0) { out.z = s_g / swg; }
     j_out[idx] = out;
+    if (P.lobe_axis != 0u) {
+        var v = vec3<f32>(0.0);
+        if (sw_dir > 0.0) { v = s_dir / sw_dir; }
+        var vh = vec3<f32>(0.0);
+        if (sw_dir_hi > 0.0) { vh = s_dir_hi / sw_dir_hi; }
+        j_dir[idx] = vec4<f32>(v, hi_f);
+        j_hi[idx] = vec4<f32>(vh, 0.0);
+    }
 }

@@ -3,11 +3,12 @@
 //!
 //! Photon mapping is biased by design: the illumination lives in a 14×11×14 cache (upsampled to
 //! the 128×96×128 density), each cell holds one Henyey–Greenstein lobe, and ray marching stops at
-//! 2 % transmittance. Measured on lavapipe (2026-11-22): mean-luminance ratio 1.010 and relative
-//! RMSE over 4×4 blocks 0.233 against the converged Mitsuba image; the path tracer itself is
-//! unbiased (tests/refs.rs). The bounds below keep that structured error from growing: mean
-//! within 5 % (the per-frame photon noise of the converged ring is ≈ 1 %, tests in
-//! crates/photon/tests/temporal.rs), 4×4 error below 0.30.
+//! 2 % transmittance. Measured on lavapipe (2026-12-02) with the default variant (exact single
+//! scattering, two flux lobes per cell): mean-luminance ratio 0.997 and relative RMSE over 4×4
+//! blocks 0.150 against the converged Mitsuba image (the paper's variant: 1.006 / 0.240); the
+//! path tracer itself is unbiased (tests/refs.rs). The bounds below keep that structured error
+//! from growing: mean within 5 % (the per-frame photon noise of the converged ring is ≈ 1 %,
+//! tests in crates/photon/tests/temporal.rs), 4×4 error below 0.30.
 
 use std::path::Path;
 

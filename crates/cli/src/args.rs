@@ -10,21 +10,38 @@ pub(crate) enum PmVariantArg {
     Elek2012,
 }
 
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub(crate) enum LobeAxisArg {
+    Sun,
+    Flux,
+}
+
 /// Photon-mapping settings shared by `render --method pm` and `animate`.
 #[derive(clap::Args)]
 pub(crate) struct PmArgs {
     /// Photon mapping: beams traced per frame (n_g), 1..=2²⁶.
     #[arg(long, default_value_t = 8192, value_parser = clap::value_parser!(u32).range(1..=1 << 26))]
     pub(crate) beams: u32,
-    /// Photon mapping: `elek2012` (default, the paper: one cache for all scattering orders,
-    /// similarity σ√(1−g)) or `exact` (exact single scattering from a sun-transmittance
-    /// volume, the cache for scattered light only, similarity σ(1−g); see BENCHMARKS.md).
-    #[arg(long, value_enum, default_value = "elek2012")]
+    /// Photon mapping: `exact` (default: exact single scattering from a sun-transmittance
+    /// volume, the cache for scattered light only, similarity σ(1−g), per-cell flux axes) or
+    /// `elek2012` (the paper: one cache for all scattering orders, similarity σ√(1−g), lobes
+    /// along the sun); see BENCHMARKS.md.
+    #[arg(long, value_enum, default_value = "exact")]
     pm_variant: PmVariantArg,
     /// Photon mapping: density-weighted deposits (cells hold the fluence where the medium is,
     /// ⟨σφ⟩/⟨σ⟩, instead of the cell-volume average; experimental, see BENCHMARKS.md).
     #[arg(long)]
     pm_density_weighted: bool,
+    /// Photon mapping: axis of each cache cell's HG lobe: `sun` (the paper: cosines to the sun
+    /// direction) or `flux` (the cell's mean sun-flux direction, Elek Appendix C). Default:
+    /// the variant's (exact: flux, elek2012: sun).
+    #[arg(long, value_enum)]
+    pm_lobe_axis: Option<LobeAxisArg>,
+    /// Photon mapping with flux axes: sun light scattered K or more times gets a lobe of its
+    /// own, so forward-peaked low orders and diffuse high orders are not forced into one HG
+    /// lobe (0 = one lobe per cell; default 4).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(0..=1024))]
+    pm_lobe_split: Option<u32>,
     /// Photon mapping: partial caches in the ring (m).
     #[arg(long, default_value_t = 100)]
     pub(crate) ring: u32,
@@ -54,6 +71,11 @@ impl PmArgs {
                 PmVariantArg::Elek2012 => nimbus_photon::PmVariant::Elek2012,
             },
             density_weighted: Some(self.pm_density_weighted),
+            lobe_axis: self.pm_lobe_axis.map(|a| match a {
+                LobeAxisArg::Sun => nimbus_photon::mapper::LobeAxis::Sun,
+                LobeAxisArg::Flux => nimbus_photon::mapper::LobeAxis::Flux,
+            }),
+            lobe_split: self.pm_lobe_split,
             beams_per_frame: self.beams,
             ring: self.ring,
             cache_res: triple(self.cache_res.clone(), "--cache-res")?,

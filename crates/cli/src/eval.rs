@@ -20,7 +20,8 @@ pub(crate) enum RefDeviceArg {
 /// Settings of the method runs and the reference, shared by `compare` and `bench-suite`.
 #[derive(clap::Args)]
 pub(crate) struct EvalArgs {
-    /// Methods to compare: pt, pt-gpu, pm, rpnn (comma-separated).
+    /// Methods to compare: pt, pt-gpu, pm, pm-elek2012 (the paper's photon mapping), rpnn
+    /// (comma-separated).
     #[arg(long, default_value = "pt,pm,rpnn")]
     methods: String,
     /// Budget sweep of one method, METHOD=B1,B2,… (spp for pt/pt-gpu/rpnn, ring frames for pm);
@@ -218,7 +219,7 @@ pub(crate) fn bench_suite(args: &SuiteArgs) -> Result<()> {
 /// `nimbus stress`.
 #[derive(clap::Args)]
 pub(crate) struct StressArgs {
-    /// Methods: pt, pt-gpu, pm, rpnn (comma-separated).
+    /// Methods: pt, pt-gpu, pm, pm-elek2012 (the paper's photon mapping), rpnn (comma-separated).
     #[arg(long, default_value = "pt,pt-gpu,pm,rpnn")]
     methods: String,
     /// `all`, `subset` (the one stiffest case per axis that the tests run), or case ids.

@@ -29,20 +29,31 @@ pub enum Method {
     Pt,
     /// The WGSL path tracer (f32; HG/isotropic phase, constant sky).
     PtGpu,
-    /// Temporally-coherent photon mapping (Elek 2012), converged ring of m frames.
+    /// Temporally-coherent photon mapping (Elek 2012), converged ring of m frames, in the
+    /// default variant ([`nimbus_photon::PmVariant::default`]).
     Pm,
+    /// Photon mapping exactly as the paper publishes it (`--pm-variant elek2012`), so the
+    /// default's improvements are measured against the paper.
+    PmElek2012,
     /// Radiance-predicting neural network (Kallweit 2017).
     Rpnn,
 }
 
 impl Method {
-    pub const ALL: [Method; 4] = [Method::Pt, Method::PtGpu, Method::Pm, Method::Rpnn];
+    pub const ALL: [Method; 5] = [
+        Method::Pt,
+        Method::PtGpu,
+        Method::Pm,
+        Method::PmElek2012,
+        Method::Rpnn,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
             Method::Pt => "pt",
             Method::PtGpu => "pt-gpu",
             Method::Pm => "pm",
+            Method::PmElek2012 => "pm-elek2012",
             Method::Rpnn => "rpnn",
         }
     }
@@ -50,7 +61,7 @@ impl Method {
     /// What the budget counts.
     pub fn budget_unit(self) -> &'static str {
         match self {
-            Method::Pm => "frames",
+            Method::Pm | Method::PmElek2012 => "frames",
             _ => "spp",
         }
     }
@@ -62,7 +73,7 @@ impl Method {
         match self {
             Method::Pt => vec![2, 8, 32, 128],
             Method::PtGpu => vec![4, 16, 64, 256],
-            Method::Pm => vec![4, 16, 100],
+            Method::Pm | Method::PmElek2012 => vec![4, 16, 100],
             Method::Rpnn => vec![2, 8, 32],
         }
     }
@@ -70,7 +81,11 @@ impl Method {
     /// Whether each run reports a per-pixel variance (Monte Carlo estimators do; the photon
     /// map's error is mostly low-frequency bias and is measured against the reference only).
     pub fn has_variance(self) -> bool {
-        self != Method::Pm
+        !self.is_photon_mapping()
+    }
+
+    pub fn is_photon_mapping(self) -> bool {
+        matches!(self, Method::Pm | Method::PmElek2012)
     }
 }
 
@@ -86,7 +101,9 @@ impl FromStr for Method {
         Method::ALL
             .into_iter()
             .find(|m| m.name() == s.trim())
-            .with_context(|| format!("unknown method `{s}` (expected pt, pt-gpu, pm or rpnn)"))
+            .with_context(|| {
+                format!("unknown method `{s}` (expected pt, pt-gpu, pm, pm-elek2012 or rpnn)")
+            })
     }
 }
 
@@ -287,7 +304,7 @@ pub fn sweep(
                 each(runs.last().expect("pushed"));
             }
         }
-        Method::Pm => {
+        Method::Pm | Method::PmElek2012 => {
             let gpu = gpu.get()?;
             for &frames in budgets {
                 let t0 = Instant::now();
@@ -295,6 +312,11 @@ pub fn sweep(
                     beams_per_frame: settings.pm_beams,
                     ring: frames,
                     seed: settings.seed as u32,
+                    variant: if method == Method::PmElek2012 {
+                        nimbus_photon::PmVariant::Elek2012
+                    } else {
+                        nimbus_photon::PmVariant::default()
+                    },
                     ..Default::default()
                 };
                 let mut pm = nimbus_photon::PhotonMapper::new(gpu, scene, pm_settings)
@@ -388,4 +410,29 @@ fn stage_sum(t: &[(&'static str, f64)]) -> f64 {
 
 fn rayon_threads() -> usize {
     rayon::current_num_threads()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every method's name parses back to it; the paper's photon mapping is its own method so
+    /// `compare` and `bench-suite` can put it beside the default; duplicates and unknown names
+    /// are refused by name.
+    #[test]
+    fn method_names_round_trip() {
+        for m in Method::ALL {
+            assert_eq!(m.name().parse::<Method>().unwrap(), m);
+        }
+        assert_eq!(
+            parse_methods("pm,pm-elek2012").unwrap(),
+            vec![Method::Pm, Method::PmElek2012]
+        );
+        assert!(Method::PmElek2012.is_photon_mapping() && !Method::PmElek2012.has_variance());
+        assert_eq!(Method::PmElek2012.budget_unit(), "frames");
+        let e = parse_methods("pm,pm").unwrap_err().to_string();
+        assert!(e.contains("twice"), "{e}");
+        let e = parse_methods("pm-elek").unwrap_err().to_string();
+        assert!(e.contains("pm-elek2012"), "{e}");
+    }
 }

@@ -326,7 +326,7 @@ pub fn run_child(scene_path: &Path, method: Method) -> ChildReport {
         }
     };
     let budget = match method {
-        Method::Pm => 4,
+        Method::Pm | Method::PmElek2012 => 4,
         Method::Rpnn => 1,
         _ => 4,
     };

@@ -63,8 +63,12 @@ pub struct PmParams {
     /// Photon mapping: 1 = density-weighted deposits (weight σ(x)/σ̄; a cell stores
     /// ⟨σφ⟩/⟨σ⟩, the fluence where the medium is, not averaged with the air of the cell).
     pub density_weighted: u32,
-    pub pad1: u32,
-    pub pad2: u32,
+    /// Photon mapping: axis of each cell's incident HG lobe: 0 = the sun's propagation
+    /// direction (Elek §4.1.2), 1 = the cell's mean sun-flux direction (Appendix C).
+    pub lobe_axis: u32,
+    /// Photon mapping (flux axes): sun light of scattering order ≥ this gets an HG lobe of its
+    /// own (0 = one lobe per cell for all orders).
+    pub lobe_split: u32,
 }
 
 #[cfg(test)]
@@ -119,8 +123,8 @@ mod tests {
             ("noise_frequency", offset_of!(PmParams, noise_frequency)),
             ("single_scatter", offset_of!(PmParams, single_scatter)),
             ("density_weighted", offset_of!(PmParams, density_weighted)),
-            ("pad1", offset_of!(PmParams, pad1)),
-            ("pad2", offset_of!(PmParams, pad2)),
+            ("lobe_axis", offset_of!(PmParams, lobe_axis)),
+            ("lobe_split", offset_of!(PmParams, lobe_split)),
         ];
         assert_eq!(members.len(), rust.len());
         for ((m, moff), (name, off)) in members.iter().zip(rust) {

@@ -15,5 +15,5 @@ pub mod mapper;
 pub mod reference;
 pub mod settings;
 
-pub use mapper::{PhotonMapper, PmError, PmSettings, PmVariant};
+pub use mapper::{LobeAxis, PhotonMapper, PmError, PmSettings, PmVariant};
 pub use nimbus_gpu::params::PmParams;

@@ -13,10 +13,20 @@ use nimbus_gpu::params::PmParams;
 
 /// Fixed-point scale of one unit of beam weight in the caches (`W_SCALE` in the shader).
 pub const W_SCALE: f64 = 4096.0;
-/// Workgroup-shared cache capacity (cells) of the default shader; 2400 on adapters with 48 KiB
-/// of workgroup memory.
-pub const SHARED_CELLS: u32 = 1600;
-const SHARED_CELLS_LARGE: u32 = 2400;
+/// Workgroup-shared cache capacity (cells) declared by the shader: 256 cells × 44 bytes fit the
+/// 16 KiB every WebGPU adapter offers; [`shared_cells`] patches in what the adapter allows.
+pub const SHARED_CELLS: u32 = 256;
+/// The most cells ever accumulated in workgroup memory (the paper's 2 400-cell budget).
+const SHARED_CELLS_MAX: u32 = 2400;
+pub use crate::reference::CELL_WORDS;
+/// Bytes per cache cell (11 u32).
+pub const CELL_BYTES: u32 = CELL_WORDS as u32 * 4;
+
+/// Cells that fit the adapter's workgroup storage (at most 2 400); caches with more cells use
+/// global atomics.
+pub fn shared_cells(max_workgroup_storage: u32) -> u32 {
+    (max_workgroup_storage / CELL_BYTES).min(SHARED_CELLS_MAX)
+}
 
 /// Errors of the photon mapper.
 #[derive(Debug, thiserror::Error)]
@@ -29,11 +39,12 @@ pub enum PmError {
     Setting { field: &'static str, msg: String },
 }
 
-pub use crate::settings::{PmSettings, PmVariant, default_cache_res, similarity_order};
+pub use crate::settings::{LobeAxis, PmSettings, PmVariant, default_cache_res, similarity_order};
 
 /// `shaders/photon_trace.wgsl` with its workgroup-shared cell count set to `shared_cap`: the
-/// shader declares `const SHARED_CELLS: u32 = 1600u;` ([`SHARED_CELLS`]), and a larger cap is
-/// patched in when the adapter's workgroup storage allows it. A source that no longer carries
+/// shader declares `const SHARED_CELLS: u32 = 256u;` ([`SHARED_CELLS`]), and the mapper patches
+/// in the cache's own cell count when it fits the adapter's workgroup storage (one cell when
+/// the cache uses global atomics, so no workgroup memory is reserved for nothing). A source that no longer carries
 /// that exact declaration is an error, not a silently unpatched shader (both variants are
 /// validated by naga in the tests).
 pub fn trace_source(shared_cap: u32) -> Result<String, String> {
@@ -89,6 +100,9 @@ pub struct PhotonMapper<'g> {
     sun_stage: Stage,
     /// Whether T_sun must be rebuilt (sun direction or density changed).
     t_sun_dirty: bool,
+    cell_dir: wgpu::Buffer,
+    j_dir: wgpu::Buffer,
+    j_hi: wgpu::Buffer,
 }
 
 fn f3(v: DVec3) -> [f32; 3] {
@@ -174,15 +188,8 @@ impl<'g> PhotonMapper<'g> {
         } else {
             0.0
         };
-        let shared_cap = if gpu.limits.max_compute_workgroup_storage_size >= SHARED_CELLS_LARGE * 20
-        {
-            SHARED_CELLS_LARGE
-        } else {
-            SHARED_CELLS
-        };
-        let use_shared = !settings.force_global_atomics
-            && cells <= shared_cap
-            && gpu.limits.max_compute_workgroup_storage_size >= shared_cap * 20;
+        let shared_cap = shared_cells(gpu.limits.max_compute_workgroup_storage_size);
+        let use_shared = !settings.force_global_atomics && cells <= shared_cap;
         let (forward, right, up, tan_half) = scene.camera.basis();
         let sun = scene.sun.as_ref();
         let params = PmParams {
@@ -243,14 +250,18 @@ impl<'g> PhotonMapper<'g> {
             noise_frequency: (1.0 / (4.0 * vol.cell_size().min_element())) as f32,
             single_scatter: (settings.variant == PmVariant::Exact) as u32,
             density_weighted: settings.density_weighted.unwrap_or(false) as u32,
-            pad1: 0,
-            pad2: 0,
+            lobe_axis: (settings.effective_lobe_axis() == LobeAxis::Flux) as u32,
+            lobe_split: if settings.effective_lobe_axis() == LobeAxis::Flux {
+                settings.effective_lobe_split()
+            } else {
+                0
+            },
         };
         gpu.check_storage("the density grid", voxels as u64 * 4)?;
         gpu.check_storage("the upsampled cache J", voxels as u64 * 16)?;
         gpu.check_storage(
             "the photon-cache ring",
-            settings.ring as u64 * cells as u64 * 20,
+            settings.ring as u64 * cells as u64 * CELL_BYTES as u64,
         )?;
         gpu.check_storage(
             "the image",
@@ -258,9 +269,10 @@ impl<'g> PhotonMapper<'g> {
         )?;
         let params_buf = gpu.uniform("pm params", &params);
         let density = gpu.storage("density D", vol.grid().data());
-        let h_new = gpu.zeroed("H_new", cells as u64 * 20);
-        let ring = gpu.zeroed("ring H_0..H_m-1", settings.ring as u64 * cells as u64 * 20);
-        let total = gpu.zeroed("I", cells as u64 * 20);
+        let cell_bytes = cells as u64 * CELL_BYTES as u64;
+        let h_new = gpu.zeroed("H_new", cell_bytes);
+        let ring = gpu.zeroed("ring H_0..H_m-1", settings.ring as u64 * cell_bytes);
+        let total = gpu.zeroed("I", cell_bytes);
         let j = gpu.zeroed("J", voxels as u64 * 16);
         // Bound by the ray marcher in both variants (4 bytes when unused).
         let t_sun = gpu.zeroed(
@@ -282,7 +294,9 @@ impl<'g> PhotonMapper<'g> {
             pipeline: sun_p,
         };
         let slot_buf = gpu.uniform("ring slot", &[0u32; 4]);
-        let trace_src = trace_source(shared_cap).map_err(PmError::Unsupported)?;
+        // Workgroup memory sized to the cache (one cell when unused): more workgroups resident.
+        let trace_src = trace_source(if use_shared { cells.max(1) } else { 1 })
+            .map_err(PmError::Unsupported)?;
         let trace_p = gpu.pipeline("photon trace", &trace_src, "trace");
         let trace = Stage {
             bind: gpu.bind(&trace_p, &[(0, &params_buf), (1, &density), (2, &h_new)]),
@@ -303,6 +317,24 @@ impl<'g> PhotonMapper<'g> {
         let up_src = shaders::source("photon_upsample.wgsl");
         let cell_vals = gpu.zeroed("cache cells", cells as u64 * 16);
         let cell_aux = gpu.zeroed("cache cell aux", cells as u64 * 16);
+        let cell_dir = gpu.zeroed("cache cell flux directions", cells as u64 * 32);
+        // Bound by the upsampling and the ray marcher in both variants (16 bytes when unused).
+        let (j_dir, j_hi) = if params.lobe_axis != 0 {
+            gpu.check_storage("the upsampled flux directions", voxels as u64 * 16)?;
+            (
+                gpu.zeroed("J flux directions", voxels as u64 * 16),
+                if params.lobe_split != 0 {
+                    gpu.zeroed("J high-order flux directions", voxels as u64 * 16)
+                } else {
+                    gpu.zeroed("J high-order flux directions (unused)", 16)
+                },
+            )
+        } else {
+            (
+                gpu.zeroed("J flux directions (unused)", 16),
+                gpu.zeroed("J high-order flux directions (unused)", 16),
+            )
+        };
         let cells_p = gpu.pipeline("photon cache cells", &up_src, "cells");
         let cells_stage = Stage {
             bind: gpu.bind(
@@ -313,6 +345,7 @@ impl<'g> PhotonMapper<'g> {
                     (2, &total),
                     (4, &cell_vals),
                     (5, &cell_aux),
+                    (6, &cell_dir),
                 ],
             ),
             pipeline: cells_p,
@@ -327,6 +360,9 @@ impl<'g> PhotonMapper<'g> {
                     (3, &j),
                     (4, &cell_vals),
                     (5, &cell_aux),
+                    (6, &cell_dir),
+                    (7, &j_dir),
+                    (8, &j_hi),
                 ],
             ),
             pipeline: up_p,
@@ -372,6 +408,9 @@ impl<'g> PhotonMapper<'g> {
             t_sun,
             sun_stage,
             t_sun_dirty: true,
+            cell_dir,
+            j_dir,
+            j_hi,
             settings,
         })
     }
@@ -525,7 +564,7 @@ impl<'g> PhotonMapper<'g> {
         self.gpu
             .queue
             .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
-        let count = self.cells * 5;
+        let count = self.cells * CELL_WORDS as u32;
         self.gpu.queue.write_buffer(
             &self.slot_buf,
             0,
@@ -652,6 +691,8 @@ impl<'g> PhotonMapper<'g> {
                     (2, &self.j),
                     (3, &img),
                     (4, &self.t_sun),
+                    (5, &self.j_dir),
+                    (6, &self.j_hi),
                 ],
             );
             self.raymarch = Some((
@@ -710,7 +751,32 @@ impl<'g> PhotonMapper<'g> {
             * 0.5
     }
 
-    /// Reads the total cache I (5 u32 per cell) back.
+    /// Reads the coarse cells' flux entries back (as written by the last upsampling): per
+    /// cell, (low-order mean propagation vector, 1 if present) and (high-order mean
+    /// propagation vector, high-order fluence).
+    pub fn read_cell_dirs(&self) -> Result<Vec<[glam::Vec4; 2]>, PmError> {
+        let v: Vec<[f32; 4]> = self.gpu.read(&self.cell_dir)?;
+        Ok(v.chunks(2)
+            .map(|c| [glam::Vec4::from_array(c[0]), glam::Vec4::from_array(c[1])])
+            .collect())
+    }
+
+    /// Reads the upsampled flux lobes back (flux axes; one per density voxel): (low-order mean
+    /// propagation vector, high-order fluence) and (high-order mean propagation vector, 0).
+    pub fn read_j_dirs(&self) -> Result<Vec<[glam::Vec4; 2]>, PmError> {
+        let a: Vec<[f32; 4]> = self.gpu.read(&self.j_dir)?;
+        let b: Vec<[f32; 4]> = if self.params.lobe_split != 0 {
+            self.gpu.read(&self.j_hi)?
+        } else {
+            vec![[0.0; 4]; a.len()]
+        };
+        Ok(a.into_iter()
+            .zip(b)
+            .map(|(a, b)| [glam::Vec4::from_array(a), glam::Vec4::from_array(b)])
+            .collect())
+    }
+
+    /// Reads the total cache I ([`CELL_WORDS`] u32 per cell) back.
     pub fn read_total(&self) -> Result<Vec<u32>, PmError> {
         Ok(self.gpu.read(&self.total)?)
     }
@@ -756,7 +822,7 @@ mod tests {
     /// really changes the constant.
     #[test]
     fn patched_trace_shader_is_valid() {
-        for cap in [SHARED_CELLS, SHARED_CELLS_LARGE] {
+        for cap in [1, SHARED_CELLS, SHARED_CELLS_MAX] {
             let src = trace_source(cap).unwrap();
             assert!(src.contains(&format!("const SHARED_CELLS: u32 = {cap}u;")));
             let module = naga::front::wgsl::parse_str(&src)
@@ -768,5 +834,28 @@ mod tests {
             .validate(&module)
             .unwrap_or_else(|e| panic!("cap {cap}: {e:?}"));
         }
+    }
+
+    /// The cell layout constant is the same in Rust and in both shaders that read the cache.
+    #[test]
+    fn cell_words_match_the_shaders() {
+        for file in ["photon_trace.wgsl", "photon_upsample.wgsl"] {
+            let src = shaders::source(file);
+            assert!(
+                src.contains(&format!("const CELL_WORDS: u32 = {CELL_WORDS}u;")),
+                "{file} must declare CELL_WORDS = {CELL_WORDS}"
+            );
+        }
+    }
+
+    /// Shared-memory capacity: 16 KiB (WebGPU's minimum) holds 372 cells of 44 bytes, 32 KiB
+    /// 744, 48 KiB 1 117; never more than the paper's 2 400.
+    #[test]
+    fn shared_capacity_follows_the_adapter() {
+        assert_eq!(shared_cells(16384), 372);
+        assert_eq!(shared_cells(32768), 744);
+        assert_eq!(shared_cells(49152), 1117);
+        assert_eq!(shared_cells(1 << 20), 2400);
+        assert!(SHARED_CELLS <= shared_cells(16384));
     }
 }

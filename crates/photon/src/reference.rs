@@ -19,7 +19,7 @@
 //!
 //! Each form integrates to one over [0, r] (tested numerically).
 
-use glam::Vec3;
+use glam::{Vec3, Vec4};
 
 use nimbus_gpu::params::PmParams;
 
@@ -59,7 +59,20 @@ pub struct CellValue {
     pub g: f32,
     pub gamma: f32,
     pub has_sun: bool,
+    /// Mean propagation vector Σ w d / Σ w of the cell's low-order sun light (orders below
+    /// `lobe_split`; all orders without a split), zero without such light.
+    pub dir: Vec3,
+    pub has_lo: bool,
+    /// Fluence of the high-order sun light (part of `sun`; 0 without a split).
+    pub sun_hi: f32,
+    /// Its mean propagation vector.
+    pub dir_hi: Vec3,
 }
+
+/// u32 words per cache cell (`CELL_WORDS` in photon_trace.wgsl and photon_upsample.wgsl):
+/// Σw sun, Σw sky, Σw (d + 1)/2 (3), Σ order, deposit count, and Σw, Σw (d + 1)/2 (3) of the
+/// high-order sun deposits.
+pub const CELL_WORDS: usize = 11;
 
 /// Mean density over coarse cell `i` (4×4×4 stratified samples; `cell_mean_density` in the
 /// shader): the divisor of density-weighted sums.
@@ -81,16 +94,45 @@ pub fn cell_mean_density(p: &PmParams, density: &[f32], i: usize) -> f32 {
 }
 
 pub fn cell_value(p: &PmParams, density: &[f32], total: &[u32], i: usize) -> CellValue {
-    let b = i * 5;
+    let b = i * CELL_WORDS;
     let w_sun = total[b] as f32;
     let w_sky = total[b + 1] as f32;
-    let cw = total[b + 2] as f32;
-    let ord = total[b + 3] as f32;
-    let n = total[b + 4] as f32;
+    let cw = Vec3::new(
+        total[b + 2] as f32,
+        total[b + 3] as f32,
+        total[b + 4] as f32,
+    );
+    let ord = total[b + 5] as f32;
+    let n = total[b + 6] as f32;
     let g = if w_sun > 0.0 {
-        (2.0 * cw / w_sun - 1.0).clamp(-0.999, 0.999)
+        let all = 2.0 * cw / w_sun - Vec3::ONE;
+        if p.lobe_axis != 0 {
+            all.length().min(0.999)
+        } else {
+            all.dot(-v3(p.sun_dir)).clamp(-0.999, 0.999)
+        }
     } else {
         0.0
+    };
+    // High orders (a subset of the sums) and the rest, in integers as the shader does.
+    let hi_u = total[b + 7];
+    let cw_hi_u = [total[b + 8], total[b + 9], total[b + 10]];
+    let lo_u = total[b].wrapping_sub(hi_u);
+    let cw_lo = Vec3::new(
+        total[b + 2].wrapping_sub(cw_hi_u[0]) as f32,
+        total[b + 3].wrapping_sub(cw_hi_u[1]) as f32,
+        total[b + 4].wrapping_sub(cw_hi_u[2]) as f32,
+    );
+    let dir = if lo_u > 0 {
+        2.0 * cw_lo / lo_u as f32 - Vec3::ONE
+    } else {
+        Vec3::ZERO
+    };
+    let dir_hi = if hi_u > 0 {
+        2.0 * Vec3::new(cw_hi_u[0] as f32, cw_hi_u[1] as f32, cw_hi_u[2] as f32) / hi_u as f32
+            - Vec3::ONE
+    } else {
+        Vec3::ZERO
     };
     let gamma = if n > 0.0 { ord / n } else { 0.0 };
     let scale = if p.density_weighted != 0 {
@@ -105,6 +147,10 @@ pub fn cell_value(p: &PmParams, density: &[f32], total: &[u32], i: usize) -> Cel
         g,
         gamma,
         has_sun: w_sun > 0.0,
+        dir,
+        has_lo: lo_u > 0,
+        sun_hi: hi_u as f32 * p.sun_norm * scale,
+        dir_hi,
     }
 }
 
@@ -194,21 +240,141 @@ pub fn density_at(p: &PmParams, density: &[f32], x: Vec3) -> f32 {
 
 /// J at fine voxel `idx` (the upsampling of `photon_upsample.wgsl`).
 pub fn upsample_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usize) -> [f32; 4] {
-    let res = p.d_res;
-    let (x, y, z) = (
-        idx as u32 % res[0],
-        (idx as u32 / res[0]) % res[1],
-        idx as u32 / (res[0] * res[1]),
-    );
     if p.filtered == 0 {
         let cv = cell_value(p, density, total, idx);
         return [cv.sun, cv.sky, cv.g, cv.gamma];
     }
+    let res = p.d_res;
+    let v = coords(idx, res);
+    let ext = v3(p.aabb_max) - v3(p.aabb_min);
+    let resf = Vec3::new(res[0] as f32, res[1] as f32, res[2] as f32);
+    let pos = v3(p.aabb_min)
+        + (Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32) + Vec3::splat(0.5)) / resf * ext;
+    let gp = interp(p, pos, p.i_res, |i| cell_value(p, density, total, i).gamma);
+    let lng = p.g.abs().max(1e-30).ln();
+    let (mut sw, mut s_sun, mut s_sky, mut swg, mut s_g) = (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
+    for_each_neighbour(p, density, idx, |qi, wl| {
+        let cv = cell_value(p, density, total, qi);
+        sw += wl;
+        s_sun += wl * cv.sun;
+        s_sky += wl * cv.sky;
+        if cv.has_sun {
+            let wg = if p.g.abs() >= 1e-6 {
+                ((gp - cv.gamma) * lng).clamp(-60.0, 60.0).exp()
+            } else {
+                1.0
+            };
+            swg += wg * wl;
+            s_g += wg * wl * cv.g;
+        }
+    });
+    let mut out = if sw > 0.0 {
+        [s_sun / sw, s_sky / sw, 0.0, gp]
+    } else {
+        let f = interp(p, pos, p.i_res, |i| {
+            let cv = cell_value(p, density, total, i);
+            glam::Vec2::new(cv.sun, cv.sky)
+        });
+        [f.x, f.y, 0.0, gp]
+    };
+    if swg > 0.0 {
+        out[2] = s_g / swg;
+    }
+    out
+}
+
+/// `interp` over the per-voxel flux entries (`interp_dir` in photon_raymarch.wgsl).
+fn interp_dir(p: &PmParams, j_dirs: &[[Vec4; 2]], pos: Vec3, hi: bool) -> Vec4 {
+    interp(p, pos, p.d_res, |i| j_dirs[i][hi as usize])
+}
+
+/// HG(· | g·|v|) for the lobe v (axis × g') towards the camera (−d) (`lobe_phase`).
+fn lobe_phase(p: &PmParams, v: Vec3, d: Vec3) -> f32 {
+    let gl = v.length();
+    let mu = if gl > 1e-6 { (-d).dot(v / gl) } else { 0.0 };
+    hg(p.g * gl.min(0.999), mu)
+}
+
+fn hg(g: f32, mu: f32) -> f32 {
+    let denom = (1.0 - g) * (1.0 - g) + 2.0 * g * (1.0 - mu);
+    (1.0 - g * g) / (4.0 * std::f32::consts::PI * denom * denom.sqrt())
+}
+
+/// Sun fluence times the phase of its lobes towards the camera (`sun_in_scatter` in
+/// photon_raymarch.wgsl): one lobe along the sun with J's g' (the paper), or per-voxel flux
+/// lobes — one for all orders, or low and high orders apart (`p.lobe_split`).
+pub fn sun_in_scatter(p: &PmParams, j_dirs: &[[Vec4; 2]], pos: Vec3, j: Vec4, d: Vec3) -> f32 {
+    if p.lobe_axis == 0 {
+        return j.x * lobe_phase(p, -v3(p.sun_dir) * j.z, d);
+    }
+    let lo = interp_dir(p, j_dirs, pos, false);
+    if p.lobe_split == 0 {
+        return j.x * lobe_phase(p, lo.truncate(), d);
+    }
+    let hi = interp_dir(p, j_dirs, pos, true);
+    let f_hi = lo.w.clamp(0.0, j.x);
+    (j.x - f_hi) * lobe_phase(p, lo.truncate(), d) + f_hi * lobe_phase(p, hi.truncate(), d)
+}
+
+/// The upsampled flux lobes at fine voxel `idx` (`j_dir`, `j_hi` of photon_upsample.wgsl):
+/// [(low-order mean propagation vector, high-order fluence), (high-order vector, 0)], each
+/// vector Σ w_L v(q) / Σ w_L over the neighbouring cells q with such light, w_L the
+/// upsampling's energy weight (no penetration-depth weight: the flux is linear, its average
+/// shortens where directions diverge).
+pub fn upsample_dir_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usize) -> [Vec4; 2] {
+    if p.filtered == 0 {
+        let cv = cell_value(p, density, total, idx);
+        return [cv.dir.extend(cv.sun_hi), cv.dir_hi.extend(0.0)];
+    }
+    let (mut s_lo, mut sw_lo, mut s_hi, mut sw_hi) = (Vec3::ZERO, 0.0f32, Vec3::ZERO, 0.0f32);
+    let (mut sw, mut s_fhi) = (0.0f32, 0.0f32);
+    for_each_neighbour(p, density, idx, |qi, wl| {
+        let cv = cell_value(p, density, total, qi);
+        sw += wl;
+        s_fhi += wl * cv.sun_hi;
+        if cv.has_lo {
+            s_lo += wl * cv.dir;
+            sw_lo += wl;
+        }
+        if cv.sun_hi > 0.0 {
+            s_hi += wl * cv.dir_hi;
+            sw_hi += wl;
+        }
+    });
+    let f_hi = if sw > 0.0 {
+        s_fhi / sw
+    } else {
+        let res = p.d_res;
+        let v = coords(idx, res);
+        let ext = v3(p.aabb_max) - v3(p.aabb_min);
+        let resf = Vec3::new(res[0] as f32, res[1] as f32, res[2] as f32);
+        let pos = v3(p.aabb_min)
+            + (Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32) + Vec3::splat(0.5)) / resf * ext;
+        interp(p, pos, p.i_res, |i| cell_value(p, density, total, i).sun_hi)
+    };
+    let lo = if sw_lo > 0.0 {
+        s_lo / sw_lo
+    } else {
+        Vec3::ZERO
+    };
+    let hi = if sw_hi > 0.0 {
+        s_hi / sw_hi
+    } else {
+        Vec3::ZERO
+    };
+    [lo.extend(f_hi), hi.extend(0.0)]
+}
+
+/// Calls `f(cell index, w_L)` for each of the 3×3×3 coarse cells around fine voxel `idx` with
+/// a positive energy weight, in the shader's loop order.
+fn for_each_neighbour(p: &PmParams, density: &[f32], idx: usize, mut f: impl FnMut(usize, f32)) {
+    let res = p.d_res;
+    let v = coords(idx, res);
     let ext = v3(p.aabb_max) - v3(p.aabb_min);
     let resf = Vec3::new(res[0] as f32, res[1] as f32, res[2] as f32);
     let ires = Vec3::new(p.i_res[0] as f32, p.i_res[1] as f32, p.i_res[2] as f32);
-    let pos =
-        v3(p.aabb_min) + (Vec3::new(x as f32, y as f32, z as f32) + Vec3::splat(0.5)) / resf * ext;
+    let pos = v3(p.aabb_min)
+        + (Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32) + Vec3::splat(0.5)) / resf * ext;
     let dp = density[idx];
     let cell = ext / ires;
     let radius = 1.5 * cell.x.min(cell.y.min(cell.z));
@@ -216,9 +382,6 @@ pub fn upsample_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usize) 
     let c = uc.floor().clamp(Vec3::ZERO, ires - Vec3::ONE);
     let c = [c.x as i32, c.y as i32, c.z as i32];
     let sigma_s = p.albedo * p.density_scale;
-    let gp = interp(p, pos, p.i_res, |i| cell_value(p, density, total, i).gamma);
-    let lng = p.g.abs().max(1e-30).ln();
-    let (mut sw, mut s_sun, mut s_sky, mut swg, mut s_g) = (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
     for dz in -1..=1 {
         for dy in -1..=1 {
             for dx in -1..=1 {
@@ -235,42 +398,17 @@ pub fn upsample_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usize) 
                 let lambda = sigma_s * (dp - dq) * 0.5;
                 let wl = f_exp((pos - qc).length(), lambda, radius)
                     * (1.0 - (dp - dq).abs() / p.d_max).max(0.0);
-                if wl <= 0.0 {
-                    continue;
-                }
-                let cv = cell_value(p, density, total, index(qu[0], qu[1], qu[2], p.i_res));
-                sw += wl;
-                s_sun += wl * cv.sun;
-                s_sky += wl * cv.sky;
-                if cv.has_sun {
-                    let wg = if p.g.abs() >= 1e-6 {
-                        ((gp - cv.gamma) * lng).clamp(-60.0, 60.0).exp()
-                    } else {
-                        1.0
-                    };
-                    swg += wg * wl;
-                    s_g += wg * wl * cv.g;
+                if wl > 0.0 {
+                    f(index(qu[0], qu[1], qu[2], p.i_res), wl);
                 }
             }
         }
     }
-    let mut out = if sw > 0.0 {
-        [s_sun / sw, s_sky / sw, 0.0, gp]
-    } else {
-        let f = interp(p, pos, p.i_res, |i| {
-            let cv = cell_value(p, density, total, i);
-            glam::Vec2::new(cv.sun, cv.sky)
-        });
-        [f.x, f.y, 0.0, gp]
-    };
-    if swg > 0.0 {
-        out[2] = s_g / swg;
-    }
-    out
 }
 
 /// Henyey–Greenstein reconstruction of the in-scattered radiance (Elek Appendix C): the
-/// incident lobe HG(g') convolved with the medium's HG(g) is HG(g g').
+/// incident lobe HG(g') convolved with the medium's HG(g) is HG(g g'); `mu` is the cosine
+/// between the lobe's axis and the direction towards the camera.
 pub fn in_scattered(p: &PmParams, dens: f32, j: [f32; 4], mu: f32) -> Vec3 {
     let hg = |g: f32, mu: f32| {
         let denom = (1.0 - g) * (1.0 - g) + 2.0 * g * (1.0 - mu);
@@ -370,12 +508,14 @@ pub fn sun_transmittance_voxel(p: &PmParams, density: &[f32], idx: usize) -> f32
 }
 
 /// The colour of pixel (x, y) (the pass of `photon_raymarch.wgsl`); `t_sun` is the
-/// sun-transmittance volume (read when `p.single_scatter` is set).
+/// sun-transmittance volume (read when `p.single_scatter` is set), `j_dirs` the upsampled flux
+/// lobes (read when `p.lobe_axis` is set).
 pub fn raymarch_pixel(
     p: &PmParams,
     density: &[f32],
     j: &[[f32; 4]],
     t_sun: &[f32],
+    j_dirs: &[[Vec4; 2]],
     x: u32,
     y: u32,
 ) -> Vec3 {
@@ -400,7 +540,11 @@ pub fn raymarch_pixel(
             let sigma_t = p.density_scale * dens;
             if sigma_t > 0.0 {
                 let jv = interp(p, xp, p.d_res, |i| glam::Vec4::from_array(j[i]));
-                let mut ls = in_scattered(p, dens, jv.to_array(), mu);
+                let mut ls = p.albedo
+                    * p.density_scale
+                    * dens
+                    * (v3(p.sun_irradiance) * sun_in_scatter(p, j_dirs, xp, jv, d)
+                        + v3(p.sky_radiance) * (jv.y / (4.0 * std::f32::consts::PI)));
                 if p.single_scatter != 0 {
                     let ts = interp(p, xp, p.d_res, |i| t_sun[i]);
                     ls += single_scattered(p, dens, ts, mu);

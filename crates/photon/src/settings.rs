@@ -3,24 +3,26 @@
 
 /// Which photon-mapping method.
 ///
-/// Measured on `scenes/refs/cumulus_side` (mean cloud luminance against the path tracer, see
-/// BENCHMARKS.md): the exact variant's single scattering agrees with the path tracer limited to
-/// one scattering (1.7 %), but its cache of multiply scattered light comes out ≈ 33 % low — the
-/// paper's variant reaches 1.00 only because its order-0 deposits, rendered through each cell's
-/// mixed lobe, add ≈ 0.0098 where the true single scattering is 0.0018, and its σ√(1 − g)
-/// switch adds ≈ 22 % more. Density-weighted deposits ([`PmSettings::density_weighted`]) lift the exact
-/// variant's mean to 0.96 but over-brighten thin boundary cells. Until the cache's multiple
-/// scattering is right, the paper's variant stays the default.
+/// Measured on `scenes/refs/cumulus_side` against Mitsuba (BENCHMARKS.md "Lobe axes"): the
+/// exact variant's single scattering agrees with the path tracer limited to one scattering
+/// (1.7 %); with the paper's sun-aligned lobes its cache of multiply scattered light came out
+/// ≈ 33 % low (mean 0.67); with two flux lobes per cell ([`LobeAxis::Flux`],
+/// [`DEFAULT_LOBE_SPLIT`]) the mean is 0.997 and the 4×4 error 0.150 (the paper's variant:
+/// 1.006 / 0.240, reached through compensating errors: its order-0 deposits rendered through
+/// each cell's mixed lobe and its σ√(1 − g) switch). On a homogeneous sphere at three view
+/// angles and three optical depths it is within 4–7 % of the path tracer (the paper's 16–33 %),
+/// and on the held-out bench clouds under sun light its bias median is 0.27 against 0.35, so it
+/// is the default; `Elek2012` stays selectable.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum PmVariant {
     /// Exact single scattering from a sun-transmittance volume in the ray marcher; the cache
     /// holds only light scattered at least once; similarity switch to σ(1 − g) (first-order
     /// similarity theory, as diffusion theory's reduced extinction).
+    #[default]
     Exact,
     /// Elek et al. 2012 as published: the unscattered sun beam is deposited into the same
     /// cache and HG lobe as scattered light (§4.1, Appendix A), similarity switch to σ√(1 − g)
     /// (§4.1.1).
-    #[default]
     Elek2012,
 }
 
@@ -29,6 +31,28 @@ impl PmVariant {
         match self {
             PmVariant::Exact => "exact",
             PmVariant::Elek2012 => "elek2012",
+        }
+    }
+}
+
+/// Axis of the HG lobe that represents a cache cell's incident sun light (Elek §4.1.2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LobeAxis {
+    /// The paper: every photon's cosine to the sun direction; every lobe points along the sun.
+    Sun,
+    /// Each cell's mean sun-flux direction Σ w d / Σ w, g' its length (Appendix C allows a
+    /// per-cell direction); with [`PmSettings::lobe_split`] one such lobe for the low and one
+    /// for the high scattering orders. Where light flows out of a cloud — its shadowed and
+    /// camera-facing sides — it does not flow along the sun; measured on `cumulus_side` the
+    /// sun axis loses ≈ 1/3 of the multiply scattered light at a side view (BENCHMARKS.md).
+    Flux,
+}
+
+impl LobeAxis {
+    pub fn name(self) -> &'static str {
+        match self {
+            LobeAxis::Sun => "sun",
+            LobeAxis::Flux => "flux",
         }
     }
 }
@@ -60,6 +84,12 @@ pub struct PmSettings {
     /// 0.67 to 0.96 of the reference, but thin boundary cells (small ⟨σ⟩) come out far too
     /// bright while the interior stays dark (4×4 error 0.51 against 0.46): not yet a default.
     pub density_weighted: Option<bool>,
+    /// Axis of the cells' HG lobes; `None`: the variant's (exact: [`LobeAxis::Flux`],
+    /// elek2012: [`LobeAxis::Sun`]).
+    pub lobe_axis: Option<LobeAxis>,
+    /// With flux axes: sun light of scattering order ≥ K gets a lobe of its own (`Some(0)`:
+    /// one lobe for all orders); `None`: [`DEFAULT_LOBE_SPLIT`].
+    pub lobe_split: Option<u32>,
     /// Ray-marching step as a fraction of the box diagonal (the paper: 1/300).
     pub step_fraction: f64,
     /// Early exit below this transmittance (the paper: 2 %).
@@ -77,7 +107,7 @@ pub struct PmSettings {
 impl Default for PmSettings {
     fn default() -> Self {
         Self {
-            variant: PmVariant::Elek2012,
+            variant: PmVariant::default(),
             beams_per_frame: 8192,
             ring: 100,
             cache_res: None,
@@ -86,12 +116,35 @@ impl Default for PmSettings {
             similarity_t: 0.05,
             similarity_linear: None,
             density_weighted: None,
+            lobe_axis: None,
+            lobe_split: None,
             step_fraction: 1.0 / 300.0,
             early_exit: 0.02,
             seed: 0,
             detail_noise: 0.0,
             force_global_atomics: false,
         }
+    }
+}
+
+/// Default split order of the two flux lobes (see [`PmSettings::lobe_split`]): orders 1–3
+/// (g^k ≥ 0.63 for g = 0.857) keep their forward peak in the low lobe. Measured on
+/// `cumulus_side` against Mitsuba, 4×4 error for K = 0 (one lobe) / 2 / 4 / 8 / 19: 0.171 /
+/// 0.158 / 0.150 / 0.174 / 0.163.
+pub const DEFAULT_LOBE_SPLIT: u32 = 4;
+
+impl PmSettings {
+    /// The split order in effect with flux axes (0: one lobe).
+    pub fn effective_lobe_split(&self) -> u32 {
+        self.lobe_split.unwrap_or(DEFAULT_LOBE_SPLIT)
+    }
+
+    /// The lobe axis in effect (the setting, else the variant's).
+    pub fn effective_lobe_axis(&self) -> LobeAxis {
+        self.lobe_axis.unwrap_or(match self.variant {
+            PmVariant::Exact => LobeAxis::Flux,
+            PmVariant::Elek2012 => LobeAxis::Sun,
+        })
     }
 }
 

@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use glam::DVec3;
+use glam::{DVec3, Vec3, Vec4};
 use nimbus_gpu::Gpu;
 use nimbus_photon::{PhotonMapper, PmSettings, PmVariant, reference};
 use nimbus_scene::{
@@ -136,6 +136,58 @@ fn check_against_cpu(noise: f32, variant: PmVariant) {
             );
         }
     }
+    // Coarse cells' flux lobes and their upsampling (the exact variant's lobe axes, low and
+    // high orders apart): GPU vs CPU; a mean of unit vectors is never longer than 1.
+    assert_eq!(p.lobe_axis, (variant == PmVariant::Exact) as u32);
+    let cell_dirs = pm.read_cell_dirs().unwrap();
+    assert_eq!(cell_dirs.len(), total.len() / reference::CELL_WORDS);
+    for (i, [lo, hi]) in cell_dirs.iter().enumerate() {
+        let c = reference::cell_value(&p, &density, &total, i);
+        let cpu = [
+            c.dir.extend(c.has_lo as u32 as f32),
+            c.dir_hi.extend(c.sun_hi),
+        ];
+        for (g, c) in [lo, hi].into_iter().zip(cpu) {
+            assert!(
+                (*g - c).abs().max_element() <= 1e-5 * c.w.abs().max(1.0),
+                "cell {i}: {g} vs {c}"
+            );
+            assert!(g.truncate().length() <= 1.0 + 1e-3, "cell {i}: {g}");
+        }
+        assert!(c.sun_hi <= c.sun * (1.0 + 1e-6), "cell {i}");
+    }
+    let dirs = if p.lobe_axis != 0 {
+        assert_eq!(p.lobe_split, nimbus_photon::settings::DEFAULT_LOBE_SPLIT);
+        let dirs = pm.read_j_dirs().unwrap();
+        assert_eq!(dirs.len(), density.len());
+        let hi_scale = j.iter().map(|v| v[0]).fold(0.0f32, f32::max);
+        for (i, d) in dirs.iter().enumerate() {
+            let c = reference::upsample_dir_voxel(&p, &density, &total, i);
+            for k in 0..2 {
+                let tol = Vec4::new(1e-4, 1e-4, 1e-4, 1e-4 * hi_scale.max(1e-20));
+                assert!(
+                    (d[k] - c[k]).abs().cmple(tol).all(),
+                    "voxel {i}, lobe {k}: {} vs {}",
+                    d[k],
+                    c[k]
+                );
+            }
+        }
+        // Directions vary over the cloud (a single constant axis would not pass), and both
+        // orders hold light.
+        let sun_prop = -Vec3::from_array(p.sun_dir);
+        assert!(dirs.iter().any(|d| {
+            let v = d[0].truncate();
+            v.length() > 0.1 && v.normalize().dot(sun_prop) < 0.8
+        }));
+        assert!(
+            dirs.iter()
+                .any(|d| d[0].w > 0.0 && d[1].truncate().length() > 0.0)
+        );
+        dirs
+    } else {
+        vec![]
+    };
     // Image: GPU vs CPU ray marcher on the GPU's J.
     let scale = img
         .pixels
@@ -144,7 +196,7 @@ fn check_against_cpu(noise: f32, variant: PmVariant) {
         .fold(0.0f32, |m, v| m.max(v.abs()));
     for y in 0..img.height {
         for x in 0..img.width {
-            let c = reference::raymarch_pixel(&p, &density, &j, &t_sun, x as u32, y as u32);
+            let c = reference::raymarch_pixel(&p, &density, &j, &t_sun, &dirs, x as u32, y as u32);
             let g = img.get(x, y);
             for k in 0..3 {
                 assert!(
@@ -228,15 +280,18 @@ fn deposited_energy_matches_slab_solution() {
     assert!(
         pm.read_total()
             .unwrap()
-            .chunks(5)
-            .all(|c| c[0] == 0 && c[4] == 0)
+            .chunks(reference::CELL_WORDS)
+            .all(|c| c[0] == 0 && c[6] == 0)
     );
     // The paper's single cache deposits the unscattered beam: its sums are the estimator
     // checked here.
     let mut pm = PhotonMapper::new(&gpu, &s, settings(PmVariant::Elek2012)).unwrap();
     pm.converge();
     let total = pm.read_total().unwrap();
-    let w: f64 = total.chunks(5).map(|c| c[0] as f64).sum();
+    let w: f64 = total
+        .chunks(reference::CELL_WORDS)
+        .map(|c| c[0] as f64)
+        .sum();
     let (n_sun, _) = pm.ring_beams();
     let r = pm.params.bound_radius as f64;
     let deposited = w / nimbus_photon::mapper::W_SCALE / pm.params.sigma_max as f64
@@ -250,7 +305,7 @@ fn deposited_energy_matches_slab_solution() {
         "deposited {deposited} vs exact {exact}"
     );
     // Beams never leave energy where there is no medium: no sky photons without a sky.
-    assert!(total.chunks(5).all(|c| c[1] == 0));
+    assert!(total.chunks(reference::CELL_WORDS).all(|c| c[1] == 0));
 }
 
 /// Half-resolution ray marching plus bilinear upscaling stays close to the full-resolution
@@ -404,7 +459,7 @@ fn varying_budget_keeps_energy() {
         }
         pm.upsample();
         let t = pm.read_total().unwrap();
-        (0..t.len() / 5)
+        (0..t.len() / reference::CELL_WORDS)
             .map(|i| reference::cell_value(&pm.params, &[], &t, i).sun as f64)
             .sum::<f64>()
     };

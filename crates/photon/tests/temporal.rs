@@ -86,16 +86,38 @@ fn settings() -> PmSettings {
 fn static_scene_is_stable_once_converged() {
     let gpu = Gpu::new().unwrap();
     let s = scene(DVec3::new(1.0, 0.6, 0.3));
-    let mut pm = PhotonMapper::new(&gpu, &s, settings()).unwrap();
-    let a = pm.render(&s.camera).unwrap();
     // One more generation replaces the oldest: the image changes by the noise of 1/m of the
-    // photons only.
-    pm.trace_frame(None);
-    pm.upsample();
-    let b = pm.raymarch(&s.camera).unwrap();
-    let (mean, worst) = difference(&a, &b);
-    eprintln!("static: frame-to-frame change mean {mean:.5}, worst 4x4 block {worst:.5}");
-    assert!(mean < 0.005, "frame-to-frame change {mean}");
+    // photons only. Two independent converged solutions differ by D (noise of the whole ring);
+    // replacing one of m generations changes the image by ≈ D/√m (measured on lavapipe with
+    // m = 32: 0.0052–0.0073 per seed, mean 0.0063, against D/√m ≈ 0.0046; the per-seed spread
+    // comes from a few heavy beams). Averaged over three seeds, bounded by 2 D/√m: a ring that replaced
+    // more than its oldest generation would change by ≈ D (≥ 5.6 × D/√m).
+    let mut changes = Vec::new();
+    let mut converged = Vec::new();
+    for seed in [0, 1, 2] {
+        let mut pm = PhotonMapper::new(&gpu, &s, PmSettings { seed, ..settings() }).unwrap();
+        let a = pm.render(&s.camera).unwrap();
+        pm.trace_frame(None);
+        pm.upsample();
+        let b = pm.raymarch(&s.camera).unwrap();
+        let (mean, worst) = difference(&a, &b);
+        eprintln!(
+            "static, seed {seed}: frame-to-frame change {mean:.5}, worst 4x4 block {worst:.5}"
+        );
+        changes.push(mean);
+        converged.push(a);
+    }
+    let d = (difference(&converged[0], &converged[1]).0
+        + difference(&converged[1], &converged[2]).0
+        + difference(&converged[0], &converged[2]).0)
+        / 3.0;
+    let change = changes.iter().sum::<f64>() / 3.0;
+    let expected = d / (settings().ring as f64).sqrt();
+    eprintln!("static: mean change {change:.5}, D {d:.5}, D/sqrt(m) {expected:.5}");
+    assert!(
+        change < 2.0 * expected,
+        "frame-to-frame change {change} vs D/√m {expected}"
+    );
     // Static scene and light: the animation loop traces nothing once the ring is full, and the
     // image is then exactly constant.
     let mut pm = PhotonMapper::new(&gpu, &s, settings()).unwrap();
@@ -242,28 +264,41 @@ fn moving_sun_lags_little_behind_the_converged_solution() {
         },
     )
     .unwrap();
-    let converged = pm.render(&s_end.camera).unwrap();
-    let (mean, worst) = difference(&converged, &moving);
-    // The noise floor: two independent converged solutions at the same sun position.
-    let mut pm = PhotonMapper::new(
-        &gpu,
-        &s_end,
-        PmSettings {
-            seed: 8,
-            ..settings()
-        },
-    )
-    .unwrap();
-    let other = pm.render(&s_end.camera).unwrap();
-    let (noise, noise_worst) = difference(&converged, &other);
+    let first = pm.render(&s_end.camera).unwrap();
+    // Three independent converged solutions at the end position: the mean difference of the
+    // moving solution to them against the mean difference among them (the noise floor; one
+    // pair alone scatters by ±25 % on lavapipe, three pairs by ≈ ±15 %).
+    let mut converged = vec![first];
+    for seed in [8, 9] {
+        let mut pm = PhotonMapper::new(&gpu, &s_end, PmSettings { seed, ..settings() }).unwrap();
+        converged.push(pm.render(&s_end.camera).unwrap());
+    }
+    let mean = converged
+        .iter()
+        .map(|c| difference(c, &moving).0)
+        .sum::<f64>()
+        / 3.0;
+    let worst = converged
+        .iter()
+        .map(|c| difference(c, &moving).1)
+        .fold(0.0, f64::max);
+    let noise = (difference(&converged[0], &converged[1]).0
+        + difference(&converged[1], &converged[2]).0
+        + difference(&converged[0], &converged[2]).0)
+        / 3.0;
     eprintln!(
-        "moving sun: mean difference {mean:.5} (worst 4x4 block {worst:.5}); two converged solutions: {noise:.5} ({noise_worst:.5})"
+        "moving sun: mean difference {mean:.5} (worst 4x4 block {worst:.5}); converged solutions among themselves: {noise:.5}"
     );
     // Elek §5 reports a maximal luminance difference of about 1.5 %, mostly residual photon
-    // noise. Here the difference to the converged image is the noise floor of two independent
-    // solutions (≈ 1.9 % at 32 × 8 192 beams) plus the lag; the lag may add at most 0.5 %.
+    // noise. Here the difference to the converged images is the noise floor of independent
+    // solutions (≈ 2.5–3.3 % at 32 × 8 192 beams) plus the lag; the lag and the floor's own
+    // scatter may add at most 25 % of the floor. The 0.8° the sun turns is itself below the
+    // photon noise at this budget (a converged solution for the start position differs from
+    // the end ones by 0.020), so this bounds what the animation loop adds — a wrongly
+    // normalised or mixed-up ring generation — rather than resolving the lag; the lag of
+    // 1.7° rings is measured in BENCHMARKS.md.
     assert!(
-        mean < noise + 0.005,
+        mean < 1.25 * noise,
         "mean difference {mean} vs noise floor {noise}"
     );
 }

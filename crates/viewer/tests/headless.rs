@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use nimbus_gpu::Gpu;
-use nimbus_photon::PmSettings;
+use nimbus_photon::{LobeAxis, PmSettings};
 use nimbus_scene::{Image, Scene};
 use nimbus_viewer::{Action, Method, Viewer, ViewerOptions, run_frame};
 
@@ -80,8 +80,16 @@ fn converged_viewer_equals_a_photon_mapping_render() {
 
 #[test]
 fn sun_change_traces_new_generations_and_alters_the_image() {
+    for axis in [LobeAxis::Sun, LobeAxis::Flux] {
+        sun_change(axis);
+    }
+}
+
+fn sun_change(axis: LobeAxis) {
     let gpu = Gpu::new().unwrap();
-    let mut v = Viewer::new(&gpu, scene(), None, options()).unwrap();
+    let mut opts = options();
+    opts.pm.lobe_axis = Some(axis);
+    let mut v = Viewer::new(&gpu, scene(), None, opts).unwrap();
     frames(&mut v, 8);
     let before = v.image().clone();
     v.apply(&Action::SetSun {
@@ -90,17 +98,24 @@ fn sun_change_traces_new_generations_and_alters_the_image() {
     })
     .unwrap();
     frames(&mut v, 1);
-    // The ray marcher evaluates the phase function towards the new sun at once (Elek §4.4), so
-    // the image changes immediately (front-lit instead of back-lit; seen: 16 % mean absolute
-    // change) …
+    // The ray marcher evaluates the phase function towards the new sun at once (Elek §4.4) —
+    // with sun-aligned lobes for all light, with per-cell flux axes for the exact single
+    // scattering (the sun-transmittance volume is rebuilt at once), while the cache's lobes
+    // keep the old light's flow until the ring is re-traced — so the image changes
+    // immediately (front-lit instead of back-lit; seen with the exact variant: 3.8 % mean
+    // absolute change with the sun axis, 4.7 % with flux axes; 16 % with the paper's variant,
+    // whose cache also holds the unscattered beam) …
     let first = v.image().clone();
     assert!(v.stats().beams.0 > 0);
-    assert!(rel_diff(&first, &before) > 0.05);
+    let at_once = rel_diff(&first, &before);
+    eprintln!("{axis:?}: change at once {at_once:.4}");
+    assert!(at_once > 0.02, "{axis:?}: {at_once}");
     // … while the ring of partial caches follows one generation per frame (§4.1): the image
     // keeps changing over the next m − 1 frames, then tracing stops.
     frames(&mut v, 7);
     assert!(v.stats().beams.0 > 0);
     let caught_up = rel_diff(v.image(), &first);
+    eprintln!("{axis:?}: change while the ring follows {caught_up:.4}");
     assert!(caught_up > 1e-3, "{caught_up}");
     frames(&mut v, 1);
     assert_eq!(v.stats().beams, (0, 0));
