@@ -9,6 +9,7 @@
 //! The deterministic GPU stages have CPU twins in [`reference`] that the tests compare against.
 
 pub mod animate;
+pub mod cache_layout;
 pub mod impostor;
 pub mod mapper;
 
