@@ -26,6 +26,9 @@
 // sun-transmittance volume, and the cache holds only light scattered at least once.
 
 @group(0) @binding(2) var<storage, read_write> h_new: array<atomic<u32>>;
+// Set to 1 when a u32 sum wraps (too many deposits in one cell for 32 bits): the mapper reports
+// it instead of rendering a silently wrong cache.
+@group(0) @binding(3) var<storage, read_write> overflow: array<atomic<u32>>;
 
 const SHARED_CELLS: u32 = 256u;
 const CELL_WORDS: u32 = 11u;
@@ -35,11 +38,13 @@ var<workgroup> sh: array<atomic<u32>, SHARED_CELLS * CELL_WORDS>;
 
 fn deposit(slot: u32, v: u32) {
     if (v == 0u) { return; }
+    var old: u32;
     if (P.use_shared != 0u) {
-        atomicAdd(&sh[slot], v);
+        old = atomicAdd(&sh[slot], v);
     } else {
-        atomicAdd(&h_new[slot], v);
+        old = atomicAdd(&h_new[slot], v);
     }
+    if (old > 0xffffffffu - v) { atomicStore(&overflow[0], 1u); }
 }
 
 fn cell_of(p: vec3<f32>) -> u32 {
@@ -151,7 +156,10 @@ fn trace(@builtin(global_invocation_id) gid: vec3<u32>,
     if (P.use_shared != 0u) {
         for (var i = lid; i < cells * CELL_WORDS; i += WG) {
             let v = atomicLoad(&sh[i]);
-            if (v != 0u) { atomicAdd(&h_new[i], v); }
+            if (v != 0u) {
+                let old = atomicAdd(&h_new[i], v);
+                if (old > 0xffffffffu - v) { atomicStore(&overflow[0], 1u); }
+            }
         }
     }
 }

@@ -213,6 +213,10 @@ pub fn animate(
             _ if opts.half_res => pm.raymarch_half(&scene.camera)?,
             _ => pm.raymarch(&scene.camera)?,
         };
+        if trace {
+            // The image was just read back (a sync): the 4-byte flag costs nothing more.
+            pm.check_overflow()?;
+        }
         last_image = Some(img.clone());
         stages.extend(std::mem::take(&mut pm.last_times));
         let report = FrameReport {

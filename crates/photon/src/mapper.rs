@@ -24,6 +24,16 @@ pub enum PmError {
     Unsupported(String),
     #[error("setting `{field}`: {msg}")]
     Setting { field: &'static str, msg: String },
+    /// A cache cell's u32 sum would have wrapped: the image would be silently wrong.
+    #[error(
+        "the photon cache overflowed: a cell of the {cells} received more than 2^32 fixed-point units ({units:.2e} beam weights) in the ring of {ring} frames × {beams} beams; use fewer beams (--beams), a smaller ring (--ring), a finer cache (--cache-res) or a lower density_scale"
+    )]
+    Overflow {
+        cells: String,
+        units: f64,
+        ring: u32,
+        beams: u32,
+    },
 }
 
 pub use crate::settings::{LobeAxis, PmSettings, PmVariant, default_cache_res, similarity_order};
@@ -73,6 +83,7 @@ pub struct PhotonMapper<'g> {
     cell_dir: wgpu::Buffer,
     j_dir: wgpu::Buffer,
     j_hi: wgpu::Buffer,
+    overflow: wgpu::Buffer,
 }
 
 fn f3(v: DVec3) -> [f32; 3] {
@@ -243,6 +254,7 @@ impl<'g> PhotonMapper<'g> {
         let h_new = gpu.zeroed("H_new", cell_bytes);
         let ring = gpu.zeroed("ring H_0..H_m-1", settings.ring as u64 * cell_bytes);
         let total = gpu.zeroed("I", cell_bytes);
+        let overflow = gpu.zeroed("cache overflow flag", 16);
         let j = gpu.zeroed("J", voxels as u64 * 16);
         // Bound by the ray marcher in both variants (4 bytes when unused).
         let t_sun = gpu.zeroed(
@@ -269,7 +281,10 @@ impl<'g> PhotonMapper<'g> {
             .map_err(PmError::Unsupported)?;
         let trace_p = gpu.pipeline("photon trace", &trace_src, "trace");
         let trace = Stage {
-            bind: gpu.bind(&trace_p, &[(0, &params_buf), (1, &density), (2, &h_new)]),
+            bind: gpu.bind(
+                &trace_p,
+                &[(0, &params_buf), (1, &density), (2, &h_new), (3, &overflow)],
+            ),
             pipeline: trace_p,
         };
         let update_p = gpu.pipeline(
@@ -280,7 +295,13 @@ impl<'g> PhotonMapper<'g> {
         let update = Stage {
             bind: gpu.bind(
                 &update_p,
-                &[(2, &h_new), (3, &ring), (4, &total), (5, &slot_buf)],
+                &[
+                    (2, &h_new),
+                    (3, &ring),
+                    (4, &total),
+                    (5, &slot_buf),
+                    (6, &overflow),
+                ],
             ),
             pipeline: update_p,
         };
@@ -381,6 +402,7 @@ impl<'g> PhotonMapper<'g> {
             cell_dir,
             j_dir,
             j_hi,
+            overflow,
             settings,
         })
     }
@@ -423,6 +445,7 @@ impl<'g> PhotonMapper<'g> {
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         enc.clear_buffer(&self.ring, 0, None);
         enc.clear_buffer(&self.total, 0, None);
+        enc.clear_buffer(&self.overflow, 0, None);
         self.gpu.queue.submit([enc.finish()]);
         self.slot_beams.iter_mut().for_each(|s| *s = (0, 0));
         self.frame = 0;
@@ -776,9 +799,27 @@ impl<'g> PhotonMapper<'g> {
         self.slot_beams[((self.frame - 1) % self.settings.ring) as usize]
     }
 
-    /// Converged render: fills the ring, upsamples, ray marches.
+    /// Whether a cache sum overflowed 32 bits since the mapper was made (or [`Self::reset`]):
+    /// an error naming the remedies, else `Ok`. One 4-byte read back (a GPU sync).
+    pub fn check_overflow(&self) -> Result<(), PmError> {
+        let flag: Vec<u32> = self.gpu.read(&self.overflow)?;
+        if flag.first().copied().unwrap_or(0) == 0 {
+            return Ok(());
+        }
+        let r = self.params.i_res;
+        Err(PmError::Overflow {
+            cells: format!("{}×{}×{} cache", r[0], r[1], r[2]),
+            units: u32::MAX as f64 / W_SCALE,
+            ring: self.settings.ring,
+            beams: self.settings.beams_per_frame,
+        })
+    }
+
+    /// Converged render: fills the ring, upsamples, ray marches; an overflowed cache is an
+    /// error.
     pub fn render(&mut self, camera: &Camera) -> Result<Image, PmError> {
         self.converge();
+        self.check_overflow()?;
         self.upsample();
         self.raymarch(camera)
     }

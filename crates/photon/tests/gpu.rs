@@ -651,3 +651,48 @@ fn density_weighted_deposits_match_cpu_and_are_neutral_in_a_homogeneous_box() {
         );
     }
 }
+
+/// A cache cell whose u32 sum would wrap is an error naming the remedies, not a silently wrong
+/// image: a one-cell cache over a homogeneous box of σ = 10⁷ where every beam that enters
+/// scatters until the cap of 1 024 scatterings, each a deposit of 4 096 fixed-point units
+/// (≈ 4.2 × 10⁶ per beam): the ≈ 1 000th beam of a 4 096-beam frame overflows 2³² (caught in
+/// the trace), and four frames of 1 024 beams overflow only in the ring's total (caught in the
+/// update). The same box at σ = 1 (≈ 2 deposits per beam) stays far inside 32 bits.
+#[test]
+fn cache_overflow_is_an_error() {
+    let gpu = gpu();
+    let render = |scale: f64, beams: u32, ring: u32| {
+        let grid = DensityGrid::constant([8, 8, 8], 1.0).unwrap();
+        let aabb = Aabb::new(DVec3::splat(-0.5), DVec3::splat(0.5)).unwrap();
+        let s = scene(
+            Volume::new(grid, aabb, scale).unwrap(),
+            1.0,
+            0.857,
+            Some(Sun::new(DVec3::new(0.3, 1.0, 0.2), DVec3::ONE, 0.0).unwrap()),
+            None,
+            Camera::new(DVec3::new(0.0, 0.0, 3.0), DVec3::ZERO, DVec3::Y, 30.0, 8, 8).unwrap(),
+        );
+        let mut pm = PhotonMapper::new(
+            &gpu,
+            &s,
+            PmSettings {
+                beams_per_frame: beams,
+                ring,
+                cache_res: Some([1, 1, 1]),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        pm.render(&s.camera).map(|_| ())
+    };
+    for (beams, ring) in [(4096, 1), (1024, 4)] {
+        let e = render(1e7, beams, ring)
+            .expect_err("must overflow")
+            .to_string();
+        assert!(
+            e.contains("overflowed") && e.contains("--beams") && e.contains("1×1×1"),
+            "{e}"
+        );
+    }
+    render(1.0, 4096, 1).unwrap();
+}

@@ -608,6 +608,10 @@ impl<'g> Viewer<'g> {
                 self.image = img;
             }
         }
+        if trace {
+            // A wrapped cache sum is an error, not a silently wrong image (4 bytes read back).
+            self.pm.check_overflow()?;
+        }
         self.pm.last_times.clear();
         stats.stages = stages;
         stats.refresh = refresh;
