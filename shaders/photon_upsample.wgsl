@@ -6,6 +6,10 @@
 //   λ = σ_s (D(p) − D(q)) / 2, r = 1.5 × smallest coarse cell side,
 //   w_g = |g|^δ, δ = γ(p) − γ(q) (γ = penetration depth, trilinear in I),
 //   J_L = Σ I_L w_L / Σ w_L,   J_g' = Σ g'(q) w_g w_L / Σ w_g w_L (cells with sun flux only).
+// Two readings of the paper are selectable and were measured against the path tracer and
+// Mitsuba (BENCHMARKS.md "Upsampling readings"); the printed formulas stay the default because
+// they are closer: λ as the mean extinction σ_s (D(p) + D(q))/2 (`P.upsample_mean`) and g'
+// extrapolated as Σ g'(q) g^δ w_L / Σ w_L (`P.upsample_g_extrapolate`) are both worse.
 // f_exp is evaluated in the stable form of `reference::f_exp` (series for |λ r| < 0.05, no
 // overflow for large |λ r|, λ < 0 allowed). If every weight vanishes, trilinear interpolation
 // of I is used. With `filtered == 0` (I and J of equal resolution) J is I converted to
@@ -208,7 +212,8 @@ fn upsample(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
                 let qi = grid_index(qu.x, qu.y, qu.z, P.i_res);
                 let aux = cell_aux[qi];
                 let dq = aux.x;
-                let lambda = sigma_s * (dp - dq) * 0.5;
+                var lambda = sigma_s * (dp - dq) * 0.5;
+                if (P.upsample_mean != 0u) { lambda = sigma_s * (dp + dq) * 0.5; }
                 let wl = f_exp(length(p - qc), lambda, radius) * max(1.0 - abs(dp - dq) / P.d_max, 0.0);
                 if (wl <= 0.0) { continue; }
                 let cv = cell_vals[qi];
@@ -231,7 +236,11 @@ fn upsample(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
                 if (aux.y > 0.0) {
                     var wg = 1.0;
                     if (abs(P.g) >= 1.0e-6) { wg = exp(clamp((gp - cv.w) * lng, -60.0, 60.0)); }
-                    swg += wg * wl;
+                    if (P.upsample_g_extrapolate != 0u) {
+                        swg += wl;
+                    } else {
+                        swg += wg * wl;
+                    }
                     s_g += wg * wl * cv.z;
                 }
             }
@@ -247,7 +256,8 @@ fn upsample(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
         out = vec4<f32>(f.x, f.y, 0.0, gp);
         hi_f = f.z;
     }
-    if (swg > 0.0) { out.z = s_g / swg; }
+    // A weighted mean of g' stays in [−0.999, 0.999]; the extrapolation g'(q)·g^δ may not.
+    if (swg > 0.0) { out.z = clamp(s_g / swg, -0.999, 0.999); }
     j_out[idx] = out;
     if (P.lobe_axis != 0u) {
         var v = vec3<f32>(0.0);

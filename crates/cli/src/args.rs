@@ -16,6 +16,12 @@ pub(crate) enum LobeAxisArg {
     Flux,
 }
 
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub(crate) enum UpsampleLambdaArg {
+    Difference,
+    Mean,
+}
+
 /// Photon-mapping settings shared by `render --method pm` and `animate`.
 #[derive(clap::Args)]
 pub(crate) struct PmArgs {
@@ -42,6 +48,15 @@ pub(crate) struct PmArgs {
     /// lobe (0 = one lobe per cell; default 4).
     #[arg(long, value_parser = clap::value_parser!(u32).range(0..=1024))]
     pm_lobe_split: Option<u32>,
+    /// Photon mapping: attenuation λ of the upsampling filter between a voxel p and a cache
+    /// cell q: `difference` σ_s (D(p) − D(q))/2 (Elek §4.3 as printed, default) or `mean`
+    /// σ_s (D(p) + D(q))/2.
+    #[arg(long, value_enum, default_value = "difference")]
+    pm_upsample_lambda: UpsampleLambdaArg,
+    /// Photon mapping with sun-axis lobes: extrapolate g' as g'(q)·g^δ (Elek §4.3's prose)
+    /// instead of using g^δ as a weight (its formula, default).
+    #[arg(long)]
+    pm_upsample_g_extrapolate: bool,
     /// Photon mapping: partial caches in the ring (m).
     #[arg(long, default_value_t = 100)]
     pub(crate) ring: u32,
@@ -76,6 +91,8 @@ impl PmArgs {
                 LobeAxisArg::Flux => nimbus_photon::mapper::LobeAxis::Flux,
             }),
             lobe_split: self.pm_lobe_split,
+            upsample_mean: self.pm_upsample_lambda == UpsampleLambdaArg::Mean,
+            upsample_g_extrapolate: self.pm_upsample_g_extrapolate,
             beams_per_frame: self.beams,
             ring: self.ring,
             cache_res: triple(self.cache_res.clone(), "--cache-res")?,

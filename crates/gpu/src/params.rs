@@ -69,6 +69,16 @@ pub struct PmParams {
     /// Photon mapping (flux axes): sun light of scattering order ≥ this gets an HG lobe of its
     /// own (0 = one lobe per cell for all orders).
     pub lobe_split: u32,
+    /// Photon mapping: the upsampling's attenuation λ between a voxel p and a cell q:
+    /// 0 = σ_s (D(p) − D(q)) / 2 (Elek §4.3 as printed), 1 = σ_s (D(p) + D(q)) / 2 (the mean
+    /// extinction between them).
+    pub upsample_mean: u32,
+    /// Photon mapping, sun-axis lobes: 0 = g' upsampled as Σ g'(q) g^δ w_L / Σ g^δ w_L (g^δ a
+    /// weight, Elek §4.3's formula), 1 = extrapolated, Σ g'(q) g^δ w_L / Σ w_L (the prose:
+    /// anisotropy decays as g per scattering order).
+    pub upsample_g_extrapolate: u32,
+    pub pad_b: u32,
+    pub pad_c: u32,
 }
 
 #[cfg(test)]
@@ -125,6 +135,13 @@ mod tests {
             ("density_weighted", offset_of!(PmParams, density_weighted)),
             ("lobe_axis", offset_of!(PmParams, lobe_axis)),
             ("lobe_split", offset_of!(PmParams, lobe_split)),
+            ("upsample_mean", offset_of!(PmParams, upsample_mean)),
+            (
+                "upsample_g_extrapolate",
+                offset_of!(PmParams, upsample_g_extrapolate),
+            ),
+            ("pad_b", offset_of!(PmParams, pad_b)),
+            ("pad_c", offset_of!(PmParams, pad_c)),
         ];
         assert_eq!(members.len(), rust.len());
         for ((m, moff), (name, off)) in members.iter().zip(rust) {

@@ -237,6 +237,10 @@ impl<'g> PhotonMapper<'g> {
             } else {
                 0
             },
+            upsample_mean: settings.upsample_mean as u32,
+            upsample_g_extrapolate: settings.upsample_g_extrapolate as u32,
+            pad_b: 0,
+            pad_c: 0,
         };
         gpu.check_storage("the density grid", voxels as u64 * 4)?;
         gpu.check_storage("the upsampled cache J", voxels as u64 * 16)?;

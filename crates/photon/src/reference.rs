@@ -264,7 +264,11 @@ pub fn upsample_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usize) 
             } else {
                 1.0
             };
-            swg += wg * wl;
+            swg += if p.upsample_g_extrapolate != 0 {
+                wl
+            } else {
+                wg * wl
+            };
             s_g += wg * wl * cv.g;
         }
     });
@@ -278,7 +282,7 @@ pub fn upsample_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usize) 
         [f.x, f.y, 0.0, gp]
     };
     if swg > 0.0 {
-        out[2] = s_g / swg;
+        out[2] = (s_g / swg).clamp(-0.999, 0.999);
     }
     out
 }
@@ -395,7 +399,11 @@ fn for_each_neighbour(p: &PmParams, density: &[f32], idx: usize, mut f: impl FnM
                         / ires
                         * ext;
                 let dq = density_at(p, density, qc);
-                let lambda = sigma_s * (dp - dq) * 0.5;
+                let lambda = if p.upsample_mean != 0 {
+                    sigma_s * (dp + dq) * 0.5
+                } else {
+                    sigma_s * (dp - dq) * 0.5
+                };
                 let wl = f_exp((pos - qc).length(), lambda, radius)
                     * (1.0 - (dp - dq).abs() / p.d_max).max(0.0);
                 if wl > 0.0 {

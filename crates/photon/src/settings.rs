@@ -90,6 +90,13 @@ pub struct PmSettings {
     /// With flux axes: sun light of scattering order ≥ K gets a lobe of its own (`Some(0)`:
     /// one lobe for all orders); `None`: [`DEFAULT_LOBE_SPLIT`].
     pub lobe_split: Option<u32>,
+    /// The upsampling's attenuation between a voxel and a coarse cell (Elek §4.3): `false`
+    /// (default) λ = σ_s (D(p) − D(q)) / 2 as printed, `true` the mean extinction
+    /// σ_s (D(p) + D(q)) / 2.
+    pub upsample_mean: bool,
+    /// Sun-axis lobes: g' extrapolated as Σ g'(q) g^δ w_L / Σ w_L instead of the formula's
+    /// weighted mean Σ g'(q) g^δ w_L / Σ g^δ w_L (Elek §4.3; default false = the formula).
+    pub upsample_g_extrapolate: bool,
     /// Ray-marching step as a fraction of the box diagonal (the paper: 1/300).
     pub step_fraction: f64,
     /// Early exit below this transmittance (the paper: 2 %).
@@ -118,6 +125,8 @@ impl Default for PmSettings {
             density_weighted: None,
             lobe_axis: None,
             lobe_split: None,
+            upsample_mean: false,
+            upsample_g_extrapolate: false,
             step_fraction: 1.0 / 300.0,
             early_exit: 0.02,
             seed: 0,

@@ -66,17 +66,19 @@ fn small_cloud() -> Scene {
 
 #[test]
 fn upsampling_and_raymarching_match_cpu() {
-    for (noise, variant) in [
-        (0.0, PmVariant::Exact),
-        (1.5, PmVariant::Exact),
-        (0.0, PmVariant::Elek2012),
+    for (noise, variant, other_readings) in [
+        (0.0, PmVariant::Exact, false),
+        (1.5, PmVariant::Exact, false),
+        (0.0, PmVariant::Elek2012, false),
+        (0.0, PmVariant::Elek2012, true),
     ] {
-        check_against_cpu(noise, variant);
+        check_against_cpu(noise, variant, other_readings);
     }
 }
 
-/// Detail noise of `noise` voxels (0 = off).
-fn check_against_cpu(noise: f32, variant: PmVariant) {
+/// Detail noise of `noise` voxels (0 = off); `other_readings`: the upsampling's alternative
+/// readings of Elek §4.3 (mean attenuation, extrapolated g').
+fn check_against_cpu(noise: f32, variant: PmVariant, other_readings: bool) {
     let gpu = gpu();
     let s = small_cloud();
     let mut pm = PhotonMapper::new(
@@ -88,6 +90,8 @@ fn check_against_cpu(noise: f32, variant: PmVariant) {
             ring: 4,
             cache_res: Some([6, 5, 6]),
             detail_noise: noise,
+            upsample_mean: other_readings,
+            upsample_g_extrapolate: other_readings,
             ..Default::default()
         },
     )
