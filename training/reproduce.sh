@@ -22,6 +22,11 @@ EVAL_SAMPLES=${EVAL_SAMPLES:-16384}
 LIGHT=${LIGHT:-uniform-gamma}
 EPOCHS=${EPOCHS:-12}
 MAX_MINUTES=${MAX_MINUTES:-40}
+# Warm restart: resume the first run's last epoch and follow the cosine schedule of
+# RESTART_EPOCHS epochs from there (its step size jumps back up, then decays to 0), keeping the
+# last epoch (--select last). 0: no restart. The shipped model: 12, then 20.
+RESTART_EPOCHS=${RESTART_EPOCHS:-20}
+RESTART_MAX_MINUTES=${RESTART_MAX_MINUTES:-200}
 LOSS=${LOSS:-rel-l2}
 DEVICE=${DEVICE:-cpu}          # datagen: cpu (the shipped set) or gpu (different random streams)
 DATA=${DATA:-out/rpnn-hg-data}
@@ -38,8 +43,23 @@ datagen() { # SPLIT-specific counts; the same --out and settings, so later calls
 # Validation and test sets first (small, precise), then the training records.
 datagen --records 0 --val-records "$VAL_RECORDS" --test-records "$TEST_RECORDS"
 datagen --records "$RECORDS" --val-records "$VAL_RECORDS" --test-records "$TEST_RECORDS"
-training/.venv/bin/python training/train.py --data "$DATA" --run "$RUN" --epochs "$EPOCHS" \
-  --loss "$LOSS" --schedule cosine --max-minutes "$MAX_MINUTES" \
-  --seed 0 --device auto --resume --export "$MODEL" \
-  --reproduce "CLOUDS=$CLOUDS DENSITY_RANGE=$DENSITY_RANGE RECORDS=$RECORDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS TEST_RECORDS=$TEST_RECORDS EVAL_SAMPLES=$EVAL_SAMPLES LIGHT=$LIGHT EPOCHS=$EPOCHS MAX_MINUTES=$MAX_MINUTES LOSS=$LOSS DEVICE=$DEVICE bash training/reproduce.sh"
+SETTINGS="CLOUDS=$CLOUDS DENSITY_RANGE=$DENSITY_RANGE RECORDS=$RECORDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS TEST_RECORDS=$TEST_RECORDS EVAL_SAMPLES=$EVAL_SAMPLES LIGHT=$LIGHT EPOCHS=$EPOCHS MAX_MINUTES=$MAX_MINUTES RESTART_EPOCHS=$RESTART_EPOCHS RESTART_MAX_MINUTES=$RESTART_MAX_MINUTES LOSS=$LOSS DEVICE=$DEVICE"
+train() {
+  training/.venv/bin/python training/train.py --data "$DATA" --loss "$LOSS" --schedule cosine \
+    --seed 0 --device auto --resume --export "$MODEL" \
+    --reproduce "$SETTINGS bash training/reproduce.sh" "$@"
+}
+if [ ! -e "$RUN/restart/last.pt" ]; then
+  train --run "$RUN" --epochs "$EPOCHS" --max-minutes "$MAX_MINUTES"
+fi
+if [ "$RESTART_EPOCHS" -gt "$EPOCHS" ]; then
+  # A copy of the first run, so both stay inspectable; resumed from its last epoch.
+  if [ ! -e "$RUN/restart/last.pt" ]; then
+    mkdir -p "$RUN/restart"
+    cp "$RUN/last.pt" "$RUN/restart/last.pt"
+  fi
+  RUN="$RUN/restart"
+  train --run "$RUN" --epochs "$RESTART_EPOCHS" --max-minutes "$RESTART_MAX_MINUTES" \
+    --select last
+fi
 cp "$RUN/curves.png" "${MODEL%.onnx}-curves.png"

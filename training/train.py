@@ -481,6 +481,7 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
         "training": {"loss": args.loss, "mirror": args.mirror, "schedule": args.schedule,
                      "steps": s["epoch"] * -(-result["fit"] // args.batch),
                      "epochs": s["epoch"], "best_epoch": s["best_epoch"],
+                     "select": args.select,
                      "best_val_loss": s["best_val"],
                      "test_loss": next((r["test_loss"] for r in s["log"]
                                         if r["epoch"] == s["best_epoch"]), None),

@@ -173,8 +173,11 @@ def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
         f"{t['batch']}, {t['epochs']} epochs ({t.get('steps', '?')} steps), mirror augmentation "
         f"{'on' if t.get('mirror') else 'off'}, seed {t['seed']}, device {t['device']}, "
         f"{t['seconds']:.0f} s.",
-        f"- Best validation loss {t['best_val_loss']:.4g} (epoch {t['best_epoch']}); "
-        f"test-cloud loss {t['test_loss'] if t['test_loss'] is None else format(t['test_loss'], '.4g')}.",
+        (f"- Exported: the last epoch (`--select last`), validation loss "
+         f"{t['best_val_loss']:.4g} (epoch {t['best_epoch']}); "
+         if t.get("select") == "last" else
+         f"- Best validation loss {t['best_val_loss']:.4g} (epoch {t['best_epoch']}); ")
+        + f"test-cloud loss {t['test_loss'] if t['test_loss'] is None else format(t['test_loss'], '.4g')}.",
         "",
         *record_error_lines(card.get("record_errors")),
         "## Export check",
