@@ -158,6 +158,16 @@ fn v3(a: [f32; 3]) -> Vec3 {
     Vec3::from_array(a)
 }
 
+/// Centre of density voxel `idx` in world space (the shaders' voxel position).
+fn voxel_centre(p: &PmParams, idx: usize) -> Vec3 {
+    let res = p.d_res;
+    let v = coords(idx, res);
+    let ext = v3(p.aabb_max) - v3(p.aabb_min);
+    let resf = Vec3::new(res[0] as f32, res[1] as f32, res[2] as f32);
+    v3(p.aabb_min)
+        + (Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32) + Vec3::splat(0.5)) / resf * ext
+}
+
 /// Grid coordinates of linear index `i` (x fastest), the inverse of [`index`].
 fn coords(i: usize, res: [u32; 3]) -> [u32; 3] {
     let i = i as u32;
@@ -244,12 +254,7 @@ pub fn upsample_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usize) 
         let cv = cell_value(p, density, total, idx);
         return [cv.sun, cv.sky, cv.g, cv.gamma];
     }
-    let res = p.d_res;
-    let v = coords(idx, res);
-    let ext = v3(p.aabb_max) - v3(p.aabb_min);
-    let resf = Vec3::new(res[0] as f32, res[1] as f32, res[2] as f32);
-    let pos = v3(p.aabb_min)
-        + (Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32) + Vec3::splat(0.5)) / resf * ext;
+    let pos = voxel_centre(p, idx);
     let gp = interp(p, pos, p.i_res, |i| cell_value(p, density, total, i).gamma);
     let lng = p.g.abs().max(1e-30).ln();
     let (mut sw, mut s_sun, mut s_sky, mut swg, mut s_g) = (0.0f32, 0.0f32, 0.0f32, 0.0f32, 0.0f32);
@@ -348,13 +353,9 @@ pub fn upsample_dir_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usi
     let f_hi = if sw > 0.0 {
         s_fhi / sw
     } else {
-        let res = p.d_res;
-        let v = coords(idx, res);
-        let ext = v3(p.aabb_max) - v3(p.aabb_min);
-        let resf = Vec3::new(res[0] as f32, res[1] as f32, res[2] as f32);
-        let pos = v3(p.aabb_min)
-            + (Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32) + Vec3::splat(0.5)) / resf * ext;
-        interp(p, pos, p.i_res, |i| cell_value(p, density, total, i).sun_hi)
+        interp(p, voxel_centre(p, idx), p.i_res, |i| {
+            cell_value(p, density, total, i).sun_hi
+        })
     };
     let lo = if sw_lo > 0.0 {
         s_lo / sw_lo
@@ -372,13 +373,9 @@ pub fn upsample_dir_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usi
 /// Calls `f(cell index, w_L)` for each of the 3×3×3 coarse cells around fine voxel `idx` with
 /// a positive energy weight, in the shader's loop order.
 fn for_each_neighbour(p: &PmParams, density: &[f32], idx: usize, mut f: impl FnMut(usize, f32)) {
-    let res = p.d_res;
-    let v = coords(idx, res);
     let ext = v3(p.aabb_max) - v3(p.aabb_min);
-    let resf = Vec3::new(res[0] as f32, res[1] as f32, res[2] as f32);
     let ires = Vec3::new(p.i_res[0] as f32, p.i_res[1] as f32, p.i_res[2] as f32);
-    let pos = v3(p.aabb_min)
-        + (Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32) + Vec3::splat(0.5)) / resf * ext;
+    let pos = voxel_centre(p, idx);
     let dp = density[idx];
     let cell = ext / ires;
     let radius = 1.5 * cell.x.min(cell.y.min(cell.z));
@@ -497,11 +494,9 @@ pub fn perturb(p: &PmParams, x: Vec3) -> Vec3 {
 /// with half the smallest voxel as step from the voxel centre to the box boundary.
 pub fn sun_transmittance_voxel(p: &PmParams, density: &[f32], idx: usize) -> f32 {
     let r = p.d_res;
-    let v = coords(idx, r);
     let ext = v3(p.aabb_max) - v3(p.aabb_min);
     let resf = Vec3::new(r[0] as f32, r[1] as f32, r[2] as f32);
-    let x = v3(p.aabb_min)
-        + (Vec3::new(v[0] as f32, v[1] as f32, v[2] as f32) + Vec3::splat(0.5)) / resf * ext;
+    let x = voxel_centre(p, idx);
     let sun = v3(p.sun_dir);
     let (_, t1) = box_intersect(p, x, sun);
     let cell = ext / resf;
