@@ -24,13 +24,10 @@
 //! map's (40 × 8 192 beams) ≈ 1 %; the bounds add ≈ 0.04 to the measured extremes for them, so
 //! the test fails when the angular model gets worse, not on noise.
 
-use std::sync::Arc;
-
 use glam::DVec3;
 use nimbus_photon::{LobeAxis, PhotonMapper, PmSettings};
 use nimbus_scene::{
-    Aabb, Camera, DensityGrid, Medium, Phase, RenderSettings, Scene, Sun, Volume, VolumeSource,
-    phase::HenyeyGreenstein,
+    Aabb, Camera, DensityGrid, Medium, Phase, Scene, Sun, Volume, phase::HenyeyGreenstein,
 };
 use nimbus_trace::{RenderOptions, compare, render, tau};
 
@@ -53,22 +50,18 @@ fn sphere(tau: f64, camera: Camera) -> Scene {
     }
     let grid = DensityGrid::new([N; 3], data).unwrap();
     let aabb = Aabb::new(DVec3::splat(-1.0), DVec3::splat(1.0)).unwrap();
-    Scene {
-        source: "sphere".into(),
-        volume: Arc::new(Volume::new(grid, aabb, tau / 1.7).unwrap()),
-        volume_source: VolumeSource::Memory,
-        medium: Medium::new(
+    Scene::in_memory(
+        "sphere",
+        Volume::new(grid, aabb, tau / 1.7).unwrap(),
+        Medium::new(
             1.0,
             Phase::HenyeyGreenstein(HenyeyGreenstein::new(0.857).unwrap()),
         )
         .unwrap(),
-        phase_desc: String::new(),
-        sun: Some(Sun::new(SUN, DVec3::ONE, 0.0).unwrap()),
-        sky: None,
+        Some(Sun::new(SUN, DVec3::ONE, 0.0).unwrap()),
+        None,
         camera,
-        render: RenderSettings::default(),
-        atmosphere: None,
-    }
+    )
 }
 
 /// Unit vector towards the sun (from +x, a little above).

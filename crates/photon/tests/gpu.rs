@@ -2,14 +2,13 @@
 //! energy against an analytic slab, determinism, and agreement with the path tracer.
 
 use std::path::Path;
-use std::sync::Arc;
 
 use glam::{DVec3, Vec3, Vec4};
 use nimbus_gpu::Gpu;
 use nimbus_photon::{PhotonMapper, PmSettings, PmVariant, reference};
 use nimbus_scene::{
-    Aabb, Camera, DensityGrid, Medium, Phase, RenderSettings, Scene, Sky, Sun, Volume,
-    VolumeSource, generate, phase::HenyeyGreenstein,
+    Aabb, Camera, DensityGrid, Medium, Phase, Scene, Sky, Sun, Volume, generate,
+    phase::HenyeyGreenstein,
 };
 
 fn gpu() -> Gpu {
@@ -24,22 +23,18 @@ fn scene(
     sky: Option<Sky>,
     camera: Camera,
 ) -> Scene {
-    Scene {
-        source: "test".into(),
-        volume: Arc::new(volume),
-        volume_source: VolumeSource::Memory,
-        medium: Medium::new(
+    Scene::in_memory(
+        "test",
+        volume,
+        Medium::new(
             albedo,
             Phase::HenyeyGreenstein(HenyeyGreenstein::new(g).unwrap()),
         )
         .unwrap(),
-        phase_desc: String::new(),
         sun,
         sky,
         camera,
-        render: RenderSettings::default(),
-        atmosphere: None,
-    }
+    )
 }
 
 fn small_cloud() -> Scene {

@@ -1,33 +1,28 @@
 //! Temporal behaviour of the ring of partial caches (Elek 2012 §4.2, §5 and Appendix B).
 
-use std::sync::Arc;
-
 use glam::{DQuat, DVec3};
 use nimbus_gpu::Gpu;
 use nimbus_photon::animate::{AnimateOptions, DensitySequence, animate};
 use nimbus_photon::{PhotonMapper, PmSettings};
 use nimbus_scene::{
-    Aabb, Camera, Image, Medium, Phase, RenderSettings, Scene, Sun, Volume, VolumeSource, generate,
-    phase::HenyeyGreenstein,
+    Aabb, Camera, Image, Medium, Phase, Scene, Sun, Volume, generate, phase::HenyeyGreenstein,
 };
 
 fn scene(sun_dir: DVec3) -> Scene {
     let res = [32, 24, 32];
     let grid = generate::generate(nimbus_scene::CloudKind::Cumulus, 3, res).unwrap();
     let (lo, hi) = generate::default_aabb(res);
-    Scene {
-        source: "test".into(),
-        volume: Arc::new(Volume::new(grid, Aabb::new(lo, hi).unwrap(), 30.0).unwrap()),
-        volume_source: VolumeSource::Memory,
-        medium: Medium::new(
+    Scene::in_memory(
+        "test",
+        Volume::new(grid, Aabb::new(lo, hi).unwrap(), 30.0).unwrap(),
+        Medium::new(
             1.0,
             Phase::HenyeyGreenstein(HenyeyGreenstein::new(0.857).unwrap()),
         )
         .unwrap(),
-        phase_desc: String::new(),
-        sun: Some(Sun::new(sun_dir, DVec3::ONE, 0.0).unwrap()),
-        sky: None,
-        camera: Camera::new(
+        Some(Sun::new(sun_dir, DVec3::ONE, 0.0).unwrap()),
+        None,
+        Camera::new(
             DVec3::new(0.3, 0.3, 3.0),
             DVec3::ZERO,
             DVec3::Y,
@@ -36,9 +31,7 @@ fn scene(sun_dir: DVec3) -> Scene {
             36,
         )
         .unwrap(),
-        render: RenderSettings::default(),
-        atmosphere: None,
-    }
+    )
 }
 
 /// Mean |a − b| / mean a over pixels where a is lit (> 5 % of its maximum), and the largest

@@ -112,6 +112,30 @@ pub struct AtmosphereTop {
 }
 
 impl Scene {
+    /// A scene built in memory (tests, tools): the volume, medium, lights and camera, default
+    /// render settings, no atmosphere; `label` names it in errors and reports.
+    pub fn in_memory(
+        label: &str,
+        volume: Volume,
+        medium: Medium,
+        sun: Option<Sun>,
+        sky: Option<Sky>,
+        camera: Camera,
+    ) -> Self {
+        Self {
+            source: label.into(),
+            volume: Arc::new(volume),
+            volume_source: VolumeSource::Memory,
+            medium,
+            phase_desc: String::new(),
+            sun,
+            sky,
+            camera,
+            render: RenderSettings::default(),
+            atmosphere: None,
+        }
+    }
+
     /// Points the sun towards `dir` (normalised); with an atmosphere the sun and constant-sky
     /// colours follow the new elevation (crate::atmosphere).
     pub fn set_sun_dir(&mut self, dir: DVec3) {
