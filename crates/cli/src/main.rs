@@ -167,7 +167,7 @@ enum Command {
     Stress(StressArgs),
     /// Print statistics of a volume file; `--gpu`: the GPU adapters wgpu sees.
     Info {
-        /// A volume file (.vol, .npy, .vdb).
+        /// A volume file (.vol, .npy, .vdb, .nvdb).
         #[arg(required_unless_present = "gpu")]
         file: Option<PathBuf>,
         /// List the GPU adapters wgpu sees, best first (the first is the one Nimbus opens).
@@ -181,7 +181,7 @@ enum Command {
         aabb_min: Option<Vec<f64>>,
         #[arg(long, value_delimiter = ',')]
         aabb_max: Option<Vec<f64>>,
-        /// The float grid of a .vdb file to read (default: `density`).
+        /// The float grid of a .vdb or .nvdb file to read (default: `density`).
         #[arg(long)]
         grid: Option<String>,
     },

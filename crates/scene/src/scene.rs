@@ -3,8 +3,8 @@
 //!
 //! ```toml
 //! [volume]
-//! file = "cloud.vol"            # .vol, .npy or .vdb — or instead:
-//! # grid = "density"             # .vdb only: the float grid to read (default `density`)
+//! file = "cloud.vol"            # .vol, .npy, .vdb or .nvdb — or instead:
+//! # grid = "density"             # .vdb/.nvdb only: the float grid to read (default `density`)
 //! # generator = { kind = "cumulus", seed = 7, resolution = [128, 96, 128] }
 //! aabb_min = [-1.0, -0.75, -1.0] # world box the grid fills (default: the file header's box,
 //! aabb_max = [1.0, 0.75, 1.0]    #  or for generated clouds 2 units wide, centred, cubic voxels)
@@ -398,7 +398,7 @@ impl Scene {
                     return Err(Error::invalid(
                         label,
                         "volume.grid",
-                        "names a grid of a .vdb `file`; a generator makes its own",
+                        "names a grid of a .vdb or .nvdb `file`; a generator makes its own",
                     ));
                 }
                 let kind: CloudKind = g

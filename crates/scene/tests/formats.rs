@@ -310,5 +310,8 @@ fn vdb_grids_are_chosen_by_name() {
     let e = io::read_grid_named(&vol, Some("smoke"))
         .unwrap_err()
         .to_string();
-    assert!(e.contains("only .vdb files hold named grids"), "{e}");
+    assert!(
+        e.contains("only .vdb and .nvdb files hold named grids"),
+        "{e}"
+    );
 }

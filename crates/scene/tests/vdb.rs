@@ -171,3 +171,88 @@ fn crafted_lengths_are_refused_by_offset() {
     }
     assert!(refused > 1000 && named > 0, "{refused} {named}");
 }
+
+#[test]
+fn nanovdb_grids_read_the_writers_values() {
+    let (want, res) = dense();
+    let range = 1.04f32 - 0.25;
+    for (file, bits) in [
+        ("cloud.nvdb", 32),
+        ("cloud_none.nvdb", 32),
+        ("cloud_blosc.nvdb", 32),
+        ("cloud_fp16.nvdb", 16),
+        ("cloud_fp8.nvdb", 8),
+        ("cloud_fp4.nvdb", 4),
+    ] {
+        let f = io::read_grid(data(file)).unwrap_or_else(|e| panic!("{file}: {e}"));
+        assert_eq!(f.grid.res(), res, "{file}");
+        // Float grids are exact. Quantised leaves store codes with a step
+        // q = (max − min) / (2^bits − 1) per leaf, bounded by the whole grid's active range
+        // (0.25 … 1.04). Rounding to the nearest code would give |error| ≤ q / 2; the writer's
+        // Fp4 reaches 0.502 q, so the bound is one step (a misread code is off by ≥ q
+        // and the wrong bit layout by far more).
+        let tol = if bits == 32 {
+            0.0
+        } else {
+            range / ((1u32 << bits) - 1) as f32
+        };
+        let mut worst = 0.0f32;
+        for (i, (g, w)) in values(&f).iter().zip(&want).enumerate() {
+            if *w == 0.0 {
+                assert_eq!(*g, 0.0, "{file}: inactive value {i}");
+            }
+            worst = worst.max((g - w).abs());
+        }
+        assert!(worst <= tol, "{file}: worst error {worst} > {tol}");
+        let (lo, hi) = f.bounds.unwrap();
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        assert!(
+            close(lo.x, 35.5 * 0.02) && close(hi.z, 71.5 * 0.02),
+            "{file}"
+        );
+    }
+    // The same grid through OpenVDB and NanoVDB: identical.
+    let a = io::read_grid(data("cloud_blosc.vdb")).unwrap();
+    let b = io::read_grid(data("cloud.nvdb")).unwrap();
+    assert_eq!((a.grid, a.bounds), (b.grid, b.bounds));
+}
+
+#[test]
+fn nanovdb_damage_fails_cleanly() {
+    nimbus_scene::memory::set_budget(64 << 20);
+    let p = Path::new("m.nvdb");
+    for file in [
+        "cloud.nvdb",
+        "cloud_blosc.nvdb",
+        "cloud_none.nvdb",
+        "cloud_fp4.nvdb",
+    ] {
+        let bytes = std::fs::read(data(file)).unwrap();
+        for cut in (0..bytes.len()).filter(|c| *c < 400 || c % 211 == 0) {
+            let e = io::nvdb::parse(&bytes[..cut], p).expect_err("a prefix must fail");
+            assert!(e.to_string().contains("m.nvdb"), "{file} cut {cut}: {e}");
+        }
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 33) as usize
+        };
+        for _ in 0..1000 {
+            let mut m = bytes.clone();
+            for _ in 0..1 + next() % 4 {
+                let i = next() % m.len();
+                m[i] = next() as u8;
+            }
+            let _ = io::nvdb::parse(&m, p);
+        }
+    }
+    // A child offset pointing back at its parent (a cycle) is refused, not walked forever.
+    let mut b = std::fs::read(data("cloud_none.nvdb")).unwrap();
+    let grid = 16 + 176 + 8;
+    let root = grid + 672 + 64;
+    b[root + 64 + 8..root + 64 + 16].copy_from_slice(&(-(root as i64 - grid as i64)).to_le_bytes());
+    let e = io::nvdb::parse(&b, p).unwrap_err().to_string();
+    assert!(e.contains("grid.tree") && e.contains("does not fit"), "{e}");
+}

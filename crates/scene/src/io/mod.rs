@@ -4,12 +4,14 @@
 //! |---|---|---|---|
 //! | Mitsuba `.vol` | yes | yes | version 3, encoding 1 (float32), 1 channel |
 //! | NumPy `.npy` | yes | yes | float32 or float64 (converted), shape `[z][y][x]`, C order |
-//! | OpenVDB `.vdb` | yes | no | the float grid named `density` (or the only float grid); see [`vdb`] |
+//! | OpenVDB `.vdb` | yes | no | the float grid named `density` unless another is named; see [`vdb`] |
+//! | NanoVDB `.nvdb` | yes | no | the float (or Fp4/8/16) grid named `density` unless another is named; see [`nvdb`] |
 //!
 //! Every reader checks sizes against the file length before allocating, and rejects NaN, infinite
 //! or negative voxels with an error naming the file and the voxel.
 
 pub mod npy;
+pub mod nvdb;
 pub mod vdb;
 pub mod vol;
 
@@ -34,7 +36,7 @@ pub fn read_grid(path: impl AsRef<Path>) -> Result<GridFile> {
     read_grid_named(path, None)
 }
 
-/// Like [`read_grid`]; `grid` names the grid of a `.vdb` file (default `density`). Other formats
+/// Like [`read_grid`]; `grid` names the grid of a `.vdb` or `.nvdb` file (default `density`). Other formats
 /// hold one unnamed grid: naming one is an error.
 pub fn read_grid_named(path: impl AsRef<Path>, grid: Option<&str>) -> Result<GridFile> {
     let path = path.as_ref();
@@ -42,20 +44,21 @@ pub fn read_grid_named(path: impl AsRef<Path>, grid: Option<&str>) -> Result<Gri
         .extension()
         .and_then(|e| e.to_str())
         .map(|e| e.to_ascii_lowercase());
-    if grid.is_some() && ext.as_deref() != Some("vdb") {
+    if grid.is_some() && !matches!(ext.as_deref(), Some("vdb" | "nvdb")) {
         return Err(Error::invalid(
             path,
             "grid",
-            "only .vdb files hold named grids",
+            "only .vdb and .nvdb files hold named grids",
         ));
     }
     match ext.as_deref() {
         Some("vol") => vol::read(path),
         Some("npy") => npy::read(path).map(|grid| GridFile { grid, bounds: None }),
         Some("vdb") => vdb::read_named(path, grid.unwrap_or(vdb::GRID_NAME)),
+        Some("nvdb") => nvdb::read_named(path, grid.unwrap_or(nvdb::GRID_NAME)),
         _ => Err(Error::parse(
             path,
-            "unknown volume format: expected a .vol, .npy or .vdb file",
+            "unknown volume format: expected a .vol, .npy, .vdb or .nvdb file",
         )),
     }
 }

@@ -7,8 +7,10 @@
 #   cloud_{none,active,blosc}.vdb       full floats: no compression, active mask, Blosc + mask
 #   cloud_zip.vdb / cloud_zip_full.vdb  full floats: zlib + active mask / zlib alone (tinyvdb)
 #   cloud_half.vdb                      half floats (saveFloatAsHalf), Blosc
-#   cloud.nvdb / cloud_none.nvdb        NanoVDB float grid, zlib / uncompressed
-#   cloud_half.nvdb                     NanoVDB Fp16 grid, zlib
+#   cloud.nvdb / cloud_none.nvdb        NanoVDB Float grid, zlib / uncompressed
+#   cloud_blosc.nvdb                    NanoVDB Float grid, Blosc
+#   cloud_fp{16,8,4}.nvdb               NanoVDB quantised grids (16/8/4-bit codes per leaf),
+#                                       zlib / Blosc / zlib
 #   cloud_dense.npy                     the writer's own dense array over the active bounding box
 # The grid: a soft sphere of 4 207 active voxels around index (45, 53, 50) plus an active 8³
 # block at (64..71)³ that OpenVDB stores as a tile; voxel size 0.02.
@@ -61,7 +63,10 @@ PY
 vdb_tool -read "$tmp/base.vdb" -write codec=blosc bits=16 cloud_half.vdb >/dev/null
 vdb_tool -read "$tmp/base.vdb" -write codec=zip bits=32 cloud.nvdb >/dev/null
 vdb_tool -read "$tmp/base.vdb" -write codec=none bits=32 cloud_none.nvdb >/dev/null
-vdb_tool -read "$tmp/base.vdb" -write codec=zip bits=16 cloud_half.nvdb >/dev/null
+vdb_tool -read "$tmp/base.vdb" -write codec=blosc bits=32 cloud_blosc.nvdb >/dev/null
+vdb_tool -read "$tmp/base.vdb" -write codec=zip bits=16 cloud_fp16.nvdb >/dev/null
+vdb_tool -read "$tmp/base.vdb" -write codec=blosc bits=8 cloud_fp8.nvdb >/dev/null
+vdb_tool -read "$tmp/base.vdb" -write codec=zip bits=4 cloud_fp4.nvdb >/dev/null
 OPENVDB_DISABLE_DELAYED_LOAD=1 /usr/bin/python3 - "$tmp/base.vdb" cloud_*.vdb <<'PY'
 import sys
 import numpy as np

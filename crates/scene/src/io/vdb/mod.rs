@@ -22,7 +22,8 @@
 //! rotated transforms, multi-buffer trees, file versions before 222 (OpenVDB 2).
 
 mod archive;
-mod bytes;
+pub(crate) mod bytes;
+pub(crate) mod codec;
 mod tree;
 
 use std::path::Path;
