@@ -26,6 +26,9 @@ pub enum PmError {
     Unsupported(String),
     #[error("setting `{field}`: {msg}")]
     Setting { field: &'static str, msg: String },
+    /// The buffers would exceed the memory budget (`--max-memory`).
+    #[error("field `{}`: {}", .0.field, .0.msg)]
+    Memory(nimbus_scene::FieldError),
     /// A cache cell's u32 sum would have wrapped: the image would be silently wrong.
     #[error(
         "the photon cache overflowed: a cell of the {cells} received more than 2^32 fixed-point units ({units:.2e} beam weights) in the ring of {ring} frames × {beams} beams; use fewer beams (--beams), a smaller ring (--ring), a finer cache (--cache-res) or a lower density_scale"
@@ -254,6 +257,7 @@ impl<'g> PhotonMapper<'g> {
             "the image",
             scene.camera.width as u64 * scene.camera.height as u64 * 16,
         )?;
+        check_host_memory(gpu, &settings, &params, voxels, cells, &scene.camera)?;
         let params_buf = gpu.uniform("pm params", &params);
         let density = gpu.storage("density D", vol.grid().data());
         let cell_bytes = cells as u64 * CELL_BYTES as u64;
@@ -752,4 +756,55 @@ impl<'g> PhotonMapper<'g> {
         self.upsample();
         self.raymarch(camera)
     }
+}
+
+/// All of the photon map's buffers, in bytes: density, J and its flux directions, the
+/// sun-transmittance volume, the ring of partial caches with H_new and I, the per-cell
+/// read-outs and the image.
+pub fn buffer_bytes(
+    settings: &PmSettings,
+    params: &PmParams,
+    voxels: u32,
+    cells: u32,
+    camera: &Camera,
+) -> u64 {
+    let v = voxels as u64;
+    let per_voxel = 4
+        + 16
+        + if settings.variant == PmVariant::Exact {
+            4
+        } else {
+            0
+        }
+        + if params.lobe_axis != 0 { 16 } else { 0 }
+        + if params.lobe_split != 0 { 16 } else { 0 };
+    v * per_voxel
+        + cells as u64 * (CELL_BYTES as u64 * (settings.ring as u64 + 2) + 64)
+        + camera.width as u64 * camera.height as u64 * 16
+}
+
+/// On a software adapter (lavapipe) GPU buffers live in host memory: their total is checked
+/// against the memory budget like any other allocation sized by input, so a huge cache or ring
+/// is an error naming the settings instead of an allocation failure that aborts.
+fn check_host_memory(
+    gpu: &Gpu,
+    settings: &PmSettings,
+    params: &PmParams,
+    voxels: u32,
+    cells: u32,
+    camera: &Camera,
+) -> Result<(), PmError> {
+    if !gpu.is_software() {
+        return Ok(());
+    }
+    let bytes = buffer_bytes(settings, params, voxels, cells, camera);
+    nimbus_scene::memory::check(
+        bytes as u128,
+        "ring",
+        &format!(
+            "the photon map's buffers on {} (host memory): density and cache at {voxels} voxels, a ring of {} × {cells} cells",
+            gpu.info.name, settings.ring
+        ),
+    )
+    .map_err(PmError::Memory)
 }

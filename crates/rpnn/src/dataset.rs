@@ -174,6 +174,50 @@ pub fn folder_set(dir: &Path, density_scale: f64) -> Result<Vec<CloudSpec>, Data
         .collect())
 }
 
+/// Bytes one record holds in memory: its descriptor, a copy in the shard's x matrix, and its
+/// label and metadata.
+const RECORD_BYTES: u128 = (2 * DESCRIPTOR_LEN * 4 + 256) as u128;
+
+/// Checks what one split holds at once against the memory budget before any of it is built:
+/// every cloud of the split (grid, pyramid ≤ 8/7 of it, majorants and the blur's transients:
+/// 2.5 × the grid; a file cloud is estimated from its size on disk) and one shard of records.
+/// Over the budget the error names the setting to change (`--shard-size`, the cloud set's
+/// resolutions or `--max-memory`).
+fn check_memory(
+    clouds: &[CloudSpec],
+    members: &[usize],
+    shard: usize,
+    split: &str,
+) -> Result<(), DatagenError> {
+    let cloud_bytes: u128 = members
+        .iter()
+        .map(|&i| match &clouds[i].source {
+            CloudSource::Generated { resolution, .. } => {
+                resolution.iter().map(|&r| r as u128).product::<u128>() * 4 * 5 / 2
+            }
+            CloudSource::File { path } => {
+                std::fs::metadata(path).map_or(0, |m| m.len() as u128) * 5 / 2
+            }
+        })
+        .sum();
+    let set = |e: nimbus_scene::error::FieldError| DatagenError::Set {
+        what: format!("{split} split"),
+        msg: format!("field `{}`: {}", e.field, e.msg),
+    };
+    nimbus_scene::memory::check(
+        cloud_bytes,
+        "clouds",
+        &format!("the {} {split} clouds held at once", members.len()),
+    )
+    .map_err(set)?;
+    nimbus_scene::memory::check(
+        cloud_bytes + shard as u128 * RECORD_BYTES,
+        "shard_size",
+        &format!("the {split} clouds and a shard of {shard} records (--shard-size)"),
+    )
+    .map_err(set)
+}
+
 /// Builds the volume of a cloud.
 pub fn build_volume(spec: &CloudSpec) -> Result<Volume, DatagenError> {
     let err = |msg: String| DatagenError::Cloud {
@@ -545,6 +589,7 @@ pub fn run(
         if owned.is_empty() {
             continue;
         }
+        check_memory(clouds, &members, opts.shard_size.min(count), split)?;
         // Build the clouds of this split (volume + pyramid), in parallel.
         let data: Vec<CloudData> = members
             .par_iter()
