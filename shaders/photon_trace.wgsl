@@ -83,13 +83,26 @@ fn trace_beam(index: u32) {
     var w = 1.0;
     var order = 0u;
     var steps = 0u;
+    var stalled = 0u;
     loop {
         steps++;
         if (steps > 1000000u) { break; }
         let exit = box_intersect(x, d);
         let t = -log(1.0 - rand(&rng)) / P.sigma_max;
         if (exit.x > exit.y || t >= exit.y) { break; }
-        x = x + d * t;
+        // A free flight below f32's resolution of x (σ̄ ≳ 1e7 / box size, e.g. density_scale
+        // 1e20) would leave the beam where it is for ever: the medium is opaque at this scale,
+        // so after 8 such flights in a row the beam ends here as absorbed (the walk always
+        // advances or ends). One tiny flight alone (u ≈ 0) happens at normal densities too,
+        // eight in a row do not (probability ≈ 1e-56).
+        let x_next = x + d * t;
+        if (all(x_next == x)) {
+            stalled++;
+            if (stalled >= 8u) { break; }
+        } else {
+            stalled = 0u;
+        }
+        x = x_next;
         let skip = is_sun && order == 0u && P.single_scatter != 0u;
         let cell = cell_of(x) * CELL_WORDS;
         // Density-weighted deposits (a collision estimator): weight σ(x)/σ̄, so a cell sums

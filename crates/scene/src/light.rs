@@ -46,7 +46,8 @@ impl Sun {
             return Err(FieldError::new(
                 "sun.irradiance",
                 format!(
-                    "must be at most {MAX_RADIANCE:e} (images are stored as f32), got {irradiance}"
+                    "must be at most {MAX_RADIANCE:e} (images are stored as f32), got [{:e}, {:e}, {:e}]",
+                    irradiance.x, irradiance.y, irradiance.z
                 ),
             ));
         }
@@ -63,7 +64,7 @@ impl Sun {
                 return Err(FieldError::new(
                     "sun.angular_radius_deg",
                     format!(
-                        "{angular_radius_deg} makes the disc's radiance irradiance / (π sin² r) = {l:e}, beyond {MAX_RADIANCE:e}; use 0 for a delta sun"
+                        "{angular_radius_deg:e} makes the disc's radiance irradiance / (π sin² r) = {l:e}, beyond {MAX_RADIANCE:e}; use 0 for a delta sun"
                     ),
                 ));
             }

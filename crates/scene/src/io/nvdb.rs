@@ -286,13 +286,17 @@ struct Walk<'a> {
 impl Walk<'_> {
     /// Checks that a node of `size` bytes at `base + offset` lies inside the buffer.
     fn node(&mut self, base: usize, offset: i64, size: usize, level: usize) -> PResult<usize> {
-        let what = ["leaf", "lower node", "upper node"][level];
+        let (what, plural) = [
+            ("a leaf", "leaves"),
+            ("a lower node", "lower nodes"),
+            ("an upper node", "upper nodes"),
+        ][level];
         let at = base as i128 + offset as i128;
         if offset <= 0 || at + size as i128 > self.b.len() as i128 {
             return Err(Fail::new(
                 "grid.tree",
                 format!(
-                    "a {what} at offset {offset} from byte {base} does not fit in the {}-byte grid",
+                    "{what} at offset {offset} from byte {base} does not fit in the {}-byte grid",
                     self.b.len()
                 ),
             ));
@@ -301,7 +305,7 @@ impl Walk<'_> {
             return Err(Fail::new(
                 "grid.tree",
                 format!(
-                    "more {what}s are reachable than the tree declares (shared or cyclic child offsets)"
+                    "more {plural} are reachable than the tree declares (shared or cyclic child offsets)"
                 ),
             ));
         }
