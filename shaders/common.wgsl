@@ -20,7 +20,7 @@ struct Params {
     width: u32, height: u32, beam_threshold: f32, reduced_factor: f32,
     sun_norm: f32, sky_norm: f32, noise_amplitude: f32, noise_frequency: f32,
     single_scatter: u32, density_weighted: u32, lobe_axis: u32, lobe_split: u32,
-    upsample_mean: u32, upsample_g_extrapolate: u32, pad_b: u32, pad_c: u32,
+    upsample_mean: u32, upsample_g_extrapolate: u32, sun_first: u32, sun_count: u32,
 };
 
 const PI: f32 = 3.14159265358979;

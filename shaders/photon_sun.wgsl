@@ -3,7 +3,8 @@
 // a step of half the smallest voxel. The ray marcher adds σ_s(x) E_sun T_sun(x) p(ω·ω_sun | g)
 // at every step, so first-order sun light — the silver lining — comes from the density itself,
 // not from the coarse photon cache, which then holds only light scattered at least once (an
-// exact split by scattering order). Rebuilt only when the sun or the density changes.
+// exact split by scattering order). Rebuilt only when the sun or the density changes, at
+// once or amortised over frames in slices.
 // Mirrors `reference::sun_transmittance_voxel`.
 
 @group(0) @binding(2) var<storage, read_write> t_sun: array<f32>;
@@ -12,8 +13,11 @@
 fn sun_transmittance(@builtin(global_invocation_id) gid: vec3<u32>,
                      @builtin(num_workgroups) nwg: vec3<u32>) {
     let r = P.d_res;
-    let idx = gid.x + gid.y * nwg.x * 64u;
-    if (idx >= r.x * r.y * r.z) { return; }
+    // Voxels sun_first .. sun_first + sun_count (all of them, or one slice of an amortised
+    // rebuild: `mapper/sun.rs`).
+    let local = gid.x + gid.y * nwg.x * 64u;
+    let idx = P.sun_first + local;
+    if (local >= P.sun_count || idx >= r.x * r.y * r.z) { return; }
     let v = vec3<u32>(idx % r.x, (idx / r.x) % r.y, idx / (r.x * r.y));
     let ext = P.aabb_max - P.aabb_min;
     let x = P.aabb_min + (vec3<f32>(v) + vec3<f32>(0.5)) / vec3<f32>(r) * ext;

@@ -151,7 +151,11 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
         None => Script::default(),
     };
     let opts = ViewerOptions {
-        pm: pm_args.settings(s.render.seed as u32)?,
+        // The sun-transmittance rebuild is amortised over frames (chosen from the volume).
+        pm: nimbus_photon::PmSettings {
+            sun_chunks: 0,
+            ..pm_args.settings(s.render.seed as u32)?
+        },
         half_res: pm_args.half_res,
         impostors: (!no_impostors).then(Default::default),
         density,

@@ -77,8 +77,10 @@ pub struct PmParams {
     /// weight, Elek §4.3's formula), 1 = extrapolated, Σ g'(q) g^δ w_L / Σ w_L (the prose:
     /// anisotropy decays as g per scattering order).
     pub upsample_g_extrapolate: u32,
-    pub pad_b: u32,
-    pub pad_c: u32,
+    /// Sun-transmittance pass: the voxels it marches, `sun_first .. sun_first + sun_count`
+    /// (all of them, or one slice of an amortised rebuild).
+    pub sun_first: u32,
+    pub sun_count: u32,
 }
 
 #[cfg(test)]
@@ -140,8 +142,8 @@ mod tests {
                 "upsample_g_extrapolate",
                 offset_of!(PmParams, upsample_g_extrapolate),
             ),
-            ("pad_b", offset_of!(PmParams, pad_b)),
-            ("pad_c", offset_of!(PmParams, pad_c)),
+            ("sun_first", offset_of!(PmParams, sun_first)),
+            ("sun_count", offset_of!(PmParams, sun_count)),
         ];
         assert_eq!(members.len(), rust.len());
         for ((m, moff), (name, off)) in members.iter().zip(rust) {

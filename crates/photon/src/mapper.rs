@@ -12,6 +12,7 @@ use nimbus_scene::{Camera, Image, Phase, Scene, Sky};
 use nimbus_gpu::params::PmParams;
 
 mod readback;
+mod sun;
 
 pub use crate::cache_layout::{
     CELL_BYTES, CELL_WORDS, SHARED_CELLS, W_SCALE, shared_cells, trace_source,
@@ -83,8 +84,8 @@ pub struct PhotonMapper<'g> {
     /// Sun transmittance per density voxel (exact single scattering) and its pass.
     t_sun: wgpu::Buffer,
     sun_stage: Stage,
-    /// Whether T_sun must be rebuilt (sun direction or density changed).
-    t_sun_dirty: bool,
+    /// The amortised rebuild's state (see `mapper/sun.rs`).
+    sun: sun::SunRebuild,
     cell_dir: wgpu::Buffer,
     j_dir: wgpu::Buffer,
     j_hi: wgpu::Buffer,
@@ -244,8 +245,8 @@ impl<'g> PhotonMapper<'g> {
             },
             upsample_mean: settings.upsample_mean as u32,
             upsample_g_extrapolate: settings.upsample_g_extrapolate as u32,
-            pad_b: 0,
-            pad_c: 0,
+            sun_first: 0,
+            sun_count: 0,
         };
         gpu.check_storage("the density grid", voxels as u64 * 4)?;
         gpu.check_storage("the upsampled cache J", voxels as u64 * 16)?;
@@ -281,6 +282,7 @@ impl<'g> PhotonMapper<'g> {
             &shaders::source("photon_sun.wgsl"),
             "sun_transmittance",
         );
+        let sun = sun::SunRebuild::new(gpu, &settings, &sun_p, &params_buf, &density, voxels);
         let sun_stage = Stage {
             bind: gpu.bind(&sun_p, &[(0, &params_buf), (1, &density), (2, &t_sun)]),
             pipeline: sun_p,
@@ -408,40 +410,13 @@ impl<'g> PhotonMapper<'g> {
             image_buf: None,
             t_sun,
             sun_stage,
-            t_sun_dirty: true,
+            sun,
             cell_dir,
             j_dir,
             j_hi,
             overflow,
             settings,
         })
-    }
-
-    /// Rebuilds the sun-transmittance volume when the sun or the density changed (exact
-    /// variant only; a no-op otherwise).
-    fn update_sun_transmittance(&mut self) {
-        if self.params.single_scatter == 0 || !self.t_sun_dirty {
-            return;
-        }
-        self.gpu
-            .queue
-            .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
-        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-        {
-            let (x, y) = Gpu::workgroups_1d(self.voxels);
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("sun transmittance"),
-                timestamp_writes: self.timer.pass("sun transmittance"),
-            });
-            pass.set_pipeline(&self.sun_stage.pipeline);
-            pass.set_bind_group(0, &self.sun_stage.bind, &[]);
-            pass.dispatch_workgroups(x, y, 1);
-        }
-        self.timer.resolve(&mut enc);
-        self.gpu.queue.submit([enc.finish()]);
-        let t = self.timer.read(self.gpu);
-        self.last_times.extend(t);
-        self.t_sun_dirty = false;
     }
 
     /// Empties the ring and the total cache.
@@ -495,7 +470,7 @@ impl<'g> PhotonMapper<'g> {
         self.gpu
             .queue
             .write_buffer(&self.density, 0, bytemuck::cast_slice(data));
-        self.t_sun_dirty = true;
+        self.sun.dirty = true;
         Ok(())
     }
 
@@ -537,7 +512,7 @@ impl<'g> PhotonMapper<'g> {
     pub fn set_sun_dir(&mut self, dir: DVec3) {
         let d = f3(dir.normalize());
         if d != self.params.sun_dir {
-            self.t_sun_dirty = true;
+            self.sun.dirty = true;
         }
         self.params.sun_dir = d;
     }

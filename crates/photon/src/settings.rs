@@ -109,6 +109,9 @@ pub struct PmSettings {
     /// Accumulate beams with global atomics even when the cache fits workgroup memory (the
     /// result is identical; for testing and measuring both paths).
     pub force_global_atomics: bool,
+    /// Frames over which a sun-transmittance rebuild is spread (1 = at once, the default;
+    /// the viewer amortises large volumes: `mapper/sun.rs`).
+    pub sun_chunks: u32,
 }
 
 impl Default for PmSettings {
@@ -132,6 +135,7 @@ impl Default for PmSettings {
             seed: 0,
             detail_noise: 0.0,
             force_global_atomics: false,
+            sun_chunks: 1,
         }
     }
 }

@@ -295,3 +295,46 @@ fn moving_sun_lags_little_behind_the_converged_solution() {
         "mean difference {mean} vs noise floor {noise}"
     );
 }
+
+/// The amortised sun-transmittance rebuild (viewer): after a sun change the ray marcher keeps
+/// the previous volume for `sun_chunks − 1` frames, then has exactly the volume an at-once
+/// rebuild gives (same midpoint sums, slice by slice). Without a change nothing is rebuilt.
+#[test]
+fn amortised_sun_transmittance_matches_the_rebuild_at_once() {
+    let gpu = Gpu::new().unwrap();
+    let a = DVec3::new(0.3, 0.8, 0.5).normalize();
+    let b = DVec3::new(-0.6, 0.5, 0.2).normalize();
+    let s = scene(a);
+    let settings = |chunks| PmSettings {
+        beams_per_frame: 256,
+        ring: 2,
+        sun_chunks: chunks,
+        ..Default::default()
+    };
+    let mut at_once = PhotonMapper::new(&gpu, &s, settings(1)).unwrap();
+    let before = at_once.read_sun_transmittance().unwrap();
+    at_once.set_sun_dir(b);
+    let after = at_once.read_sun_transmittance().unwrap();
+    let differ = before.iter().zip(&after).filter(|(x, y)| x != y).count();
+    assert!(
+        differ > before.len() / 4,
+        "the sun change must matter: {differ}"
+    );
+
+    let chunks = 5;
+    let mut pm = PhotonMapper::new(&gpu, &s, settings(chunks)).unwrap();
+    // The first build is at once.
+    assert_eq!(pm.read_sun_transmittance().unwrap(), before);
+    assert!(!pm.sun_rebuild_pending());
+    pm.set_sun_dir(b);
+    for k in 1..chunks {
+        // Each read advances the rebuild by one slice, as one frame does.
+        assert_eq!(pm.read_sun_transmittance().unwrap(), before, "slice {k}");
+        assert!(pm.sun_rebuild_pending());
+    }
+    // Bit-identical: each voxel's march is the same arithmetic in any slice.
+    assert_eq!(pm.read_sun_transmittance().unwrap(), after);
+    assert!(!pm.sun_rebuild_pending());
+    assert_eq!(pm.read_sun_transmittance().unwrap(), after);
+    assert!(!pm.sun_rebuild_pending());
+}

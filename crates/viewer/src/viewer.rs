@@ -68,10 +68,20 @@ pub struct ViewerOptions {
     pub rpnn_model: PathBuf,
 }
 
+/// Slices of an amortised sun-transmittance rebuild in the viewer: at most 2^20 voxel marches
+/// per frame, at most 32 frames of lag.
+pub fn sun_chunks(res: [usize; 3]) -> u32 {
+    (res.iter().product::<usize>().div_ceil(1 << 20)).clamp(1, 32) as u32
+}
+
 impl Default for ViewerOptions {
     fn default() -> Self {
         Self {
-            pm: PmSettings::default(),
+            // sun_chunks 0: chosen from the volume by `sun_chunks`.
+            pm: PmSettings {
+                sun_chunks: 0,
+                ..Default::default()
+            },
             half_res: false,
             impostors: Some(ImpostorCriteria::default()),
             density: DensitySequence::Static,
@@ -196,7 +206,11 @@ impl<'g> Viewer<'g> {
         source: Option<SceneSource>,
         opts: ViewerOptions,
     ) -> Result<Self, ViewerError> {
-        let mut pm = PhotonMapper::new(gpu, &scene, opts.pm.clone())?;
+        let mut pm_settings = opts.pm.clone();
+        if pm_settings.sun_chunks == 0 {
+            pm_settings.sun_chunks = sun_chunks(scene.volume.grid().res());
+        }
+        let mut pm = PhotonMapper::new(gpu, &scene, pm_settings)?;
         let seq_max = opts.density.max_value(scene.volume.grid().res())?;
         if seq_max > 0.0 {
             pm.set_majorant_value(seq_max);
