@@ -7,10 +7,14 @@ nimbus=target/release/nimbus
 for t in vol npy vdb nvdb scene onnx; do mkdir -p fuzz/corpus/$t; done
 "$nimbus" generate cumulus --res 8,6,8 --out fuzz/corpus/vol/cumulus.vol >/dev/null
 "$nimbus" generate stratus --res 6,4,6 --out fuzz/corpus/npy/stratus.npy >/dev/null
-cp crates/scene/tests/data/*.vdb fuzz/corpus/vdb/
+# OpenVDB: every codec and the bad-input regressions; not the 214 kB uncompressed copy or the
+# 8 GiB-when-dense far_tiles.vdb (inputs are capped at 32 kB and 16 MiB of dense grid).
+for f in crates/scene/tests/data/*.vdb crates/cli/tests/bad-inputs/files/*.vdb; do
+  case "$(basename "$f")" in cloud_none.vdb|far_tiles.vdb) ;; *) cp "$f" fuzz/corpus/vdb/ ;; esac
+done
 # the uncompressed NanoVDB file is large; the compressed ones exercise the decoders too
 cp crates/scene/tests/data/cloud.nvdb crates/scene/tests/data/cloud_blosc.nvdb \
-  crates/scene/tests/data/cloud_fp*.nvdb fuzz/corpus/nvdb/
+  crates/scene/tests/data/cloud_fp*.nvdb crates/cli/tests/bad-inputs/files/*.nvdb fuzz/corpus/nvdb/
 cp scenes/*.toml scenes/bench/*.toml fuzz/corpus/scene/
 cp crates/rpnn/tests/data/*.onnx fuzz/corpus/onnx/
 echo "seeded fuzz/corpus/{vol,npy,vdb,nvdb,scene,onnx}"
