@@ -40,6 +40,25 @@ fn values(f: &io::GridFile) -> Vec<f32> {
     v
 }
 
+/// `n` copies of `bytes` with one to four bytes changed each, from a fixed-seed LCG.
+fn mutants(bytes: &[u8], seed: u64, n: usize) -> impl Iterator<Item = Vec<u8>> + '_ {
+    let mut state = seed;
+    let mut next = move || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 33) as usize
+    };
+    (0..n).map(move |_| {
+        let mut m = bytes.to_vec();
+        for _ in 0..1 + next() % 4 {
+            let i = next() % m.len();
+            m[i] = next() as u8;
+        }
+        m
+    })
+}
+
 #[test]
 fn every_codec_reads_the_writers_values() {
     let (want, res) = dense();
@@ -128,20 +147,8 @@ fn truncated_and_mutated_files_fail_cleanly() {
                 "{file} cut {cut}: {e}"
             );
         }
-        // Deterministic mutations (fixed LCG): one to four bytes changed per case.
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 33) as usize
-        };
-        for _ in 0..1500 {
-            let mut m = bytes.clone();
-            for _ in 0..1 + next() % 4 {
-                let i = next() % m.len();
-                m[i] = next() as u8;
-            }
+        // Deterministic mutations: one to four bytes changed per case.
+        for m in mutants(&bytes, 0x2545_f491_4f6c_dd1du64, 1500) {
             let _ = io::vdb::parse(&m, p);
         }
     }
@@ -232,19 +239,7 @@ fn nanovdb_damage_fails_cleanly() {
             let e = io::nvdb::parse(&bytes[..cut], p).expect_err("a prefix must fail");
             assert!(e.to_string().contains("m.nvdb"), "{file} cut {cut}: {e}");
         }
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 33) as usize
-        };
-        for _ in 0..1000 {
-            let mut m = bytes.clone();
-            for _ in 0..1 + next() % 4 {
-                let i = next() % m.len();
-                m[i] = next() as u8;
-            }
+        for m in mutants(&bytes, 0x9e37_79b9_7f4a_7c15u64, 1000) {
             let _ = io::nvdb::parse(&m, p);
         }
     }

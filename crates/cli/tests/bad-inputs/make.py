@@ -20,27 +20,6 @@ def write(name, data):
     print(f"{name}: {len(data)} bytes")
 
 
-def vdb_grid_start(b):
-    """Byte offset just after the first grid's transform, walking the OpenVDB header."""
-    p = 8 + 4 + 8 + 1 + 36
-    (n,) = struct.unpack_from("<I", b, p)
-    p += 4
-    for _ in range(n):  # file metadata: name, type, sized value
-        for _ in range(3):
-            (k,) = struct.unpack_from("<I", b, p)
-            p += 4 + k
-    p += 4  # grid count
-
-    def string():
-        nonlocal p
-        (k,) = struct.unpack_from("<I", b, p)
-        p += 4 + k
-
-    string(), string(), string()
-    (grid_pos,) = struct.unpack_from("<q", b, p)
-    return grid_pos
-
-
 # 1. A compressed-block length of 2^40 in a Blosc leaf buffer (once an allocator abort).
 b = bytearray((DATA / "cloud_blosc.vdb").read_bytes())
 # The last leaf buffer: its value mask (64 bytes), metadata byte, then the i64 block length.

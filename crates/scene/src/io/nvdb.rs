@@ -31,9 +31,8 @@ use glam::DVec3;
 
 use super::GridFile;
 use super::vdb::bytes::{Cursor, Fail, PResult, bit, count_on};
-use super::vdb::{Leaf, SparseGrid, Tile, Tree, densify};
+use super::vdb::{Leaf, SparseGrid, Tile, Tree};
 use crate::error::{Error, Result};
-use crate::grid::DensityGrid;
 
 /// The grid name looked up unless another is named.
 pub const GRID_NAME: &str = "density";
@@ -83,14 +82,7 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<GridFile> {
 
 /// Parses `.nvdb` bytes, the grid called `name`.
 pub fn parse_named(bytes: &[u8], path: &Path, name: &str) -> Result<GridFile> {
-    let fail = |e: Fail| Error::invalid(path, e.field, e.msg);
-    let sparse = read_sparse(bytes, name).map_err(fail)?;
-    let (res, data, bounds) = densify(&sparse, name).map_err(fail)?;
-    let grid = DensityGrid::new(res, data).map_err(|e| e.at(path))?;
-    Ok(GridFile {
-        grid,
-        bounds: Some(bounds),
-    })
+    super::vdb::grid_file(read_sparse(bytes, name), name, path)
 }
 
 pub fn read(path: &Path) -> Result<GridFile> {

@@ -55,9 +55,14 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<GridFile> {
 
 /// Parses `.vdb` bytes, the float grid called `name`; `path` only labels errors.
 pub fn parse_named(bytes: &[u8], path: &Path, name: &str) -> Result<GridFile> {
+    grid_file(read_sparse(bytes, name), name, path)
+}
+
+/// A sparse grid read from `path` (or the error reading it), densified into a [`GridFile`];
+/// shared by the OpenVDB and NanoVDB readers.
+pub(crate) fn grid_file(sparse: PResult<SparseGrid>, name: &str, path: &Path) -> Result<GridFile> {
     let fail = |e: Fail| Error::invalid(path, e.field, e.msg);
-    let sparse = read_sparse(bytes, name).map_err(fail)?;
-    let (res, data, bounds) = densify(&sparse, name).map_err(fail)?;
+    let (res, data, bounds) = densify(&sparse.map_err(fail)?, name).map_err(fail)?;
     let grid = DensityGrid::new(res, data).map_err(|e| e.at(path))?;
     Ok(GridFile {
         grid,
