@@ -37,19 +37,23 @@ fn root() -> PathBuf {
 fn memory_budget_refuses_instead_of_aborting() {
     let d = tmp().join("budget");
     std::fs::create_dir_all(&d).unwrap();
-    // 11 kB written by OpenVDB's own bindings (make_far_tiles.py): 1288³ voxels densified.
+    // 11 kB written by OpenVDB's own bindings (make_far_tiles.py): two tiles in a 1288³ box,
+    // kept sparse — a brick index of 161³ × 4 bytes = 15.9 MiB, checked before it is allocated.
     let vdb = root().join("crates/scene/tests/data/far_tiles.vdb");
-    let o = nimbus(&["info", vdb.to_str().unwrap(), "--max-memory", "2G"]);
+    let o = nimbus(&["info", vdb.to_str().unwrap(), "--max-memory", "8M"]);
     let t = text(&o);
     assert!(!o.status.success(), "{t}");
     assert!(
         t.contains("far_tiles.vdb")
             && t.contains("grid.bounds")
             && t.contains("1288×1288×1288")
-            && t.contains("8.0 GiB")
-            && t.contains("2.0 GiB"),
+            && t.contains("15.9 MiB")
+            && t.contains("8.0 MiB"),
         "{t}"
     );
+    // Within a budget of 64 MiB it reads: 16 MiB of index, not 8 GiB of dense grid.
+    let o = nimbus(&["info", vdb.to_str().unwrap(), "--max-memory", "64M"]);
+    assert!(o.status.success(), "{}", text(&o));
     let vol = d.join("big.vol");
     let o = Command::new(env!("CARGO_BIN_EXE_nimbus"))
         .env("NIMBUS_MAX_MEMORY", "4G")

@@ -124,9 +124,7 @@ pub fn cache_key(scene: &Scene, estimator: &str, settings: &ReferenceSettings) -
         scene.render.max_depth,
     );
     h.update(text.as_bytes());
-    for v in vol.grid().data() {
-        h.update(v.to_le_bytes());
-    }
+    vol.grid().hash_into(|b| h.update(b));
     h.finalize().iter().map(|b| format!("{b:02x}")).collect()
 }
 

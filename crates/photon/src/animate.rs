@@ -78,7 +78,7 @@ impl DensitySequence {
                 let p = &files[f as usize % files.len()];
                 let g = nimbus_scene::io::read_grid(p)
                     .map_err(|e| PmError::Unsupported(e.to_string()))?;
-                Ok(Some(g.grid.data().to_vec()))
+                Ok(Some(g.grid.dense().map_err(PmError::Memory)?.into_owned()))
             }
             DensitySequence::Morph {
                 a,
@@ -88,10 +88,13 @@ impl DensitySequence {
                 let phase = (f % (2 * period_frames)) as f32 / *period_frames as f32;
                 let t = if phase <= 1.0 { phase } else { 2.0 - phase };
                 let t = t * t * (3.0 - 2.0 * t);
+                let (a, b) = (
+                    a.dense().map_err(PmError::Memory)?,
+                    b.dense().map_err(PmError::Memory)?,
+                );
                 Ok(Some(
-                    a.data()
-                        .iter()
-                        .zip(b.data())
+                    a.iter()
+                        .zip(b.iter())
                         .map(|(x, y)| x + (y - x) * t)
                         .collect(),
                 ))

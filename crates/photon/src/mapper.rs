@@ -260,7 +260,8 @@ impl<'g> PhotonMapper<'g> {
         )?;
         check_host_memory(gpu, &settings, &params, voxels, cells, &scene.camera)?;
         let params_buf = gpu.uniform("pm params", &params);
-        let density = gpu.storage("density D", vol.grid().data());
+        // The kernels read the box densely: a sparse grid is copied here (memory budget).
+        let density = gpu.storage("density D", &vol.grid().dense().map_err(PmError::Memory)?);
         let cell_bytes = cells as u64 * CELL_BYTES as u64;
         let h_new = gpu.zeroed("H_new", cell_bytes);
         let ring = gpu.zeroed("ring H_0..H_m-1", settings.ring as u64 * cell_bytes);

@@ -236,10 +236,14 @@ pub fn build_volume(spec: &CloudSpec) -> Result<Volume, DatagenError> {
             if kind == "mixture" {
                 let a = make(CloudKind::Cumulus, *seed)?;
                 let b = make(CloudKind::Stratus, *seed + 1000)?;
+                let (a, b) = (a.dense(), b.dense());
+                let (a, b) = (
+                    a.map_err(|e| err(e.to_string()))?,
+                    b.map_err(|e| err(e.to_string()))?,
+                );
                 let data = a
-                    .data()
                     .iter()
-                    .zip(b.data())
+                    .zip(b.iter())
                     .map(|(x, y)| x.max(0.6 * y))
                     .collect();
                 DensityGrid::new(*resolution, data).map_err(|e| err(e.to_string()))?

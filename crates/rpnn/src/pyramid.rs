@@ -158,12 +158,9 @@ impl Pyramid {
     }
 
     fn nonzero(volume: &Volume) -> (f64, usize) {
-        volume
-            .grid()
-            .data()
-            .iter()
-            .filter(|v| **v > 0.0)
-            .fold((0.0f64, 0usize), |a, v| (a.0 + *v as f64, a.1 + 1))
+        let s = volume.grid().stats();
+        let n = volume.grid().res().iter().product::<usize>() as f64;
+        (s.mean * n, (s.nonzero_fraction * n).round() as usize)
     }
 
     fn build(volume: &Volume, mean_sigma: f64) -> Result<Self, PyramidError> {
@@ -172,12 +169,12 @@ impl Pyramid {
         // Peak: the scaled copy and two blur passes (3 grids of f32), then the levels
         // (≈ 1.15 grids in all, held with one pass of the next level's blur).
         nimbus_scene::memory::check(
-            3 * g.data().len() as u128 * 4,
+            3 * (x * y * z) as u128 * 4,
             "volume",
             &format!("the RPNN density pyramid of a {x}×{y}×{z} grid"),
         )?;
         let scale = (volume.density_scale() / mean_sigma) as f32;
-        let raw: Vec<f32> = g.data().iter().map(|v| v * scale).collect();
+        let raw: Vec<f32> = g.dense()?.iter().map(|v| v * scale).collect();
         let first = blur(&raw, g.res(), 1.0);
         drop(raw);
         let mut levels = vec![Level {

@@ -89,7 +89,7 @@ fn invariant_under_joint_rotation() {
     let vol = cloud(res);
     let g = vol.grid();
     // (x, y, z) → (z, y, −x): new[x' = z][y][z' = n−1−x] = old[x][y][z].
-    let mut rot = vec![0.0f32; g.data().len()];
+    let mut rot = vec![0.0f32; g.as_dense().unwrap().len()];
     for z in 0..n {
         for y in 0..res[1] {
             for x in 0..n {
@@ -191,7 +191,14 @@ fn pyramid_conserves_mass() {
     )
     .unwrap();
     let pyr = Pyramid::new(&vol).unwrap();
-    let raw: f64 = vol.grid().data().iter().map(|v| *v as f64).sum::<f64>() / (n * n * n) as f64
+    let raw: f64 = vol
+        .grid()
+        .as_dense()
+        .unwrap()
+        .iter()
+        .map(|v| *v as f64)
+        .sum::<f64>()
+        / (n * n * n) as f64
         * vol.density_scale()
         / pyr.mean_sigma;
     // Levels 0–3 (σ ≤ 8 voxels; the blob and 3σ of filter fit in the 64³ box).

@@ -1,9 +1,17 @@
-//! Dense scalar density grids (one float per voxel, x fastest, then y, then z).
+//! Scalar density grids: dense (one float per voxel, x fastest, then y, then z) or sparse
+//! ([`crate::brick`]: 8³ bricks, absent where the cloud is not). Every estimator reads either
+//! through [`DensityGrid::get`]; one that needs the whole box in one array (the GPU uploads
+//! today) asks for [`DensityGrid::dense`], which a sparse grid answers with a copy checked
+//! against the memory budget.
 
+use std::borrow::Cow;
+
+use crate::brick::{Bricks, Content};
 use crate::error::FieldError;
 
-/// Largest number of voxels accepted (2^31): beyond this a grid is almost surely a corrupt header,
-/// and it would not fit a GPU storage binding either.
+/// Largest number of voxels of a dense grid (2^31): beyond this a grid is almost surely a
+/// corrupt header, and it would not fit a GPU storage binding either. Sparse grids
+/// ([`crate::brick`]) may span larger boxes.
 pub const MAX_VOXELS: usize = 1 << 31;
 
 /// A dense grid of non-negative, finite densities. Values sit at cell centres
@@ -11,7 +19,13 @@ pub const MAX_VOXELS: usize = 1 << 31;
 #[derive(Debug, Clone, PartialEq)]
 pub struct DensityGrid {
     res: [usize; 3],
-    data: Vec<f32>,
+    storage: Storage,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+enum Storage {
+    Dense(Vec<f32>),
+    Sparse(Box<Bricks>),
 }
 
 /// Summary statistics of a grid.
@@ -76,7 +90,18 @@ impl DensityGrid {
                 format!("density must be finite and non-negative, found {}", data[i]),
             ));
         }
-        Ok(Self { res, data })
+        Ok(Self {
+            res,
+            storage: Storage::Dense(data),
+        })
+    }
+
+    /// A sparse grid (validated when its builder finished).
+    pub fn from_bricks(bricks: Bricks) -> Self {
+        Self {
+            res: bricks.res(),
+            storage: Storage::Sparse(Box::new(bricks)),
+        }
     }
 
     /// A grid filled with one value.
@@ -92,10 +117,76 @@ impl DensityGrid {
         self.res
     }
 
-    pub fn data(&self) -> &[f32] {
-        &self.data
+    /// The values, x fastest, when the grid is stored densely.
+    pub fn as_dense(&self) -> Option<&[f32]> {
+        match &self.storage {
+            Storage::Dense(d) => Some(d),
+            Storage::Sparse(_) => None,
+        }
     }
 
+    /// The sparse storage, when the grid has one.
+    pub fn as_bricks(&self) -> Option<&Bricks> {
+        match &self.storage {
+            Storage::Dense(_) => None,
+            Storage::Sparse(b) => Some(b),
+        }
+    }
+
+    /// The values of the whole box, x fastest: borrowed from a dense grid, copied from a sparse
+    /// one (checked against the memory budget; the error names field `volume`).
+    pub fn dense(&self) -> Result<Cow<'_, [f32]>, FieldError> {
+        match &self.storage {
+            Storage::Dense(d) => Ok(Cow::Borrowed(d)),
+            Storage::Sparse(b) => b.to_dense("volume").map(Cow::Owned),
+        }
+    }
+
+    /// Calls `f` with every row of x values in order (y, then z), stopping at its first error:
+    /// how writers stream a grid without a dense copy.
+    pub fn try_for_each_row<E>(&self, mut f: impl FnMut(&[f32]) -> Result<(), E>) -> Result<(), E> {
+        let [nx, ny, nz] = self.res;
+        match &self.storage {
+            Storage::Dense(d) => d.chunks(nx).try_for_each(f),
+            Storage::Sparse(b) => {
+                let mut row = vec![0.0f32; nx];
+                for z in 0..nz {
+                    for y in 0..ny {
+                        for (x, v) in row.iter_mut().enumerate() {
+                            *v = b.get(x, y, z);
+                        }
+                        f(&row)?;
+                    }
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// Bytes the grid's values occupy.
+    pub fn bytes(&self) -> usize {
+        match &self.storage {
+            Storage::Dense(d) => 4 * d.len(),
+            Storage::Sparse(b) => b.bytes(),
+        }
+    }
+
+    /// Feeds the grid's layout and values to `h` (a cache key of the content).
+    pub fn hash_into(&self, mut h: impl FnMut(&[u8])) {
+        match &self.storage {
+            Storage::Dense(d) => {
+                for v in d {
+                    h(&v.to_le_bytes());
+                }
+            }
+            Storage::Sparse(b) => {
+                h(b"sparse");
+                b.hash_into(h);
+            }
+        }
+    }
+
+    /// Index of voxel (x, y, z) in the dense layout.
     #[inline]
     pub fn index(&self, x: usize, y: usize, z: usize) -> usize {
         (z * self.res[1] + y) * self.res[0] + x
@@ -103,7 +194,41 @@ impl DensityGrid {
 
     #[inline]
     pub fn get(&self, x: usize, y: usize, z: usize) -> f32 {
-        self.data[self.index(x, y, z)]
+        match &self.storage {
+            Storage::Dense(d) => d[self.index(x, y, z)],
+            Storage::Sparse(b) => b.get(x, y, z),
+        }
+    }
+
+    /// The eight voxels (x[i], y[j], z[k]) in the order i + 2j + 4k (trilinear interpolation's
+    /// corners).
+    #[inline]
+    pub fn corners(&self, x: [usize; 2], y: [usize; 2], z: [usize; 2]) -> [f32; 8] {
+        match &self.storage {
+            Storage::Dense(d) => {
+                std::array::from_fn(|n| d[self.index(x[n & 1], y[(n >> 1) & 1], z[n >> 2])])
+            }
+            Storage::Sparse(b) => b.corners(x, y, z),
+        }
+    }
+
+    /// Largest value over voxels `lo..=hi` (inclusive, per axis, inside the box).
+    pub fn max_in(&self, lo: [usize; 3], hi: [usize; 3]) -> f32 {
+        match &self.storage {
+            Storage::Dense(d) => {
+                let mut m = 0.0f32;
+                for z in lo[2]..=hi[2] {
+                    for y in lo[1]..=hi[1] {
+                        let row = self.index(0, y, z);
+                        for &v in &d[row + lo[0]..=row + hi[0]] {
+                            m = m.max(v);
+                        }
+                    }
+                }
+                m
+            }
+            Storage::Sparse(b) => b.max_in(lo, hi),
+        }
     }
 
     pub fn stats(&self) -> GridStats {
@@ -111,13 +236,38 @@ impl DensityGrid {
         let mut max = 0.0f32;
         let mut sum = 0.0f64;
         let mut nonzero = 0usize;
-        for &v in &self.data {
-            min = min.min(v);
-            max = max.max(v);
-            sum += v as f64;
-            nonzero += (v > 0.0) as usize;
+        match &self.storage {
+            Storage::Dense(d) => {
+                for &v in d {
+                    min = min.min(v);
+                    max = max.max(v);
+                    sum += v as f64;
+                    nonzero += (v > 0.0) as usize;
+                }
+            }
+            Storage::Sparse(b) => b.visit(|v| {
+                let mut add = |x: f32, n: usize| {
+                    min = min.min(x);
+                    max = max.max(x);
+                    sum += x as f64 * n as f64;
+                    nonzero += if x > 0.0 { n } else { 0 };
+                };
+                match v.content {
+                    Content::Constant(c) => add(c, v.count()),
+                    Content::Stored(s) => {
+                        for z in v.lo[2]..v.hi[2] {
+                            for y in v.lo[1]..v.hi[1] {
+                                let l = v.local(v.lo[0], y, z);
+                                for &x in &s[l..l + v.hi[0] - v.lo[0]] {
+                                    add(x, 1);
+                                }
+                            }
+                        }
+                    }
+                }
+            }),
         }
-        let n = self.data.len() as f64;
+        let n = self.res.iter().map(|&r| r as f64).product::<f64>();
         GridStats {
             min,
             max,
@@ -129,6 +279,9 @@ impl DensityGrid {
     /// Largest sum of voxel values along a line of voxels parallel to each axis, in voxel units
     /// (multiply by the cell size and the density scale to get an optical depth).
     pub fn max_column_sums(&self) -> [f64; 3] {
+        if let Storage::Sparse(b) = &self.storage {
+            return sparse_column_sums(b);
+        }
         let [nx, ny, nz] = self.res;
         let mut best = [0.0f64; 3];
         // x columns
@@ -152,6 +305,56 @@ impl DensityGrid {
         }
         best
     }
+}
+
+/// [`DensityGrid::max_column_sums`] brick by brick: a constant brick adds its value × its
+/// length to each column through it, an absent one nothing.
+fn sparse_column_sums(b: &Bricks) -> [f64; 3] {
+    let [nx, ny, nz] = b.res();
+    // Column sums per axis, indexed by the other two coordinates. Their size grows with the
+    // box's faces (87 MB for a 1999×1349×2449 box), not its volume.
+    let mut sx = vec![0.0f64; ny * nz];
+    let mut sy = vec![0.0f64; nx * nz];
+    let mut sz = vec![0.0f64; nx * ny];
+    b.visit(|v| {
+        let [x0, y0, z0] = v.lo;
+        let [x1, y1, z1] = v.hi;
+        match v.content {
+            Content::Constant(c) => {
+                if c == 0.0 {
+                    return;
+                }
+                let c = c as f64;
+                for z in z0..z1 {
+                    for y in y0..y1 {
+                        sx[z * ny + y] += c * (x1 - x0) as f64;
+                    }
+                    for x in x0..x1 {
+                        sy[z * nx + x] += c * (y1 - y0) as f64;
+                    }
+                }
+                for y in y0..y1 {
+                    for x in x0..x1 {
+                        sz[y * nx + x] += c * (z1 - z0) as f64;
+                    }
+                }
+            }
+            Content::Stored(s) => {
+                for z in z0..z1 {
+                    for y in y0..y1 {
+                        for x in x0..x1 {
+                            let c = s[v.local(x, y, z)] as f64;
+                            sx[z * ny + y] += c;
+                            sy[z * nx + x] += c;
+                            sz[y * nx + x] += c;
+                        }
+                    }
+                }
+            }
+        }
+    });
+    let max = |v: &[f64]| v.iter().cloned().fold(0.0, f64::max);
+    [max(&sx), max(&sy), max(&sz)]
 }
 
 #[cfg(test)]
@@ -180,5 +383,38 @@ mod tests {
         assert!((s.mean - 1.5).abs() < 1e-12);
         assert!((s.nonzero_fraction - 0.75).abs() < 1e-12);
         assert_eq!(g.max_column_sums(), [5.0, 3.0, 4.0]);
+    }
+
+    #[test]
+    fn sparse_and_dense_agree() {
+        let res = [19, 10, 23];
+        let mut s = 5u32;
+        let data: Vec<f32> = (0..res.iter().product::<usize>())
+            .map(|i| {
+                s = s.wrapping_mul(1664525).wrapping_add(1013904223);
+                // Noise in part of the box, a constant slab, zeros elsewhere.
+                match i % (19 * 10) {
+                    0..=60 => (s >> 8) as f32 / (1 << 24) as f32,
+                    61..=130 => 0.75,
+                    _ => 0.0,
+                }
+            })
+            .collect();
+        let d = DensityGrid::new(res, data.clone()).unwrap();
+        let b = DensityGrid::from_bricks(crate::brick::from_dense(res, &data, [5, 2, 7]).unwrap());
+        assert!(b.as_bricks().is_some() && b.as_dense().is_none());
+        let (sd, sb) = (d.stats(), b.stats());
+        assert_eq!((sd.min, sd.max), (sb.min, sb.max));
+        assert!((sd.mean - sb.mean).abs() < 1e-9 && sd.nonzero_fraction == sb.nonzero_fraction);
+        let (cd, cb) = (d.max_column_sums(), b.max_column_sums());
+        for a in 0..3 {
+            // Sums of the same values in another order: equal to f64 round-off.
+            assert!((cd[a] - cb[a]).abs() < 1e-9 * cd[a], "{cd:?} {cb:?}");
+        }
+        assert_eq!(
+            d.max_in([1, 2, 3], [17, 9, 20]),
+            b.max_in([1, 2, 3], [17, 9, 20])
+        );
+        assert_eq!(b.dense().unwrap().as_ref(), data.as_slice());
     }
 }

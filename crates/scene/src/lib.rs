@@ -18,6 +18,7 @@
 //! - **Images**: linear radiance RGB, row 0 at the top. See [`image`].
 
 pub mod atmosphere;
+pub mod brick;
 pub mod camera;
 pub mod error;
 pub mod frame;

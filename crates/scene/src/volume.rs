@@ -90,7 +90,7 @@ impl Volume {
         }
         // σ_t = scale × density must stay within the 32-bit floats of the GPU estimators and the
         // images (an infinite majorant stalls or poisons every estimator).
-        let vmax = grid.data().iter().fold(0.0f32, |a, &b| a.max(b)) as f64;
+        let vmax = grid.stats().max as f64;
         if density_scale * vmax > f32::MAX as f64 {
             return Err(FieldError::new(
                 "density_scale",
@@ -144,11 +144,14 @@ impl Volume {
         let y1 = clamp(base.y + 1.0, r[1]);
         let z0 = clamp(base.z, r[2]);
         let z1 = clamp(base.z + 1.0, r[2]);
-        let g = |x, y, z| self.grid.get(x, y, z) as f64;
-        let c00 = g(x0, y0, z0) * (1.0 - f.x) + g(x1, y0, z0) * f.x;
-        let c10 = g(x0, y1, z0) * (1.0 - f.x) + g(x1, y1, z0) * f.x;
-        let c01 = g(x0, y0, z1) * (1.0 - f.x) + g(x1, y0, z1) * f.x;
-        let c11 = g(x0, y1, z1) * (1.0 - f.x) + g(x1, y1, z1) * f.x;
+        let c = self
+            .grid
+            .corners([x0, x1], [y0, y1], [z0, z1])
+            .map(|v| v as f64);
+        let c00 = c[0] * (1.0 - f.x) + c[1] * f.x;
+        let c10 = c[2] * (1.0 - f.x) + c[3] * f.x;
+        let c01 = c[4] * (1.0 - f.x) + c[5] * f.x;
+        let c11 = c[6] * (1.0 - f.x) + c[7] * f.x;
         let c0 = c00 * (1.0 - f.y) + c10 * f.y;
         let c1 = c01 * (1.0 - f.y) + c11 * f.y;
         c0 * (1.0 - f.z) + c1 * f.z
@@ -210,14 +213,7 @@ impl MajorantGrid {
                 let (y0, y1) = range(cy, res[1], gr[1]);
                 for cx in 0..res[0] {
                     let (x0, x1) = range(cx, res[0], gr[0]);
-                    let mut m = 0.0f32;
-                    for z in z0..=z1 {
-                        for y in y0..=y1 {
-                            for x in x0..=x1 {
-                                m = m.max(g.get(x, y, z));
-                            }
-                        }
-                    }
+                    let m = g.max_in([x0, y0, z0], [x1, y1, z1]);
                     values[(cz * res[1] + cy) * res[0] + cx] = m as f64 * volume.density_scale();
                 }
             }

@@ -277,7 +277,7 @@ fn vdb_grids_are_chosen_by_name() {
     let f = io::read_grid_named(&path, Some("smoke")).unwrap();
     // A 6³ block of 0.5 at index 2..=7: 216 voxels, all 0.5, box from voxel corners.
     assert_eq!(f.grid.res(), [6, 6, 6]);
-    assert!(f.grid.data().iter().all(|&v| v == 0.5));
+    assert!(f.grid.dense().unwrap().iter().all(|&v| v == 0.5));
     let (lo, hi) = f.bounds.unwrap();
     assert_eq!((lo.x, hi.x), (1.5, 7.5));
     let t = io::read_grid_named(&path, Some("temperature")).unwrap();

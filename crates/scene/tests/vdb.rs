@@ -251,3 +251,55 @@ fn nanovdb_damage_fails_cleanly() {
     let e = io::nvdb::parse(&b, p).unwrap_err().to_string();
     assert!(e.contains("grid.tree") && e.contains("does not fit"), "{e}");
 }
+
+/// A sparse file (`tests/data/make_sparse.sh`): two small spheres ≈ 1 600 voxels apart and a
+/// tiled block, in a 1601×901×1801 box (2.6 G voxels, 10.4 GB dense). Read as OpenVDB and as
+/// NanoVDB, it stays sparse — a few MB of bricks, mostly the 8-byte-per-brick index — and
+/// agrees with what libopenvdb reads: bounds, active voxel count, value sum, probes.
+#[test]
+fn a_sparse_file_stays_sparse_and_matches_libopenvdb() {
+    let want: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data("far_spheres.json")).unwrap()).unwrap();
+    let lo: Vec<i64> = serde_json::from_value(want["lo"].clone()).unwrap();
+    let hi: Vec<i64> = serde_json::from_value(want["hi"].clone()).unwrap();
+    let res: Vec<usize> = (0..3).map(|a| (hi[a] - lo[a] + 1) as usize).collect();
+    for name in ["far_spheres.vdb", "far_spheres.nvdb"] {
+        let f = io::read_grid(data(name)).unwrap();
+        assert_eq!(f.grid.res().to_vec(), res, "{name}");
+        let b = f
+            .grid
+            .as_bricks()
+            .expect("a .vdb/.nvdb grid is stored as bricks");
+        // Index: 4 bytes per brick (2.6 G / 512 = 5.1 M bricks: 20 MB); pool: the leaves.
+        assert!(
+            f.grid.bytes() < 24 << 20,
+            "{name}: {} bytes",
+            f.grid.bytes()
+        );
+        let (stored, constant, _) = b.counts();
+        // The spheres' leaves (≥ 2 each) stored; the 16³ block is 8 tiles.
+        assert!(stored >= 4 && constant == 8, "{name}: {:?}", b.counts());
+        let s = f.grid.stats();
+        let n = res.iter().map(|&r| r as f64).product::<f64>();
+        let active = want["active"].as_f64().unwrap();
+        // Every active voxel is > 0 here, so non-zero voxels = active voxels.
+        assert_eq!((s.nonzero_fraction * n).round(), active, "{name}");
+        // Sum of f32 values accumulated in f64 in both: equal to 1e-9 relative.
+        let sum = want["sum"].as_f64().unwrap();
+        assert!(
+            (s.mean * n / sum - 1.0).abs() < 1e-9,
+            "{name}: {} vs {sum}",
+            s.mean * n
+        );
+        for p in want["probes"].as_array().unwrap() {
+            let p: Vec<f64> = serde_json::from_value(p.clone()).unwrap();
+            let got = f.grid.get(p[0] as usize, p[1] as usize, p[2] as usize);
+            // (compared as f32: the JSON holds the f32 value printed as a double)
+            assert_eq!(got, p[3] as f32, "{name}: voxel {p:?}");
+        }
+        // The box's world bounds: (lo − ½, hi + ½) × 0.001.
+        let (bmin, bmax) = f.bounds.unwrap();
+        assert!((bmin.x - (lo[0] as f64 - 0.5) * 1e-3).abs() < 1e-9);
+        assert!((bmax.z - (hi[2] as f64 + 0.5) * 1e-3).abs() < 1e-9);
+    }
+}

@@ -43,6 +43,8 @@ pub enum GpuPtError {
         "{0} (the GPU path tracer supports HG/isotropic phase and a constant sky; use --device cpu)"
     )]
     Unsupported(String),
+    #[error("{0}")]
+    Memory(String),
 }
 
 /// Samples per invocation per dispatch (keeps each dispatch short enough for any driver).
@@ -120,11 +122,17 @@ impl<'g> GpuPathTracer<'g> {
             seed: scene.render.seed as u32,
             ..Default::default()
         };
+        // A sparse grid is copied into one dense buffer here (checked against the memory
+        // budget): the GPU kernels read the box densely.
+        let dense = vol
+            .grid()
+            .dense()
+            .map_err(|e| GpuPtError::Memory(format!("{src}: {e}")))?;
         Ok(Self {
             gpu,
             pipeline: gpu.pipeline("path tracer", &shaders::source("pt.wgsl"), "pt"),
             params_buf: gpu.uniform("pt params", &params),
-            density: gpu.storage("density", vol.grid().data()),
+            density: gpu.storage("density", &dense),
             params,
             max_depth: scene
                 .render

@@ -160,7 +160,7 @@ pub fn to_bytes(grid: &DensityGrid) -> Vec<u8> {
             .writer(&mut out)
             .begin_nd()
             .expect("writing to memory cannot fail");
-        w.extend(grid.data().iter().copied())
+        grid.try_for_each_row(|row| w.extend(row.iter().copied()))
             .expect("writing to memory cannot fail");
         w.finish().expect("writing to memory cannot fail");
     }
@@ -199,7 +199,8 @@ pub fn write(path: &Path, grid: &DensityGrid) -> Result<()> {
             .writer(&mut buf)
             .begin_nd()
             .map_err(io)?;
-        w.extend(grid.data().iter().copied()).map_err(io)?;
+        grid.try_for_each_row(|row| w.extend(row.iter().copied()))
+            .map_err(io)?;
         w.finish().map_err(io)?;
     }
     std::io::Write::flush(&mut buf).map_err(io)

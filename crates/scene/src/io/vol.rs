@@ -12,8 +12,39 @@ use crate::grid::{DensityGrid, check_resolution};
 
 const HEADER_LEN: usize = 48;
 
+/// What a header says: resolution and bounds (`None`: no box stored).
+type Header = ([usize; 3], Option<(DVec3, DVec3)>);
+
 /// Parses `.vol` bytes; `path` only labels errors.
 pub fn parse(bytes: &[u8], path: &Path) -> Result<GridFile> {
+    let (res, bounds) = parse_header(bytes, path)?;
+    check_length(res, bytes.len() as u64, path)?;
+    let data: Vec<f32> = bytes[HEADER_LEN..]
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+        .collect();
+    let grid = DensityGrid::new(res, data).map_err(|e| e.at(path))?;
+    Ok(GridFile { grid, bounds })
+}
+
+/// Checks that a file of `len` bytes holds exactly the header and `res` float32 voxels.
+fn check_length(res: [usize; 3], len: u64, path: &Path) -> Result<()> {
+    let expected = HEADER_LEN as u64 + 4 * (res[0] * res[1] * res[2]) as u64;
+    if len != expected {
+        return Err(Error::invalid(
+            path,
+            "data",
+            format!(
+                "{}×{}×{} float32 voxels need {expected} bytes, the file has {len}",
+                res[0], res[1], res[2],
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Parses the header at the start of `bytes` (the whole file or at least its first 48 bytes).
+fn parse_header(bytes: &[u8], path: &Path) -> Result<Header> {
     if bytes.len() < HEADER_LEN {
         return Err(Error::invalid(
             path,
@@ -63,26 +94,6 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<GridFile> {
     }
     let bmin = DVec3::new(f32_at(24) as f64, f32_at(28) as f64, f32_at(32) as f64);
     let bmax = DVec3::new(f32_at(36) as f64, f32_at(40) as f64, f32_at(44) as f64);
-    let n = res[0] * res[1] * res[2];
-    let expected = HEADER_LEN + 4 * n;
-    if bytes.len() != expected {
-        return Err(Error::invalid(
-            path,
-            "data",
-            format!(
-                "{}×{}×{} float32 voxels need {expected} bytes, the file has {}",
-                res[0],
-                res[1],
-                res[2],
-                bytes.len()
-            ),
-        ));
-    }
-    let data: Vec<f32> = bytes[HEADER_LEN..]
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
-        .collect();
-    let grid = DensityGrid::new(res, data).map_err(|e| e.at(path))?;
     // A non-finite corner is a damaged header, not a missing box (writers without a box store
     // zeros: those, and other empty boxes, mean "no box" and the scene must give one).
     if !(bmin.is_finite() && bmax.is_finite()) {
@@ -93,19 +104,37 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<GridFile> {
         ));
     }
     let bounds = bmax.cmpgt(bmin).all().then_some((bmin, bmax));
-    Ok(GridFile { grid, bounds })
+    Ok((res, bounds))
 }
 
+/// Reads a `.vol` file, streaming its voxels straight into the grid (the file's bytes are
+/// never held beside it: a 6.9 GB file needs 6.9 GB).
 pub fn read(path: &Path) -> Result<GridFile> {
-    // The file's bytes and the grid are held at once.
-    crate::memory::check_file(path, 2)?;
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    parse(&bytes, path)
+    use std::io::Read;
+    let io = |e| Error::io(path, e);
+    let mut f = std::fs::File::open(path).map_err(io)?;
+    let len = f.metadata().map_err(io)?.len();
+    let mut head = vec![0u8; HEADER_LEN.min(len as usize)];
+    f.read_exact(&mut head).map_err(io)?;
+    let (res, bounds) = parse_header(&head, path)?;
+    check_length(res, len, path)?;
+    let what = format!("a {}×{}×{} grid", res[0], res[1], res[2]);
+    let mut data = crate::memory::filled(res[0] * res[1] * res[2], 0.0f32, "data", &what)
+        .map_err(|e| e.at(path))?;
+    f.read_exact(bytemuck::cast_slice_mut(&mut data))
+        .map_err(io)?;
+    // The file is little-endian (a no-op on little-endian machines).
+    for v in data.iter_mut() {
+        *v = f32::from_bits(u32::from_le(v.to_bits()));
+    }
+    let grid = DensityGrid::new(res, data).map_err(|e| e.at(path))?;
+    Ok(GridFile { grid, bounds })
 }
 
 /// Serialises a grid as `.vol` bytes.
 pub fn to_bytes(grid: &DensityGrid, bounds: (DVec3, DVec3)) -> Vec<u8> {
-    let mut out = Vec::with_capacity(HEADER_LEN + 4 * grid.data().len());
+    let r = grid.res();
+    let mut out = Vec::with_capacity(HEADER_LEN + 4 * r[0] * r[1] * r[2]);
     write_to(&mut out, grid, bounds).expect("writing to memory cannot fail");
     out
 }
@@ -129,11 +158,10 @@ pub fn write_to(
         header.extend_from_slice(&(v as f32).to_le_bytes());
     }
     out.write_all(&header)?;
-    for chunk in grid.data().chunks(1 << 16) {
-        let bytes: Vec<u8> = chunk.iter().flat_map(|v| v.to_le_bytes()).collect();
-        out.write_all(&bytes)?;
-    }
-    Ok(())
+    grid.try_for_each_row(|row| {
+        let bytes: Vec<u8> = row.iter().flat_map(|v| v.to_le_bytes()).collect();
+        out.write_all(&bytes)
+    })
 }
 
 pub fn write(path: &Path, grid: &DensityGrid, bounds: (DVec3, DVec3)) -> Result<()> {

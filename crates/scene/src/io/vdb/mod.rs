@@ -6,8 +6,10 @@
 //! scale, translation, and affine maps without rotation). The grid named `density` is read
 //! unless another is named; a file without it is an error listing the grids it has.
 //!
-//! Active voxels and active tiles are densified over their index bounding box (inactive voxels
-//! read as 0, the usual background of density grids). The world bounds are
+//! Active voxels and active tiles become a sparse grid ([`crate::brick`]) over their index
+//! bounding box, leaf for brick and tile for constant bricks (inactive voxels read as 0, the
+//! usual background of density grids): a file is never densified, so memory grows with the
+//! cloud, not with its box. The world bounds are
 //! `(index_min − ½, index_max + ½) × voxel_size + translation`, so voxel centres land where
 //! OpenVDB puts them.
 //!
@@ -31,8 +33,9 @@ use std::path::Path;
 use glam::DVec3;
 
 use super::GridFile;
+use crate::brick::{BrickBuilder, DIM, check_sparse_resolution};
 use crate::error::{Error, Result};
-use crate::grid::{DensityGrid, check_resolution};
+use crate::grid::DensityGrid;
 use bytes::{Cursor, Fail, PResult, bit};
 pub use tree::{Leaf, Tile, Tree};
 
@@ -58,14 +61,14 @@ pub fn parse_named(bytes: &[u8], path: &Path, name: &str) -> Result<GridFile> {
     grid_file(read_sparse(bytes, name), name, path)
 }
 
-/// A sparse grid read from `path` (or the error reading it), densified into a [`GridFile`];
-/// shared by the OpenVDB and NanoVDB readers.
+/// A sparse grid read from `path` (or the error reading it), turned into bricks in a
+/// [`GridFile`]; shared by the OpenVDB and NanoVDB readers.
 pub(crate) fn grid_file(sparse: PResult<SparseGrid>, name: &str, path: &Path) -> Result<GridFile> {
     let fail = |e: Fail| Error::invalid(path, e.field, e.msg);
-    let (res, data, bounds) = densify(&sparse.map_err(fail)?, name).map_err(fail)?;
-    let grid = DensityGrid::new(res, data).map_err(|e| e.at(path))?;
+    let (bricks, bounds) = to_bricks(sparse.map_err(fail)?, name).map_err(fail)?;
+    let bricks = bricks.finish().map_err(|e| e.at(path))?;
     Ok(GridFile {
-        grid,
+        grid: DensityGrid::from_bricks(bricks),
         bounds: Some(bounds),
     })
 }
@@ -127,10 +130,9 @@ pub fn read_sparse(bytes: &[u8], name: &str) -> PResult<SparseGrid> {
     })
 }
 
-type Dense = ([usize; 3], Vec<f32>, (DVec3, DVec3));
-
-/// Densifies active voxels and tiles over their index bounding box (inactive = 0).
-pub fn densify(g: &SparseGrid, name: &str) -> PResult<Dense> {
+/// Active voxels and tiles as bricks over their index bounding box (inactive = 0), with the
+/// box's world bounds; the builder is finished (values checked) by the caller.
+pub fn to_bricks(g: SparseGrid, name: &str) -> PResult<(BrickBuilder, (DVec3, DVec3))> {
     let t = &g.tree;
     let mut lo = [i64::MAX; 3];
     let mut hi = [i64::MIN; 3];
@@ -156,52 +158,77 @@ pub fn densify(g: &SparseGrid, name: &str) -> PResult<Dense> {
             format!("grid `{name}` has no active voxels"),
         ));
     }
-    let res = check_resolution(
+    let fe = |e: crate::FieldError| Fail::new(&e.field, e.msg);
+    let res = check_sparse_resolution(
         [hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, hi[2] - lo[2] + 1],
         "grid.bounds",
     )
-    .map_err(|e| Fail::new(&e.field, e.msg))?;
-    // Active voxels and tiles fill the index box densely: its size is checked against the
-    // memory budget before anything is allocated.
+    .map_err(fe)?;
+    // The brick lattice is shifted so that leaves (origins at multiples of 8) are bricks.
+    let offset = lo.map(|l| l.rem_euclid(DIM as i64) as usize);
+    let base = lo.map(|l| l - l.rem_euclid(DIM as i64));
     let what = format!(
-        "the dense {}×{}×{} grid spanning its active voxels",
-        res[0], res[1], res[2]
+        "the sparse {}×{}×{} grid spanning its active voxels ({} leaves)",
+        res[0],
+        res[1],
+        res[2],
+        t.leaves.len()
     );
-    let mut data = crate::memory::filled(res[0] * res[1] * res[2], 0.0f32, "grid.bounds", &what)
-        .map_err(|e| Fail::new(&e.field, e.msg))?;
-    let index = |p: [i64; 3]| {
-        let (x, y, z) = (
-            (p[0] - lo[0]) as usize,
-            (p[1] - lo[1]) as usize,
-            (p[2] - lo[2]) as usize,
-        );
-        (z * res[1] + y) * res[0] + x
+    let mut b = BrickBuilder::new(res, offset, t.leaves.len(), "grid.bounds", &what).map_err(fe)?;
+    // Origins off the 8-lattice cannot come from a well-formed tree (nodes sit at multiples of
+    // their size); a crafted file gets an error, not a misplaced brick.
+    let brick = |p: [i64; 3], what: &str| -> PResult<[usize; 3]> {
+        if p.iter().any(|c| c.rem_euclid(DIM as i64) != 0) {
+            return Err(Fail::new(
+                "grid.tree",
+                format!("{what} origin {p:?} is not a multiple of {DIM}"),
+            ));
+        }
+        Ok(std::array::from_fn(|a| {
+            ((p[a] - base[a]) / DIM as i64) as usize
+        }))
     };
     for tile in &t.tiles {
-        let o = tile.origin;
-        for z in o[2]..o[2] + tile.dim {
-            for y in o[1]..o[1] + tile.dim {
-                for x in o[0]..o[0] + tile.dim {
-                    data[index([x, y, z])] = tile.value;
+        if tile.dim < DIM as i64 || tile.dim % DIM as i64 != 0 {
+            return Err(Fail::new(
+                "grid.tree",
+                format!("a tile of {} voxels is not a multiple of {DIM}", tile.dim),
+            ));
+        }
+        let (b0, n) = (brick(tile.origin, "a tile's")?, tile.dim as usize / DIM);
+        for bz in b0[2]..b0[2] + n {
+            for by in b0[1]..b0[1] + n {
+                for bx in b0[0]..b0[0] + n {
+                    b.set_constant([bx, by, bz], tile.value).map_err(fe)?;
                 }
             }
         }
     }
-    for leaf in &t.leaves {
-        for i in 0..512 {
+    let SparseGrid {
+        tree,
+        voxel_size,
+        translation,
+    } = g;
+    for leaf in tree.leaves {
+        if leaf.mask.iter().all(|&m| m == 0) {
+            continue; // no active voxel: it may lie outside the box
+        }
+        let dst = b.stored_mut(brick(leaf.origin, "a leaf's")?).map_err(fe)?;
+        for (i, &v) in leaf.values.iter().enumerate().take(512) {
             if bit(&leaf.mask, i) {
-                data[index(voxel(leaf.origin, i))] = leaf.values[i];
+                // Leaf order is x slowest, z fastest; bricks are x fastest.
+                let (x, y, z) = (i >> 6, (i >> 3) & 7, i & 7);
+                dst[(z * DIM + y) * DIM + x] = v;
             }
         }
     }
     let lo_w = DVec3::new(lo[0] as f64, lo[1] as f64, lo[2] as f64) - DVec3::splat(0.5);
     let hi_w = DVec3::new(hi[0] as f64, hi[1] as f64, hi[2] as f64) + DVec3::splat(0.5);
     Ok((
-        res,
-        data,
+        b,
         (
-            lo_w * g.voxel_size + g.translation,
-            hi_w * g.voxel_size + g.translation,
+            lo_w * voxel_size + translation,
+            hi_w * voxel_size + translation,
         ),
     ))
 }
@@ -221,8 +248,8 @@ pub fn read(path: &Path) -> Result<GridFile> {
 
 /// Reads the float grid called `name`.
 pub fn read_named(path: &Path, name: &str) -> Result<GridFile> {
-    // The file's bytes and the grid are held at once (leaves and tiles are bounded by a small
-    // multiple of the file size and checked separately).
+    // The file's bytes and the grid are held at once (leaves, tiles and bricks are bounded by
+    // a small multiple of the file size and checked separately).
     crate::memory::check_file(path, 2)?;
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     parse_named(&bytes, path, name)
