@@ -99,10 +99,11 @@ fn openvdb_and_nanovdb_files_render_alike() {
     }
 }
 
-/// A sparse file whose box is 2.6 G voxels (10.4 GB dense; `make_sparse.sh`) renders with the
-/// path tracer, which reads the bricks; estimators that still need the whole box in one array
-/// (the GPU ones and RPNN's pyramid) refuse it with an error naming the bytes, before any
-/// large allocation.
+/// A sparse file whose box is 4.8 G voxels (19 GB dense, more voxels than a u32 counts;
+/// `make_sparse.sh`) renders with the path tracer, which reads the bricks; estimators that
+/// still need the whole box in one array (the GPU ones and RPNN's pyramid) refuse it with an
+/// error naming the bytes — the true count, not one wrapped at 2^32 — before any large
+/// allocation.
 #[test]
 fn a_sparse_file_renders_with_the_path_tracer_and_is_refused_cleanly_elsewhere() {
     let dir = std::env::temp_dir().join(format!("nimbus-sparse-{}", std::process::id()));
@@ -160,9 +161,10 @@ seed = 3
         let o = nimbus(&a);
         let t = text(&o);
         assert_eq!(o.status.code(), Some(1), "{args:?}: {t}");
-        // The budget (or the GPU's binding limit) names what the whole box would need.
+        // The budget (or the GPU's binding limit) names what the whole box would need:
+        // 1691³ × 4 bytes = 19 341 529 484 (the pyramid: 3 such copies, 54.0 GiB).
         assert!(
-            t.contains("needs") && (t.contains("GiB") || t.contains("bytes")),
+            t.contains("needs") && (t.contains("19341529484 bytes") || t.contains("54.0 GiB")),
             "{args:?}: {t}"
         );
     }

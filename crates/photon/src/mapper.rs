@@ -153,7 +153,16 @@ impl<'g> PhotonMapper<'g> {
             None => default_cache_res(d_res, 2400),
         };
         let cells = i_res.iter().product::<u32>();
-        let voxels = (d_res[0] * d_res[1] * d_res[2]) as u32;
+        // A sparse grid's box may exceed 2^32 voxels: the binding check comes first, with the
+        // true size, and the kernels' u32 voxel index is taken only below it.
+        let voxels64 = d_res.iter().map(|&r| r as u64).product::<u64>();
+        gpu.check_storage("the density grid", voxels64 * 4)?;
+        let voxels = u32::try_from(voxels64).map_err(|_| {
+            PmError::Unsupported(format!(
+                "{}: {voxels64} voxels exceed the 2^32 that the photon map's kernels can index",
+                scene.source.display()
+            ))
+        })?;
         let aabb = vol.aabb();
         let d_max = vol.grid().stats().max as f64;
         let sigma_max = (vol.density_scale() * d_max).max(1e-30);
@@ -248,7 +257,6 @@ impl<'g> PhotonMapper<'g> {
             sun_first: 0,
             sun_count: 0,
         };
-        gpu.check_storage("the density grid", voxels as u64 * 4)?;
         gpu.check_storage("the upsampled cache J", voxels as u64 * 16)?;
         gpu.check_storage(
             "the photon-cache ring",

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Writes a sparse fixture with the official OpenVDB 10 tools from Debian (python3-openvdb,
-# libopenvdb-tools): two small fog spheres ≈ 1 600 voxels apart and an active 16³ block that
-# OpenVDB stores as 8³ tiles, in a 1604×904×1804 index box — 2.6 G voxels, 10.5 GB if it were
-# dense, a few kB on disk:
+# libopenvdb-tools): two small fog spheres ≈ 1 680 voxels apart on each axis and an active 16³ block that
+# OpenVDB stores as 8³ tiles, in a 1691³ index box — 4.8 G voxels (more than 2^32),
+# 19 GB if it were dense; a few kB on disk:
 #   far_spheres.vdb    full floats, Blosc
 #   far_spheres.nvdb   NanoVDB Float grid, zlib
 #   far_spheres.json   what libopenvdb reads: bounding box, active voxel count, value sum and
@@ -21,7 +21,7 @@ g = vdb.FloatGrid(0.0)
 g.name = "density"
 g.gridClass = vdb.GridClass.FOG_VOLUME
 acc = g.getAccessor()
-for c in [(10, 10, 10), (1600, 900, 1800)]:
+for c in [(10, 10, 10), (1690, 1690, 1690)]:
     r = 6.0
     for x in range(c[0] - 6, c[0] + 7):
         for y in range(c[1] - 6, c[1] + 7):
@@ -37,7 +37,7 @@ for it in g.citerOnValues():
     n = (it.max[0] - it.min[0] + 1) * (it.max[1] - it.min[1] + 1) * (it.max[2] - it.min[2] + 1)
     total += it.value * n
 probes = []
-for p in [(10, 10, 10), (12, 9, 11), (1600, 900, 1800), (1597, 903, 1799), (808, 405, 811),
+for p in [(10, 10, 10), (12, 9, 11), (1690, 1690, 1690), (1687, 1693, 1689), (808, 405, 811),
           (500, 500, 500), (6, 6, 6)]:
     probes.append([p[0] - lo[0], p[1] - lo[1], p[2] - lo[2], acc.getValue(p)])
 json.dump({"lo": lo, "hi": hi, "active": g.activeVoxelCount(), "sum": total,
