@@ -115,7 +115,7 @@ scene "$(realpath "$d/c128.vdb")" "$d/c128_vdb.toml" \
   'aabb_min = [-0.71875, -0.59375, -0.5625]
 aabb_max = [0.75, 0.46875, 0.71875]' "$cam_o" "$cam_t" 60.0
 estimators "cumulus 128×96×128 dense .vol" "1.6 M" "$d/c128_vol.toml"
-estimators "cumulus 128×96×128 sparse .vdb" "1.6 M (0.7 M box)" "$d/c128_vdb.toml"
+estimators "cumulus 128×96×128 sparse .vdb" "0.52 M (the active box)" "$d/c128_vdb.toml"
 
 # 2. Three fog spheres in a 1999×1349×2449 box (the issue's vdb_tool command).
 spheres="-sphere voxel=0.001 radius=0.2 center=(0.2,0.2,0.2) -sphere voxel=0.001 radius=0.2 center=(1.8,1.15,2.25) -union -sphere voxel=0.001 radius=0.25 center=(1.0,0.6,1.2) -union -ls2fog name=density"

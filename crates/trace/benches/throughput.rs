@@ -1,5 +1,6 @@
 //! Path-tracer throughput (camera paths per second) on the shared `cumulus_side` case at reduced
-//! resolution, with and without empty-space skipping.
+//! resolution, with and without empty-space skipping, and with the grid stored densely or as
+//! sparse bricks (the same image; the cost of the brick lookup).
 //!
 //! `cargo bench -p nimbus-trace`
 
@@ -42,6 +43,22 @@ fn bench(c: &mut Criterion) {
     let global = PathTracer::with_majorants(&scene, MajorantGrid::new(&scene.volume, [1, 1, 1]));
     g.bench_function("global_majorant", |b| {
         b.iter(|| render_with(&global, &opts))
+    });
+    let mut sparse = scene.clone();
+    let v = &scene.volume;
+    let dense = v.grid().dense().unwrap();
+    let bricks = nimbus_scene::brick::from_dense(v.grid().res(), &dense, [0; 3]).unwrap();
+    sparse.volume = std::sync::Arc::new(
+        nimbus_scene::Volume::new(
+            nimbus_scene::DensityGrid::from_bricks(bricks),
+            *v.aabb(),
+            v.density_scale(),
+        )
+        .unwrap(),
+    );
+    let bricked = PathTracer::new(&sparse);
+    g.bench_function("majorant_grid_sparse_bricks", |b| {
+        b.iter(|| render_with(&bricked, &opts))
     });
     g.finish();
 }
