@@ -9,6 +9,8 @@
 //!   A world point p maps to the continuous index u = (p − aabb_min)/(aabb_max − aabb_min) × res
 //!   − 0.5; trilinear interpolation with indices clamped to the edge. The medium exists only
 //!   inside the AABB (σ_t = 0 outside); σ_t(p) = density_scale × lookup(p). See [`volume`].
+//!   Storage is dense or sparse (8³ bricks, [`brick`]: `.vdb`/`.nvdb` files are never
+//!   densified); both read the same values through [`DensityGrid::get`].
 //! - **Medium**: σ_s = albedo × σ_t, no emission; phase functions use the propagation convention
 //!   (cos θ between travel directions before and after scattering; g > 0 forward). See [`phase`].
 //! - **Sun**: `direction` points towards the sun; `irradiance` is measured perpendicular to it.
