@@ -519,6 +519,19 @@ fn run(cli: Cli) -> Result<()> {
                     ""
                 }
             );
+            match g.as_bricks() {
+                Some(b) => {
+                    let (stored, constant, absent) = b.counts();
+                    say!(
+                        "storage         sparse: {stored} stored, {constant} constant, {absent} absent bricks of 8³ ({})",
+                        nimbus_scene::memory::human(g.bytes() as u128)
+                    );
+                }
+                None => say!(
+                    "storage         dense ({})",
+                    nimbus_scene::memory::human(g.bytes() as u128)
+                ),
+            }
             say!("cell size       {}", vol.cell_size());
             say!("min/mean/max    {} / {:.6} / {}", st.min, st.mean, st.max);
             say!("non-zero        {:.3} %", 100.0 * st.nonzero_fraction);

@@ -138,6 +138,13 @@ seed = 3
         ),
     )
     .unwrap();
+    // `info` says how it is stored: the spheres' 16 leaves, the block's 8 tiles, the rest absent.
+    let o = nimbus(&["info", data("far_spheres.vdb").to_str().unwrap()]);
+    assert!(
+        text(&o).contains("sparse: 16 stored, 8 constant, 9528104 absent bricks"),
+        "{}",
+        text(&o)
+    );
     let out = dir.join("far");
     let o = nimbus(&[
         "render",
