@@ -197,6 +197,41 @@ mod tests {
     }
 
     #[test]
+    fn streamed_read_checks_the_file_before_filling_the_grid() {
+        let dir = std::env::temp_dir().join(format!("nimbus-vol-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let b = (DVec3::ZERO, DVec3::ONE);
+        let bytes = to_bytes(&sample(), b);
+        // Whole: the same grid and box as the in-memory parser.
+        let ok = dir.join("ok.vol");
+        std::fs::write(&ok, &bytes).unwrap();
+        let f = read(&ok).unwrap();
+        assert_eq!(f.grid, sample());
+        assert_eq!(f.bounds, Some(b));
+        // Shorter than a header, and one voxel short: errors naming the field and the sizes.
+        for (name, len, field, words) in [
+            ("head.vol", 10, "header", "10 bytes"),
+            (
+                "short.vol",
+                bytes.len() - 4,
+                "data",
+                "need 72 bytes, the file has 68",
+            ),
+        ] {
+            let p = dir.join(name);
+            std::fs::write(&p, &bytes[..len]).unwrap();
+            match read(&p).unwrap_err() {
+                Error::Invalid { field: f, msg, .. } => {
+                    assert_eq!(f, field, "{name}");
+                    assert!(msg.contains(words), "{name}: {msg}");
+                }
+                e => panic!("{name}: {e}"),
+            }
+        }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
     fn round_trip() {
         let b = (DVec3::splat(-1.0), DVec3::new(1.0, 2.0, 3.0));
         let bytes = to_bytes(&sample(), b);
