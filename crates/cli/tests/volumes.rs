@@ -27,15 +27,13 @@ fn data(name: &str) -> PathBuf {
         .unwrap()
 }
 
-/// Renders `file` with the path tracer (fixed seed) and returns the PNG's bytes.
-fn render(dir: &Path, file: &str) -> Vec<u8> {
-    let scene = dir.join(format!("{file}.toml"));
-    std::fs::write(
-        &scene,
-        format!(
-            r#"[volume]
+/// A scene of `file` under a fixed sun (HG g = 0.85, albedo 0.99, seed 3); `camera` holds the
+/// camera's origin, target, vfov_deg, width and height lines.
+fn scene_toml(file: &Path, density_scale: f64, camera: &str, spp: u32) -> String {
+    format!(
+        r#"[volume]
 file = "{}"
-density_scale = 40.0
+density_scale = {density_scale:?}
 albedo = 0.99
 phase = {{ kind = "hg", g = 0.85 }}
 
@@ -44,21 +42,22 @@ direction = [0.4, 0.8, 0.6]
 irradiance = [3.0, 3.0, 3.0]
 
 [camera]
-origin = [1.07, 1.15, 3.2]
-target = [1.07, 1.15, 1.12]
+{camera}
 up = [0.0, 1.0, 0.0]
-vfov_deg = 24.0
-width = 32
-height = 24
 
 [render]
-spp = 8
+spp = {spp}
 seed = 3
 "#,
-            data(file).display()
-        ),
+        file.display()
     )
-    .unwrap();
+}
+
+/// Renders `file` with the path tracer (fixed seed) and returns the PNG's bytes.
+fn render(dir: &Path, file: &str) -> Vec<u8> {
+    let scene = dir.join(format!("{file}.toml"));
+    let camera = "origin = [1.07, 1.15, 3.2]\ntarget = [1.07, 1.15, 1.12]\nvfov_deg = 24.0\nwidth = 32\nheight = 24";
+    std::fs::write(&scene, scene_toml(&data(file), 40.0, camera, 8)).unwrap();
     let out = dir.join(file);
     let o = nimbus(&[
         "render",
@@ -109,33 +108,10 @@ fn a_sparse_file_renders_with_the_path_tracer_and_is_refused_cleanly_elsewhere()
     let dir = std::env::temp_dir().join(format!("nimbus-sparse-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let scene = dir.join("far.toml");
+    let camera = "origin = [0.010, 0.010, 0.06]\ntarget = [0.010, 0.010, 0.010]\nvfov_deg = 20.0\nwidth = 24\nheight = 16";
     std::fs::write(
         &scene,
-        format!(
-            r#"[volume]
-file = "{}"
-density_scale = 500.0
-albedo = 0.99
-phase = {{ kind = "hg", g = 0.85 }}
-
-[sun]
-direction = [0.4, 0.8, 0.6]
-irradiance = [3.0, 3.0, 3.0]
-
-[camera]
-origin = [0.010, 0.010, 0.06]
-target = [0.010, 0.010, 0.010]
-up = [0.0, 1.0, 0.0]
-vfov_deg = 20.0
-width = 24
-height = 16
-
-[render]
-spp = 4
-seed = 3
-"#,
-            data("far_spheres.vdb").display()
-        ),
+        scene_toml(&data("far_spheres.vdb"), 500.0, camera, 4),
     )
     .unwrap();
     // `info` says how it is stored: the spheres' 16 leaves, the block's 8 tiles, the rest absent.

@@ -85,6 +85,18 @@ fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
 }
 
 type Field = Box<dyn Fn([f64; 3]) -> f64>;
+
+/// The cumulus heap's shape, max over blobs of 1 − d/r (> 0 inside a blob), at `p`; with
+/// `h` > 0 an upper bound of it over the ball of radius `h` around `p` (every distance shrinks
+/// by at most `h`). `h` = 0 gives the shape itself, bit for bit.
+fn heap_shape(blobs: &[([f64; 3], f64)], p: [f64; 3], h: f64) -> f64 {
+    let mut shape = f64::NEG_INFINITY;
+    for (c, r) in blobs {
+        let d = ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt();
+        shape = shape.max(1.0 - (d - h) / r);
+    }
+    shape
+}
 /// `cull(c, h)`: true when the field is 0 everywhere within distance `h` of `c` (a bound from
 /// the cloud's shape alone, so empty space costs no noise evaluation).
 type Cull = Box<dyn Fn([f64; 3], f64) -> bool>;
@@ -126,21 +138,10 @@ fn make_field(kind: CloudKind, seed: u64, res: [usize; 3], fast: bool) -> (Field
                 if c[1] + h < base - 0.02 {
                     return true; // below the flat base
                 }
-                let mut shape = f64::NEG_INFINITY;
-                for (b, r) in &cull_blobs {
-                    let d = ((c[0] - b[0]).powi(2) + (c[1] - b[1]).powi(2) + (c[2] - b[2]).powi(2))
-                        .sqrt();
-                    shape = shape.max(1.0 - (d - h) / r);
-                }
-                shape < -0.45
+                heap_shape(&cull_blobs, c, h) < -0.45
             });
             let field: Field = Box::new(move |p: [f64; 3]| {
-                let mut shape = f64::NEG_INFINITY;
-                for (c, r) in &blobs {
-                    let d = ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2))
-                        .sqrt();
-                    shape = shape.max(1.0 - d / r);
-                }
+                let shape = heap_shape(&blobs, p, 0.0);
                 // Flat base: fade out below the base plane.
                 let flat = smoothstep(base - 0.02, base + 0.04, p[1]);
                 // The noise only matters where it can move v across [0, ⅓] (v × 3 is clamped
