@@ -16,5 +16,6 @@ done
 cp crates/scene/tests/data/cloud.nvdb crates/scene/tests/data/cloud_blosc.nvdb \
   crates/scene/tests/data/cloud_fp*.nvdb crates/cli/tests/bad-inputs/files/*.nvdb fuzz/corpus/nvdb/
 cp scenes/*.toml scenes/bench/*.toml fuzz/corpus/scene/
+# rpnn-micro.onnx (3.6 kB, a whole valid model) keeps the mutants of valid models small and fast.
 cp crates/rpnn/tests/data/*.onnx fuzz/corpus/onnx/
 echo "seeded fuzz/corpus/{vol,npy,vdb,nvdb,scene,onnx}"

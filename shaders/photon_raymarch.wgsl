@@ -13,7 +13,13 @@
 // Detail (Elek §4.4): when `noise_amplitude` > 0, the lookup positions of D and J are displaced
 // by three octaves of vector value noise (amplitudes 1, ½, ¼; frequencies f, 2f, 4f), which
 // adds sub-voxel detail to a smooth density field.
+#import params
+#import grid
+#import rng
+#import hg
 
+@group(0) @binding(0) var<uniform> P: Params;
+@group(0) @binding(1) var<storage, read> density: array<f32>;
 @group(0) @binding(2) var<storage, read> j_in: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> image: array<vec4<f32>>;
 @group(0) @binding(4) var<storage, read> t_sun: array<f32>;

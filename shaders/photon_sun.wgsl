@@ -6,16 +6,21 @@
 // exact split by scattering order). Rebuilt only when the sun or the density changes, at
 // once or amortised over frames in slices.
 // Mirrors `reference::sun_transmittance_voxel`.
+#import params
+#import grid
+#import constants
 
+@group(0) @binding(0) var<uniform> P: Params;
+@group(0) @binding(1) var<storage, read> density: array<f32>;
 @group(0) @binding(2) var<storage, read_write> t_sun: array<f32>;
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG)
 fn sun_transmittance(@builtin(global_invocation_id) gid: vec3<u32>,
                      @builtin(num_workgroups) nwg: vec3<u32>) {
     let r = P.d_res;
     // Voxels sun_first .. sun_first + sun_count (all of them, or one slice of an amortised
     // rebuild: `mapper/sun.rs`).
-    let local = gid.x + gid.y * nwg.x * 64u;
+    let local = gid.x + gid.y * nwg.x * WG;
     let idx = P.sun_first + local;
     if (local >= P.sun_count || idx >= r.x * r.y * r.z) { return; }
     let v = vec3<u32>(idx % r.x, (idx / r.x) % r.y, idx / (r.x * r.y));

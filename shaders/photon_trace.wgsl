@@ -24,16 +24,21 @@
 // photon_upsample.wgsl). With exact single scattering (`P.single_scatter` = 1) an unscattered sun beam (order 0)
 // deposits nothing: the ray marcher computes first-order sun light exactly from the
 // sun-transmittance volume, and the cache holds only light scattered at least once.
+#import params
+#import grid
+#import rng
+#import hg
+#import constants
 
+@group(0) @binding(0) var<uniform> P: Params;
+@group(0) @binding(1) var<storage, read> density: array<f32>;
 @group(0) @binding(2) var<storage, read_write> h_new: array<atomic<u32>>;
 // Set to 1 when a u32 sum wraps (too many deposits in one cell for 32 bits): the mapper reports
 // it instead of rendering a silently wrong cache.
 @group(0) @binding(3) var<storage, read_write> overflow: array<atomic<u32>>;
 
-const SHARED_CELLS: u32 = 256u;
-const CELL_WORDS: u32 = 11u;
-const WG: u32 = 64u;
-const W_SCALE: f32 = 4096.0;
+// Cells accumulated in workgroup memory: set per pipeline by the mapper (`cache_layout.rs`).
+override SHARED_CELLS: u32 = 256u;
 var<workgroup> sh: array<atomic<u32>, SHARED_CELLS * CELL_WORDS>;
 
 fn deposit(slot: u32, v: u32) {
@@ -152,7 +157,7 @@ fn trace_beam(index: u32) {
     }
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG)
 fn trace(@builtin(global_invocation_id) gid: vec3<u32>,
          @builtin(local_invocation_index) lid: u32,
          @builtin(num_workgroups) nwg: vec3<u32>) {

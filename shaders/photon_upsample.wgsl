@@ -19,7 +19,12 @@
 // the mean cosine to it), or each cell's mean sun-flux direction (1, Appendix C's per-cell
 // direction; g' = |mean propagation vector|), kept per coarse cell in `cell_dir` and
 // interpolated by the ray marcher.
+#import params
+#import grid
+#import constants
 
+@group(0) @binding(0) var<uniform> P: Params;
+@group(0) @binding(1) var<storage, read> density: array<f32>;
 @group(0) @binding(2) var<storage, read> total: array<u32>;
 @group(0) @binding(3) var<storage, read_write> j_out: array<vec4<f32>>;
 // Per coarse cell, computed once by `cells` before `upsample` reads them 27 + 8 times per voxel:
@@ -37,7 +42,6 @@
 @group(0) @binding(7) var<storage, read_write> j_dir: array<vec4<f32>>;
 @group(0) @binding(8) var<storage, read_write> j_hi: array<vec4<f32>>;
 
-const CELL_WORDS: u32 = 11u;
 
 struct CellValue {
     sun: f32, sky: f32, g: f32, gamma: f32, has_sun: bool,
@@ -97,7 +101,7 @@ fn cell_value(i: u32) -> CellValue {
         dir, lo_u > 0u, f32(hi_u) * P.sun_norm * scale, dir_hi);
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG)
 fn cells(@builtin(global_invocation_id) gid: vec3<u32>) {
     let n = P.i_res.x * P.i_res.y * P.i_res.z;
     let i = gid.x;
@@ -165,9 +169,9 @@ fn trilinear_fluence(p: vec3<f32>) -> vec3<f32> {
     return acc;
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG)
 fn upsample(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let idx = gid.x + gid.y * nwg.x * 64u;
+    let idx = gid.x + gid.y * nwg.x * WG;
     let res = P.d_res;
     let n = res.x * res.y * res.z;
     if (idx >= n) { return; }

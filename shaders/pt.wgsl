@@ -3,7 +3,7 @@
 // sampled uniformly in its cone — NEE only, so phase-sampled paths that escape add the sky but
 // not the sun; camera rays that see the disc directly add it), HG/isotropic phase sampling,
 // constant sky, Russian roulette on throughput < 1 after 8 scatterings.
-// Mirrors crates/trace/src/integrator.rs; prefixed by common.wgsl (Params, RNG, lookups, HG).
+// Mirrors crates/trace/src/integrator.rs; imports Params, the grid lookups, RNG and HG.
 //
 // Two modes (Task.mode):
 //  0 image: one invocation per pixel, `spp` camera samples with box-filter jitter; adds
@@ -12,6 +12,11 @@
 //    (task, slot); each draws `spp` samples of L_i(x, ω) for unit irradiance from the task's
 //    light direction — a phase sample at x, then the path with NEE at later vertices only — and
 //    writes (Σ L, Σ L², n, 0) into out[task * slots + slot].
+#import params
+#import grid
+#import rng
+#import hg
+#import constants
 
 struct Task {
     spp: u32, sample_offset: u32, mode: u32, max_depth: i32,
@@ -19,6 +24,8 @@ struct Task {
 };
 struct LiTask { x: vec4<f32>, view: vec4<f32>, to_light: vec4<f32> };
 
+@group(0) @binding(0) var<uniform> P: Params;
+@group(0) @binding(1) var<storage, read> density: array<f32>;
 @group(0) @binding(2) var<uniform> T: Task;
 @group(0) @binding(3) var<storage, read> li_tasks: array<LiTask>;
 @group(0) @binding(4) var<storage, read_write> out: array<vec4<f32>>;
@@ -126,9 +133,9 @@ fn radiance(o0: vec3<f32>, d0: vec3<f32>, scat0: u32, sun_dir: vec3<f32>, sun_e:
     return l;
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG)
 fn pt(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = gid.x + gid.y * nwg.x * 64u;
+    let i = gid.x + gid.y * nwg.x * WG;
     if (T.mode == 0u) {
         if (i >= P.width * P.height) { return; }
         let px = i % P.width;

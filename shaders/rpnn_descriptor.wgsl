@@ -1,6 +1,7 @@
 // Hierarchical stencil descriptor (Kallweit 2017 §4.2), one invocation per output float.
 // Mirrors crates/rpnn/src/descriptor.rs (layout, frame, lookups) in the same f32 arithmetic.
-// Standalone: does not use common.wgsl.
+// Imports only the shared constants (stencil size, workgroup size).
+#import constants
 
 struct DescParams {
     aabb_min: vec3<f32>, mfp: f32,
@@ -18,9 +19,6 @@ struct Config { x: vec4<f32>, view: vec4<f32>, to_light: vec4<f32> };
 @group(0) @binding(2) var<storage, read> level_info: array<LevelInfo>;
 @group(0) @binding(3) var<storage, read> configs: array<Config>;
 @group(0) @binding(4) var<storage, read_write> out: array<f32>;
-
-const POINTS: u32 = 225u;
-const LEN: u32 = 2251u;
 
 fn basis_t(n: vec3<f32>) -> vec3<f32> {
     let sign = select(-1.0, 1.0, n.z >= 0.0);
@@ -57,16 +55,16 @@ fn lookup(li: u32, p: vec3<f32>) -> f32 {
     return c0 * (1.0 - f.z) + c1 * f.z;
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(WG)
 fn descriptor(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = gid.x + gid.y * nwg.x * 64u;
-    if (i >= D.n_configs * LEN) { return; }
-    let c = i / LEN;
-    let j = i % LEN;
+    let i = gid.x + gid.y * nwg.x * WG;
+    if (i >= D.n_configs * DESCRIPTOR_LEN) { return; }
+    let c = i / DESCRIPTOR_LEN;
+    let j = i % DESCRIPTOR_LEN;
     let cfg = configs[c];
     let view = normalize(cfg.view.xyz);
     let z = normalize(cfg.to_light.xyz);
-    if (j == LEN - 1u) {
+    if (j == DESCRIPTOR_LEN - 1u) {
         out[i] = atan2(length(cross(view, z)), dot(view, z));
         return;
     }
@@ -74,8 +72,8 @@ fn descriptor(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
     var x: vec3<f32>;
     if (length(cr) < 1.0e-6) { x = normalize(basis_t(z)); } else { x = normalize(cr); }
     let y = cross(z, x);
-    let k = j / POINTS;          // 0-based stencil level
-    let p = j % POINTS;
+    let k = j / STENCIL_POINTS;          // 0-based stencil level
+    let p = j % STENCIL_POINTS;
     let s = vec3<f32>(-1.0 + f32(p % 5u) * 0.5, -1.0 + f32((p / 5u) % 5u) * 0.5, -1.0 + f32(p / 25u) * 0.5);
     let scale = f32(1u << k) * D.mfp;
     let q = cfg.x.xyz + (x * s.x + y * s.y + z * s.z) * scale;

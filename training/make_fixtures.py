@@ -3,6 +3,9 @@
 
 - rpnn-tiny.onnx: an RPNN (10 levels, width 16, 3 head layers, 1 output) with random weights;
 - rpnn-tiny-io.npy: float32 [16, 2252], 16 random descriptors with torch's output appended;
+- rpnn-micro.onnx, rpnn-micro-io.npy: the same architecture at its smallest (2 levels of 3
+  points, width 2, 1 head layer; ≈ 2 kB), so the reader is tested on another shape and the
+  `onnx` fuzz target mutates a whole valid model quickly;
 - not-rpnn.onnx: a vanilla MLP on the whole descriptor (the reader must refuse it);
 
     training/.venv/bin/python training/make_fixtures.py
@@ -32,6 +35,18 @@ x[:, -1] = rng.uniform(0, np.pi, size=16)
 with torch.no_grad():
     y = m(torch.from_numpy(x)).numpy()
 np.save(out / "rpnn-tiny-io.npy", np.concatenate([x, y], axis=1))
+
+torch.manual_seed(43)
+micro = RPNN(levels=2, points=3, width=2, head_layers=1).eval()
+with torch.no_grad():
+    for p in micro.parameters():
+        p.uniform_(-0.8, 0.8)
+    micro.head[-1].bias.fill_(1.0)  # a live output (the last ReLU is dead at random weights)
+export.export_onnx(micro, out / "rpnn-micro.onnx", {"nimbus.rpnn.phase": "hg"})
+xm = rng.gamma(1.5, 0.6, size=(8, micro.input_len)).astype(np.float32)
+with torch.no_grad():
+    ym = micro(torch.from_numpy(xm)).numpy()
+np.save(out / "rpnn-micro-io.npy", np.concatenate([xm, ym], axis=1))
 
 
 class Vanilla(torch.nn.Module):

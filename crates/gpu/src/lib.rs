@@ -4,6 +4,8 @@
 //! lavapipe), limit checks with clear errors, the registry of all WGSL shaders in `shaders/`,
 //! buffer helpers and GPU timestamp queries.
 
+pub mod compose;
+pub mod consts;
 pub mod params;
 pub mod shaders;
 pub mod timing;
@@ -303,11 +305,11 @@ impl Gpu {
         Ok(out)
     }
 
-    /// Workgroup counts (x, y) covering `invocations` threads of 64-wide workgroups; beyond the
-    /// 65 535 limit of one dimension the rest goes to y (shaders index
-    /// `gid.x + gid.y * num_workgroups.x * 64`).
+    /// Workgroup counts (x, y) covering `invocations` threads of [`consts::WG`]-wide
+    /// workgroups; beyond the 65 535 limit of one dimension the rest goes to y (shaders index
+    /// `gid.x + gid.y * num_workgroups.x * WG`).
     pub fn workgroups_1d(invocations: u32) -> (u32, u32) {
-        let wg = invocations.div_ceil(64).max(1);
+        let wg = invocations.div_ceil(consts::WG).max(1);
         if wg <= 65535 {
             (wg, 1)
         } else {

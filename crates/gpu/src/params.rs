@@ -1,13 +1,12 @@
-//! The uniform block shared by the shaders that include `common.wgsl` (photon mapping, GPU path
-//! tracing) (`struct Params` in
-//! `shaders/common.wgsl`). `#[repr(C)]` + bytemuck; a test checks every field offset against the
+//! The uniform block of the volume shaders (photon mapping, GPU path tracing): `struct Params`
+//! in `shaders/lib/params.wgsl`. `#[repr(C)]` + bytemuck; a test checks every field offset against the
 //! layout naga computes for the WGSL struct.
 
 use bytemuck::{Pod, Zeroable};
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable, Default, PartialEq)]
-pub struct PmParams {
+pub struct VolumeParams {
     pub aabb_min: [f32; 3],
     pub density_scale: f32,
     pub aabb_max: [f32; 3],
@@ -90,60 +89,69 @@ mod tests {
 
     #[test]
     fn layout_matches_wgsl() {
-        let (members, span) = crate::shaders::struct_layout("photon_update.wgsl", "Params");
-        assert_eq!(span as usize, std::mem::size_of::<PmParams>());
+        let (members, span) = crate::shaders::struct_layout("params", "Params");
+        assert_eq!(span as usize, std::mem::size_of::<VolumeParams>());
         let rust: Vec<(&str, usize)> = vec![
-            ("aabb_min", offset_of!(PmParams, aabb_min)),
-            ("density_scale", offset_of!(PmParams, density_scale)),
-            ("aabb_max", offset_of!(PmParams, aabb_max)),
-            ("albedo", offset_of!(PmParams, albedo)),
-            ("d_res", offset_of!(PmParams, d_res)),
-            ("g", offset_of!(PmParams, g)),
-            ("i_res", offset_of!(PmParams, i_res)),
-            ("sigma_max", offset_of!(PmParams, sigma_max)),
-            ("sun_dir", offset_of!(PmParams, sun_dir)),
-            ("sun_cos_max", offset_of!(PmParams, sun_cos_max)),
-            ("sun_irradiance", offset_of!(PmParams, sun_irradiance)),
-            ("bound_radius", offset_of!(PmParams, bound_radius)),
-            ("sky_radiance", offset_of!(PmParams, sky_radiance)),
-            ("d_max", offset_of!(PmParams, d_max)),
-            ("bound_center", offset_of!(PmParams, bound_center)),
-            ("sun_disc_radiance", offset_of!(PmParams, sun_disc_radiance)),
-            ("cam_origin", offset_of!(PmParams, cam_origin)),
-            ("tan_half", offset_of!(PmParams, tan_half)),
-            ("cam_forward", offset_of!(PmParams, cam_forward)),
-            ("aspect", offset_of!(PmParams, aspect)),
-            ("cam_right", offset_of!(PmParams, cam_right)),
-            ("step", offset_of!(PmParams, step)),
-            ("cam_up", offset_of!(PmParams, cam_up)),
-            ("early_exit", offset_of!(PmParams, early_exit)),
-            ("n_sun", offset_of!(PmParams, n_sun)),
-            ("n_sky", offset_of!(PmParams, n_sky)),
-            ("seed", offset_of!(PmParams, seed)),
-            ("frame", offset_of!(PmParams, frame)),
-            ("similarity_order", offset_of!(PmParams, similarity_order)),
-            ("max_order", offset_of!(PmParams, max_order)),
-            ("use_shared", offset_of!(PmParams, use_shared)),
-            ("filtered", offset_of!(PmParams, filtered)),
-            ("width", offset_of!(PmParams, width)),
-            ("height", offset_of!(PmParams, height)),
-            ("beam_threshold", offset_of!(PmParams, beam_threshold)),
-            ("reduced_factor", offset_of!(PmParams, reduced_factor)),
-            ("sun_norm", offset_of!(PmParams, sun_norm)),
-            ("sky_norm", offset_of!(PmParams, sky_norm)),
-            ("noise_amplitude", offset_of!(PmParams, noise_amplitude)),
-            ("noise_frequency", offset_of!(PmParams, noise_frequency)),
-            ("single_scatter", offset_of!(PmParams, single_scatter)),
-            ("density_weighted", offset_of!(PmParams, density_weighted)),
-            ("lobe_axis", offset_of!(PmParams, lobe_axis)),
-            ("lobe_split", offset_of!(PmParams, lobe_split)),
-            ("upsample_mean", offset_of!(PmParams, upsample_mean)),
+            ("aabb_min", offset_of!(VolumeParams, aabb_min)),
+            ("density_scale", offset_of!(VolumeParams, density_scale)),
+            ("aabb_max", offset_of!(VolumeParams, aabb_max)),
+            ("albedo", offset_of!(VolumeParams, albedo)),
+            ("d_res", offset_of!(VolumeParams, d_res)),
+            ("g", offset_of!(VolumeParams, g)),
+            ("i_res", offset_of!(VolumeParams, i_res)),
+            ("sigma_max", offset_of!(VolumeParams, sigma_max)),
+            ("sun_dir", offset_of!(VolumeParams, sun_dir)),
+            ("sun_cos_max", offset_of!(VolumeParams, sun_cos_max)),
+            ("sun_irradiance", offset_of!(VolumeParams, sun_irradiance)),
+            ("bound_radius", offset_of!(VolumeParams, bound_radius)),
+            ("sky_radiance", offset_of!(VolumeParams, sky_radiance)),
+            ("d_max", offset_of!(VolumeParams, d_max)),
+            ("bound_center", offset_of!(VolumeParams, bound_center)),
+            (
+                "sun_disc_radiance",
+                offset_of!(VolumeParams, sun_disc_radiance),
+            ),
+            ("cam_origin", offset_of!(VolumeParams, cam_origin)),
+            ("tan_half", offset_of!(VolumeParams, tan_half)),
+            ("cam_forward", offset_of!(VolumeParams, cam_forward)),
+            ("aspect", offset_of!(VolumeParams, aspect)),
+            ("cam_right", offset_of!(VolumeParams, cam_right)),
+            ("step", offset_of!(VolumeParams, step)),
+            ("cam_up", offset_of!(VolumeParams, cam_up)),
+            ("early_exit", offset_of!(VolumeParams, early_exit)),
+            ("n_sun", offset_of!(VolumeParams, n_sun)),
+            ("n_sky", offset_of!(VolumeParams, n_sky)),
+            ("seed", offset_of!(VolumeParams, seed)),
+            ("frame", offset_of!(VolumeParams, frame)),
+            (
+                "similarity_order",
+                offset_of!(VolumeParams, similarity_order),
+            ),
+            ("max_order", offset_of!(VolumeParams, max_order)),
+            ("use_shared", offset_of!(VolumeParams, use_shared)),
+            ("filtered", offset_of!(VolumeParams, filtered)),
+            ("width", offset_of!(VolumeParams, width)),
+            ("height", offset_of!(VolumeParams, height)),
+            ("beam_threshold", offset_of!(VolumeParams, beam_threshold)),
+            ("reduced_factor", offset_of!(VolumeParams, reduced_factor)),
+            ("sun_norm", offset_of!(VolumeParams, sun_norm)),
+            ("sky_norm", offset_of!(VolumeParams, sky_norm)),
+            ("noise_amplitude", offset_of!(VolumeParams, noise_amplitude)),
+            ("noise_frequency", offset_of!(VolumeParams, noise_frequency)),
+            ("single_scatter", offset_of!(VolumeParams, single_scatter)),
+            (
+                "density_weighted",
+                offset_of!(VolumeParams, density_weighted),
+            ),
+            ("lobe_axis", offset_of!(VolumeParams, lobe_axis)),
+            ("lobe_split", offset_of!(VolumeParams, lobe_split)),
+            ("upsample_mean", offset_of!(VolumeParams, upsample_mean)),
             (
                 "upsample_g_extrapolate",
-                offset_of!(PmParams, upsample_g_extrapolate),
+                offset_of!(VolumeParams, upsample_g_extrapolate),
             ),
-            ("sun_first", offset_of!(PmParams, sun_first)),
-            ("sun_count", offset_of!(PmParams, sun_count)),
+            ("sun_first", offset_of!(VolumeParams, sun_first)),
+            ("sun_count", offset_of!(VolumeParams, sun_count)),
         ];
         assert_eq!(members.len(), rust.len());
         for ((m, moff), (name, off)) in members.iter().zip(rust) {

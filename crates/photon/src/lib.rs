@@ -17,4 +17,4 @@ pub mod reference;
 pub mod settings;
 
 pub use mapper::{LobeAxis, PhotonMapper, PmError, PmSettings, PmVariant};
-pub use nimbus_gpu::params::PmParams;
+pub use nimbus_gpu::params::VolumeParams;

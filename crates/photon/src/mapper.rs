@@ -9,13 +9,13 @@ use nimbus_gpu::timing::StageTimer;
 use nimbus_gpu::{Gpu, GpuError, shaders};
 use nimbus_scene::{Camera, Image, Phase, Scene, Sky};
 
-use nimbus_gpu::params::PmParams;
+use nimbus_gpu::params::VolumeParams;
 
 mod readback;
 mod sun;
 
 pub use crate::cache_layout::{
-    CELL_BYTES, CELL_WORDS, SHARED_CELLS, W_SCALE, shared_cells, trace_source,
+    CELL_BYTES, CELL_WORDS, SHARED_CELLS, W_SCALE, shared_cells, trace_constants, trace_source,
 };
 
 /// Errors of the photon mapper.
@@ -55,7 +55,7 @@ pub type StageTimes = Vec<(&'static str, f64)>;
 /// The photon mapper for one scene on one device.
 pub struct PhotonMapper<'g> {
     gpu: &'g Gpu,
-    pub params: PmParams,
+    pub params: VolumeParams,
     pub settings: PmSettings,
     cells: u32,
     voxels: u32,
@@ -188,7 +188,7 @@ impl<'g> PhotonMapper<'g> {
         let use_shared = !settings.force_global_atomics && cells <= shared_cap;
         let (forward, right, up, tan_half) = scene.camera.basis();
         let sun = scene.sun.as_ref();
-        let params = PmParams {
+        let params = VolumeParams {
             aabb_min: f3(aabb.min),
             density_scale: vol.density_scale() as f32,
             aabb_max: f3(aabb.max),
@@ -298,9 +298,12 @@ impl<'g> PhotonMapper<'g> {
         };
         let slot_buf = gpu.uniform("ring slot", &[0u32; 4]);
         // Workgroup memory sized to the cache (one cell when unused): more workgroups resident.
-        let trace_src = trace_source(if use_shared { cells.max(1) } else { 1 })
-            .map_err(PmError::Unsupported)?;
-        let trace_p = gpu.pipeline("photon trace", &trace_src, "trace");
+        let trace_p = gpu.pipeline_with_constants(
+            "photon trace",
+            &trace_source(),
+            "trace",
+            &trace_constants(if use_shared { cells.max(1) } else { 1 }),
+        );
         let trace = Stage {
             bind: gpu.bind(
                 &trace_p,
@@ -747,7 +750,7 @@ impl<'g> PhotonMapper<'g> {
 /// read-outs and the image.
 pub fn buffer_bytes(
     settings: &PmSettings,
-    params: &PmParams,
+    params: &VolumeParams,
     voxels: u32,
     cells: u32,
     camera: &Camera,
@@ -773,7 +776,7 @@ pub fn buffer_bytes(
 fn check_host_memory(
     gpu: &Gpu,
     settings: &PmSettings,
-    params: &PmParams,
+    params: &VolumeParams,
     voxels: u32,
     cells: u32,
     camera: &Camera,

@@ -20,8 +20,9 @@
 //! Each form integrates to one over [0, r] (tested numerically).
 
 use glam::{Vec3, Vec4};
+use nimbus_scene::phase::hg::eval_f32 as hg;
 
-use nimbus_gpu::params::PmParams;
+use nimbus_gpu::params::VolumeParams;
 
 /// Stable truncated exponential filter (see the module docs).
 pub fn f_exp(d: f32, lambda: f32, r: f32) -> f32 {
@@ -72,11 +73,11 @@ pub struct CellValue {
 /// u32 words per cache cell (`CELL_WORDS` in photon_trace.wgsl and photon_upsample.wgsl):
 /// Σw sun, Σw sky, Σw (d + 1)/2 (3), Σ order, deposit count, and Σw, Σw (d + 1)/2 (3) of the
 /// high-order sun deposits.
-pub const CELL_WORDS: usize = 11;
+pub use crate::cache_layout::CELL_WORDS;
 
 /// Mean density over coarse cell `i` (4×4×4 stratified samples; `cell_mean_density` in the
 /// shader): the divisor of density-weighted sums.
-pub fn cell_mean_density(p: &PmParams, density: &[f32], i: usize) -> f32 {
+pub fn cell_mean_density(p: &VolumeParams, density: &[f32], i: usize) -> f32 {
     let r = p.i_res;
     let c = coords(i, r);
     let ires = Vec3::new(r[0] as f32, r[1] as f32, r[2] as f32);
@@ -93,7 +94,7 @@ pub fn cell_mean_density(p: &PmParams, density: &[f32], i: usize) -> f32 {
     s / 64.0
 }
 
-pub fn cell_value(p: &PmParams, density: &[f32], total: &[u32], i: usize) -> CellValue {
+pub fn cell_value(p: &VolumeParams, density: &[f32], total: &[u32], i: usize) -> CellValue {
     let b = i * CELL_WORDS;
     let w_sun = total[b] as f32;
     let w_sky = total[b + 1] as f32;
@@ -159,7 +160,7 @@ fn v3(a: [f32; 3]) -> Vec3 {
 }
 
 /// Centre of density voxel `idx` in world space (the shaders' voxel position).
-fn voxel_centre(p: &PmParams, idx: usize) -> Vec3 {
+fn voxel_centre(p: &VolumeParams, idx: usize) -> Vec3 {
     let res = p.d_res;
     let v = coords(idx, res);
     let ext = v3(p.aabb_max) - v3(p.aabb_min);
@@ -179,7 +180,7 @@ fn index(x: u32, y: u32, z: u32, res: [u32; 3]) -> usize {
 }
 
 /// (i0, i1, fraction) of the cell-centred trilinear lookup at p in a grid of `res`.
-fn trilinear(p: &PmParams, pos: Vec3, res: [u32; 3]) -> ([u32; 3], [u32; 3], Vec3) {
+fn trilinear(p: &VolumeParams, pos: Vec3, res: [u32; 3]) -> ([u32; 3], [u32; 3], Vec3) {
     let resf = Vec3::new(res[0] as f32, res[1] as f32, res[2] as f32);
     let u = (pos - v3(p.aabb_min)) / (v3(p.aabb_max) - v3(p.aabb_min)) * resf - Vec3::splat(0.5);
     let b = u.floor();
@@ -193,7 +194,7 @@ fn trilinear(p: &PmParams, pos: Vec3, res: [u32; 3]) -> ([u32; 3], [u32; 3], Vec
     )
 }
 
-fn inside(p: &PmParams, x: Vec3) -> bool {
+fn inside(p: &VolumeParams, x: Vec3) -> bool {
     x.cmpge(v3(p.aabb_min)).all() && x.cmple(v3(p.aabb_max)).all()
 }
 
@@ -209,7 +210,7 @@ where
 }
 
 /// Trilinear interpolation of `f(index)` over a grid (same arithmetic order as the shaders).
-fn interp<T>(p: &PmParams, pos: Vec3, res: [u32; 3], f: impl Fn(usize) -> T) -> T
+fn interp<T>(p: &VolumeParams, pos: Vec3, res: [u32; 3], f: impl Fn(usize) -> T) -> T
 where
     T: std::ops::Mul<f32, Output = T>
         + std::ops::Add<Output = T>
@@ -241,7 +242,7 @@ where
 }
 
 /// Unscaled density at x (0 outside the box).
-pub fn density_at(p: &PmParams, density: &[f32], x: Vec3) -> f32 {
+pub fn density_at(p: &VolumeParams, density: &[f32], x: Vec3) -> f32 {
     if !inside(p, x) {
         return 0.0;
     }
@@ -249,7 +250,7 @@ pub fn density_at(p: &PmParams, density: &[f32], x: Vec3) -> f32 {
 }
 
 /// J at fine voxel `idx` (the upsampling of `photon_upsample.wgsl`).
-pub fn upsample_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usize) -> [f32; 4] {
+pub fn upsample_voxel(p: &VolumeParams, density: &[f32], total: &[u32], idx: usize) -> [f32; 4] {
     if p.filtered == 0 {
         let cv = cell_value(p, density, total, idx);
         return [cv.sun, cv.sky, cv.g, cv.gamma];
@@ -293,26 +294,21 @@ pub fn upsample_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usize) 
 }
 
 /// `interp` over the per-voxel flux entries (`interp_dir` in photon_raymarch.wgsl).
-fn interp_dir(p: &PmParams, j_dirs: &[[Vec4; 2]], pos: Vec3, hi: bool) -> Vec4 {
+fn interp_dir(p: &VolumeParams, j_dirs: &[[Vec4; 2]], pos: Vec3, hi: bool) -> Vec4 {
     interp(p, pos, p.d_res, |i| j_dirs[i][hi as usize])
 }
 
 /// HG(· | g·|v|) for the lobe v (axis × g') towards the camera (−d) (`lobe_phase`).
-fn lobe_phase(p: &PmParams, v: Vec3, d: Vec3) -> f32 {
+fn lobe_phase(p: &VolumeParams, v: Vec3, d: Vec3) -> f32 {
     let gl = v.length();
     let mu = if gl > 1e-6 { (-d).dot(v / gl) } else { 0.0 };
     hg(p.g * gl.min(0.999), mu)
 }
 
-fn hg(g: f32, mu: f32) -> f32 {
-    let denom = (1.0 - g) * (1.0 - g) + 2.0 * g * (1.0 - mu);
-    (1.0 - g * g) / (4.0 * std::f32::consts::PI * denom * denom.sqrt())
-}
-
 /// Sun fluence times the phase of its lobes towards the camera (`sun_in_scatter` in
 /// photon_raymarch.wgsl): one lobe along the sun with J's g' (the paper), or per-voxel flux
 /// lobes — one for all orders, or low and high orders apart (`p.lobe_split`).
-pub fn sun_in_scatter(p: &PmParams, j_dirs: &[[Vec4; 2]], pos: Vec3, j: Vec4, d: Vec3) -> f32 {
+pub fn sun_in_scatter(p: &VolumeParams, j_dirs: &[[Vec4; 2]], pos: Vec3, j: Vec4, d: Vec3) -> f32 {
     if p.lobe_axis == 0 {
         return j.x * lobe_phase(p, -v3(p.sun_dir) * j.z, d);
     }
@@ -330,7 +326,12 @@ pub fn sun_in_scatter(p: &PmParams, j_dirs: &[[Vec4; 2]], pos: Vec3, j: Vec4, d:
 /// vector Σ w_L v(q) / Σ w_L over the neighbouring cells q with such light, w_L the
 /// upsampling's energy weight (no penetration-depth weight: the flux is linear, its average
 /// shortens where directions diverge).
-pub fn upsample_dir_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usize) -> [Vec4; 2] {
+pub fn upsample_dir_voxel(
+    p: &VolumeParams,
+    density: &[f32],
+    total: &[u32],
+    idx: usize,
+) -> [Vec4; 2] {
     if p.filtered == 0 {
         let cv = cell_value(p, density, total, idx);
         return [cv.dir.extend(cv.sun_hi), cv.dir_hi.extend(0.0)];
@@ -372,7 +373,12 @@ pub fn upsample_dir_voxel(p: &PmParams, density: &[f32], total: &[u32], idx: usi
 
 /// Calls `f(cell index, w_L)` for each of the 3×3×3 coarse cells around fine voxel `idx` with
 /// a positive energy weight, in the shader's loop order.
-fn for_each_neighbour(p: &PmParams, density: &[f32], idx: usize, mut f: impl FnMut(usize, f32)) {
+fn for_each_neighbour(
+    p: &VolumeParams,
+    density: &[f32],
+    idx: usize,
+    mut f: impl FnMut(usize, f32),
+) {
     let ext = v3(p.aabb_max) - v3(p.aabb_min);
     let ires = Vec3::new(p.i_res[0] as f32, p.i_res[1] as f32, p.i_res[2] as f32);
     let pos = voxel_centre(p, idx);
@@ -414,11 +420,7 @@ fn for_each_neighbour(p: &PmParams, density: &[f32], idx: usize, mut f: impl FnM
 /// Henyey–Greenstein reconstruction of the in-scattered radiance (Elek Appendix C): the
 /// incident lobe HG(g') convolved with the medium's HG(g) is HG(g g'); `mu` is the cosine
 /// between the lobe's axis and the direction towards the camera.
-pub fn in_scattered(p: &PmParams, dens: f32, j: [f32; 4], mu: f32) -> Vec3 {
-    let hg = |g: f32, mu: f32| {
-        let denom = (1.0 - g) * (1.0 - g) + 2.0 * g * (1.0 - mu);
-        (1.0 - g * g) / (4.0 * std::f32::consts::PI * denom * denom.sqrt())
-    };
+pub fn in_scattered(p: &VolumeParams, dens: f32, j: [f32; 4], mu: f32) -> Vec3 {
     p.albedo
         * p.density_scale
         * dens
@@ -428,11 +430,8 @@ pub fn in_scattered(p: &PmParams, dens: f32, j: [f32; 4], mu: f32) -> Vec3 {
 
 /// Exact first-order sun light at density `dens` with sun transmittance `t_sun`:
 /// σ_s E_sun T_sun p_HG(μ | g).
-pub fn single_scattered(p: &PmParams, dens: f32, t_sun: f32, mu: f32) -> Vec3 {
-    let g = p.g;
-    let denom = (1.0 - g) * (1.0 - g) + 2.0 * g * (1.0 - mu);
-    let hg = (1.0 - g * g) / (4.0 * std::f32::consts::PI * denom * denom.sqrt());
-    p.albedo * p.density_scale * dens * v3(p.sun_irradiance) * (t_sun * hg)
+pub fn single_scattered(p: &VolumeParams, dens: f32, t_sun: f32, mu: f32) -> Vec3 {
+    p.albedo * p.density_scale * dens * v3(p.sun_irradiance) * (t_sun * hg(p.g, mu))
 }
 
 fn pcg_hash(v: u32) -> u32 {
@@ -441,7 +440,7 @@ fn pcg_hash(v: u32) -> u32 {
     (word >> 22) ^ word
 }
 
-fn box_intersect(p: &PmParams, o: Vec3, d: Vec3) -> (f32, f32) {
+fn box_intersect(p: &VolumeParams, o: Vec3, d: Vec3) -> (f32, f32) {
     let (mut t0, mut t1) = (0.0f32, 3.0e38f32);
     for a in 0..3 {
         if d[a] == 0.0 {
@@ -480,7 +479,7 @@ fn value_noise(q: Vec3) -> Vec3 {
 }
 
 /// Three-octave vector-noise displacement of a lookup position (Elek §4.4).
-pub fn perturb(p: &PmParams, x: Vec3) -> Vec3 {
+pub fn perturb(p: &VolumeParams, x: Vec3) -> Vec3 {
     if p.noise_amplitude <= 0.0 {
         return x;
     }
@@ -492,7 +491,7 @@ pub fn perturb(p: &PmParams, x: Vec3) -> Vec3 {
 /// One pixel of `photon_raymarch.wgsl`.
 /// Sun transmittance at density voxel `idx` (the pass of `photon_sun.wgsl`): midpoint rule
 /// with half the smallest voxel as step from the voxel centre to the box boundary.
-pub fn sun_transmittance_voxel(p: &PmParams, density: &[f32], idx: usize) -> f32 {
+pub fn sun_transmittance_voxel(p: &VolumeParams, density: &[f32], idx: usize) -> f32 {
     let r = p.d_res;
     let ext = v3(p.aabb_max) - v3(p.aabb_min);
     let resf = Vec3::new(r[0] as f32, r[1] as f32, r[2] as f32);
@@ -514,7 +513,7 @@ pub fn sun_transmittance_voxel(p: &PmParams, density: &[f32], idx: usize) -> f32
 /// sun-transmittance volume (read when `p.single_scatter` is set), `j_dirs` the upsampled flux
 /// lobes (read when `p.lobe_axis` is set).
 pub fn raymarch_pixel(
-    p: &PmParams,
+    p: &VolumeParams,
     density: &[f32],
     j: &[[f32; 4]],
     t_sun: &[f32],
@@ -614,7 +613,7 @@ mod tests {
     fn hg_reconstruction_is_the_convolution() {
         // ∫ p_HG(ω·ω'|g) p_HG(ω'·ω_s|g') dω' = p_HG(ω·ω_s | g g'): numerical convolution on a
         // 400 × 800 (θ, φ) grid against the closed form used by the ray marcher.
-        let p = PmParams {
+        let p = VolumeParams {
             albedo: 1.0,
             density_scale: 1.0,
             g: 0.7,
@@ -622,10 +621,7 @@ mod tests {
             ..Default::default()
         };
         let gp = 0.5f32;
-        let hg = |g: f64, mu: f64| {
-            let denom = (1.0 - g) * (1.0 - g) + 2.0 * g * (1.0 - mu);
-            (1.0 - g * g) / (4.0 * std::f64::consts::PI * denom * denom.sqrt())
-        };
+        let hg = nimbus_scene::phase::hg::eval;
         for view_mu in [-0.8f64, 0.0, 0.6, 0.95] {
             // ω_s = z; ω at angle acos(view_mu) in the x-z plane.
             let w = glam::DVec3::new((1.0 - view_mu * view_mu).sqrt(), 0.0, view_mu);

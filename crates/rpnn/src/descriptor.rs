@@ -24,9 +24,11 @@ use glam::Vec3;
 
 use crate::pyramid::Pyramid;
 
-pub const LEVELS: usize = 10;
-pub const POINTS: usize = 225;
-pub const DESCRIPTOR_LEN: usize = LEVELS * POINTS + 1;
+/// Stencil levels, points per level (5 × 5 × 9) and descriptor length: one definition shared
+/// with `shaders/rpnn_descriptor.wgsl` (`nimbus_gpu::consts`).
+pub const LEVELS: usize = nimbus_gpu::consts::STENCIL_LEVELS as usize;
+pub const POINTS: usize = nimbus_gpu::consts::STENCIL_POINTS as usize;
+pub const DESCRIPTOR_LEN: usize = nimbus_gpu::consts::DESCRIPTOR_LEN as usize;
 
 /// Local stencil coordinates (unscaled, in mean free paths) of point `p`.
 pub fn stencil_point(p: usize) -> Vec3 {

@@ -12,7 +12,11 @@ fn data(name: &str) -> PathBuf {
 
 /// (descriptors, torch outputs) of the fixture (`training/make_fixtures.py`).
 pub fn fixture_io() -> (Vec<Vec<f32>>, Vec<f32>) {
-    let f = std::fs::File::open(data("rpnn-tiny-io.npy")).unwrap();
+    io_of("rpnn-tiny-io.npy")
+}
+
+fn io_of(name: &str) -> (Vec<Vec<f32>>, Vec<f32>) {
+    let f = std::fs::File::open(data(name)).unwrap();
     let npy = npyz::NpyFile::new(std::io::BufReader::new(f)).unwrap();
     let cols = npy.shape()[1] as usize;
     let v: Vec<f32> = npy.into_vec().unwrap();
@@ -40,6 +44,27 @@ fn tiny_model_matches_torch() {
         nonzero += (*y > 0.0) as usize;
     }
     assert!(nonzero > 8, "the fixture should exercise live outputs");
+}
+
+/// The reader takes the architecture's shape from the graph: the smallest RPNN (2 levels of 3
+/// points, width 2, one head layer) reads and reproduces torch too.
+#[test]
+fn micro_model_matches_torch() {
+    let m = Rpnn::load(&data("rpnn-micro.onnx")).unwrap();
+    assert_eq!((m.levels, m.points, m.width, m.outputs), (2, 3, 2, 1));
+    assert_eq!(m.head.len(), 1);
+    assert_eq!(m.input_len(), 7);
+    let (xs, ys) = io_of("rpnn-micro-io.npy");
+    assert_eq!((xs.len(), xs[0].len()), (8, 7));
+    for (x, y) in xs.iter().zip(&ys) {
+        let got = m.forward(x)[0];
+        // As above: float32 rounding of O(1) outputs.
+        assert!((got - y).abs() <= 1e-5 * y.abs().max(1.0), "{got} vs {y}");
+    }
+    assert!(
+        ys.iter().any(|y| *y > 0.0),
+        "the fixture should exercise a live output"
+    );
 }
 
 #[test]

@@ -7,7 +7,7 @@
 
 use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
-use nimbus_gpu::params::PmParams;
+use nimbus_gpu::params::VolumeParams;
 use nimbus_gpu::{Gpu, GpuError, shaders};
 use nimbus_scene::{Image, Phase, Scene, Sky};
 
@@ -57,7 +57,7 @@ fn f3(v: DVec3) -> [f32; 3] {
 /// A scene uploaded for GPU path tracing.
 pub struct GpuPathTracer<'g> {
     gpu: &'g Gpu,
-    params: PmParams,
+    params: VolumeParams,
     pipeline: wgpu::ComputePipeline,
     params_buf: wgpu::Buffer,
     density: wgpu::Buffer,
@@ -86,7 +86,7 @@ impl<'g> GpuPathTracer<'g> {
         gpu.check_storage("the density grid", (r[0] * r[1] * r[2]) as u64 * 4)?;
         let (forward, right, up, tan_half) = scene.camera.basis();
         let aabb = vol.aabb();
-        let params = PmParams {
+        let params = VolumeParams {
             aabb_min: f3(aabb.min),
             density_scale: vol.density_scale() as f32,
             aabb_max: f3(aabb.max),
