@@ -1,4 +1,4 @@
-// Ray marching of D and J (Elek 2012 §4.4, Appendix C). Mirrors `reference::raymarch_pixel`.
+// Ray marching of D and J (Elek 2012 §4.4, Appendix C). CPU twin: `nimbus_photon::cpu::raymarch`.
 // Front to back with step `P.step` (default: box diagonal / 300), a per-pixel hashed start
 // offset against banding, exact per-step attenuation, early exit below `P.early_exit`
 // transmittance (2 %). In-scattered radiance at x for view direction ω (propagation):

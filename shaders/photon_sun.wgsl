@@ -5,7 +5,7 @@
 // not from the coarse photon cache, which then holds only light scattered at least once (an
 // exact split by scattering order). Rebuilt only when the sun or the density changes, at
 // once or amortised over frames in slices.
-// Mirrors `reference::sun_transmittance_voxel`.
+// CPU twin: `nimbus_photon::cpu::sun_transmittance`.
 #import params
 #import grid
 #import constants

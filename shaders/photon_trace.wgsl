@@ -1,4 +1,5 @@
 // Photon-beam tracing into the partial cache H_new (Elek 2012 §4.1, Appendix A).
+// CPU twin: `nimbus_photon::cpu::trace` (one beam).
 //
 // One invocation traces one beam: sun beams start on a disc of the bounding-sphere radius facing
 // the sun, sky beams on the bounding sphere with cosine-distributed inward directions. Woodcock

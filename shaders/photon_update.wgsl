@@ -1,6 +1,7 @@
 // Ring update (Elek 2012 §4.2): I = I − H_old + H_new, and H_new replaces H_old in the ring.
 // Integer arithmetic: exact, so I never drifts however many frames run; a sum that would need
 // more than 32 bits sets the overflow flag instead of wrapping unnoticed.
+// CPU twin: `nimbus_photon::cpu::update`.
 #import constants
 
 @group(0) @binding(2) var<storage, read> h_new: array<u32>;

@@ -1,5 +1,5 @@
 // Physically based upsampling of the cache I to J at the density resolution (Elek 2012 §4.3).
-// Mirrors `reference::upsample_voxel` in crates/photon/src/reference.rs (GPU = CPU test).
+// CPU twins: `nimbus_photon::cpu::{cells, upsample, upsample_dirs}` (GPU = CPU tests).
 //
 // For each fine voxel p and each of the 3×3×3 coarse cells q around p's coarse cell:
 //   w_L = f_exp(|p − q| | λ, r) · max(1 − |D(p) − D(q)| / D_max, 0),
@@ -10,7 +10,7 @@
 // Mitsuba (BENCHMARKS.md "Upsampling readings"); the printed formulas stay the default because
 // they are closer: λ as the mean extinction σ_s (D(p) + D(q))/2 (`P.upsample_mean`) and g'
 // extrapolated as Σ g'(q) g^δ w_L / Σ w_L (`P.upsample_g_extrapolate`) are both worse.
-// f_exp is evaluated in the stable form of `reference::f_exp` (series for |λ r| < 0.05, no
+// f_exp is evaluated in the stable form of `cpu::f_exp` (series for |λ r| < 0.05, no
 // overflow for large |λ r|, λ < 0 allowed). If every weight vanishes, trilinear interpolation
 // of I is used. With `filtered == 0` (I and J of equal resolution) J is I converted to
 // physical units, without filtering.

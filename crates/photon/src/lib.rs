@@ -6,14 +6,14 @@
 //! distribution (§4.1.2, Appendix C), a physically based filter upsamples the cache to the density
 //! resolution (§4.3), and ray marching makes the image (§4.4).
 //!
-//! The deterministic GPU stages have CPU twins in [`reference`] that the tests compare against.
+//! Every GPU stage has a CPU twin of the same name in [`cpu`] that the tests compare against.
 
 pub mod animate;
 pub mod cache_layout;
 pub mod impostor;
 pub mod mapper;
 
-pub mod reference;
+pub mod cpu;
 pub mod settings;
 
 pub use mapper::{LobeAxis, PhotonMapper, PmError, PmSettings, PmVariant};

@@ -573,7 +573,7 @@ impl<'g> PhotonMapper<'g> {
             });
             pass.set_pipeline(&self.update.pipeline);
             pass.set_bind_group(0, &self.update.bind, &[]);
-            pass.dispatch_workgroups(count.div_ceil(64), 1, 1);
+            pass.dispatch_workgroups(count.div_ceil(nimbus_gpu::consts::WG), 1, 1);
         }
         self.timer.resolve(&mut enc);
         self.gpu.queue.submit([enc.finish()]);
