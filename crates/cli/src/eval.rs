@@ -7,7 +7,7 @@ use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use nimbus_eval::{CompareOptions, GpuSlot, RefDevice, ReferenceSettings, RunSettings};
 
-use crate::rpnn::{NetBackend, RpnnArgs};
+use crate::rpnn::RpnnArgs;
 
 #[derive(Clone, Copy, ValueEnum)]
 pub(crate) enum RefDeviceArg {
@@ -99,11 +99,7 @@ impl EvalArgs {
                 seed,
                 pm_beams: self.beams,
                 model: self.rpnn.model.clone(),
-                rpnn_gpu: match self.rpnn.backend {
-                    NetBackend::Auto => None,
-                    NetBackend::Wgpu => Some(true),
-                    NetBackend::Ort => Some(false),
-                },
+                rpnn_backend: self.rpnn.backend.into(),
                 sky_dirs: self.rpnn.sky_dirs,
             },
             reference: ReferenceSettings {
@@ -241,7 +237,7 @@ pub(crate) struct StressArgs {
 pub(crate) fn stress(args: &StressArgs) -> Result<()> {
     use nimbus_eval::stress;
     if let Some(scene) = &args.child {
-        let m: nimbus_eval::Method = args.method.parse()?;
+        let m: nimbus_eval::Method = args.method.parse().map_err(anyhow::Error::msg)?;
         let r = stress::run_child(scene, m);
         say!("{}", serde_json::to_string(&r)?);
         return Ok(());

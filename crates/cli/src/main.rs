@@ -28,7 +28,8 @@ use args::{PmArgs, positive_finite, thread_count};
 use datagen::{DatagenArgs, datagen};
 use eval::{EvalArgs, StressArgs, SuiteArgs, bench_suite, compare_scene, stress};
 
-use rpnn::{RpnnArgs, render_rpnn};
+use nimbus_render::Method;
+use rpnn::RpnnArgs;
 use view::{ViewArgs, view};
 
 #[derive(Parser)]
@@ -57,15 +58,8 @@ enum Device {
     Gpu,
 }
 
-#[derive(Clone, Copy, ValueEnum)]
-enum Method {
-    /// Reference volumetric path tracer (CPU).
-    Pt,
-    /// Temporally-coherent photon mapping on the GPU (Elek et al. 2012), converged ring.
-    Pm,
-    /// Radiance-predicting neural network (Kallweit et al. 2017): MC direct light, network
-    /// indirect light.
-    Rpnn,
+fn method_name(s: &str) -> Result<Method, String> {
+    s.parse()
 }
 
 #[derive(Subcommand)]
@@ -73,10 +67,13 @@ enum Command {
     /// Render a scene to linear EXR (+ per-pixel variance) and a tone-mapped PNG.
     Render {
         scene: PathBuf,
-        #[arg(long, value_enum, default_value = "pt")]
+        /// pt (reference path tracer, CPU), pt-gpu (the path tracer in WGSL: f32, HG/isotropic,
+        /// any sun, constant sky), pm (photon mapping, Elek 2012, converged ring), pm-elek2012
+        /// (the paper's photon mapping as published), rpnn (Kallweit 2017: MC direct light,
+        /// network indirect light).
+        #[arg(long, default_value = "pt", value_parser = method_name)]
         method: Method,
-        /// Path tracing on the CPU (reference, default) or the GPU (f32, HG/isotropic, any sun,
-        /// constant sky).
+        /// `--device gpu` with `--method pt` is `--method pt-gpu`.
         #[arg(long, value_enum, default_value = "cpu")]
         device: Device,
         /// Samples per pixel (default: the scene's `render.spp`).
@@ -268,88 +265,43 @@ fn run(cli: Cli) -> Result<()> {
             let (exr, png) = (out.with_extension("exr"), out.with_extension("png"));
             // Checked (and the folder made) before the render, not after it.
             io::check_writable(&exr)?;
-            let image = match method {
-                Method::Pt if device == Device::Gpu => {
-                    let gpu = nimbus_gpu::Gpu::new()?;
-                    let t0 = std::time::Instant::now();
-                    let mut gpt = nimbus_trace::gpu::GpuPathTracer::new(&gpu, &s)?;
-                    let (image, variance) = gpt.render(opts.spp, opts.seed)?;
-                    let secs = t0.elapsed().as_secs_f64();
-                    image.write_exr(&exr, Some(&variance))?;
-                    say!(
-                        "{}: GPU path tracing on {} — {}x{} at {} spp in {:.2} s ({:.3e} camera paths/s)",
-                        scene.display(),
-                        gpu.describe(),
-                        s.camera.width,
-                        s.camera.height,
-                        opts.spp,
-                        secs,
-                        (s.camera.width * s.camera.height) as f64 * opts.spp as f64
-                            / secs.max(1e-9)
-                    );
-                    image
-                }
-                Method::Pt => {
-                    let result = nimbus_trace::render(&s, &opts);
-                    result.image.write_exr(&exr, Some(&result.variance))?;
-                    let st = result.stats;
-                    say!(
-                        "{}: path tracing {}x{} at {} spp in {:.2} s ({:.3e} camera paths/s, {:.1} scatterings/path)",
-                        scene.display(),
-                        s.camera.width,
-                        s.camera.height,
-                        opts.spp,
-                        st.seconds,
-                        st.paths_per_second(),
-                        st.scatterings as f64 / st.paths.max(1) as f64,
-                    );
-                    result.image
-                }
-                Method::Pm => {
-                    let settings = pm_args.settings(opts.seed as u32)?;
-                    let gpu = nimbus_gpu::Gpu::new()?;
-                    let t0 = std::time::Instant::now();
-                    let mut pm = nimbus_photon::PhotonMapper::new(&gpu, &s, settings)?;
-                    pm.converge();
-                    pm.upsample();
-                    let image = if pm_args.half_res {
-                        pm.raymarch_half(&s.camera)?
+            let method = match (method, device) {
+                (m, Device::Cpu) => m,
+                (Method::Pt | Method::PtGpu, Device::Gpu) => Method::PtGpu,
+                (m, Device::Gpu) => bail!(
+                    "--device gpu applies to --method pt (as pt-gpu); `{m}` chooses its own device{}",
+                    if m == Method::Rpnn {
+                        " (see --backend)"
                     } else {
-                        pm.raymarch(&s.camera)?
-                    };
-                    image.write_exr(&exr, None)?;
-                    say!(
-                        "{}: photon mapping on {} — {} frames × {} beams, cache {:?} ({}), {}x{} in {:.2} s",
-                        scene.display(),
-                        gpu.describe(),
-                        pm.frames(),
-                        pm_args.beams,
-                        pm.cache_res(),
-                        if pm.uses_shared_memory() {
-                            "workgroup memory"
-                        } else {
-                            "global atomics"
-                        },
-                        s.camera.width,
-                        s.camera.height,
-                        t0.elapsed().as_secs_f64()
-                    );
-                    if timings {
-                        if pm.last_times.is_empty() {
-                            say!("GPU timestamps are not available on this adapter");
-                        }
-                        for (stage, ms) in &pm.last_times {
-                            say!("  {stage:14} {ms:9.3} ms (last frame)");
-                        }
+                        ""
                     }
-                    image
-                }
-                Method::Rpnn => {
-                    let out = render_rpnn(&s, &scene, &opts, &rpnn_args, timings)?;
-                    out.image.write_exr(&exr, Some(&out.variance))?;
-                    out.image
-                }
+                ),
             };
+            let options = nimbus_render::Options {
+                progress: !quiet,
+                pm: pm_args.settings(opts.seed as u32)?,
+                pm_half_res: pm_args.half_res,
+                rpnn: rpnn_args.settings(),
+            };
+            let budget = if method.is_photon_mapping() {
+                options.pm.ring
+            } else {
+                opts.spp
+            };
+            let gpu = nimbus_render::GpuSlot::new();
+            let mut estimator = nimbus_render::prepare(&s, method, &options, &gpu)?;
+            for w in &estimator.warnings {
+                say!("{w}");
+            }
+            let r = estimator.render(budget, opts.seed)?;
+            r.image.write_exr(&exr, r.variance.as_deref())?;
+            say!("{}: {}", scene.display(), r.summary);
+            if timings {
+                for line in &r.timing_lines {
+                    say!("{line}");
+                }
+            }
+            let image = r.image;
             let e = exposure.unwrap_or_else(|| image.auto_exposure());
             image.write_png(&png, e)?;
             say!("wrote {} and {}", exr.display(), png.display());
@@ -372,14 +324,14 @@ fn run(cli: Cli) -> Result<()> {
             out,
             exposure,
         } => {
-            use nimbus_photon::animate::{AnimateOptions, animate};
+            use nimbus_photon::animate::AnimateOptions;
             let s = Scene::load(&scene)?;
             if !(fps.is_finite() && fps > 0.0 && sun_speed.is_finite()) {
                 bail!("--fps must be > 0 and --sun-speed finite");
             }
             let density = density_sequence(&s, density_seq, evolve)?;
-            std::fs::create_dir_all(&out)
-                .with_context(|| format!("cannot create {}", out.display()))?;
+            // The folder is made and checked before any GPU work.
+            io::check_writable(out.join("timings.csv"))?;
             let gpu = nimbus_gpu::Gpu::new()?;
             let settings = pm_args.settings(s.render.seed as u32)?;
             let mut pm = nimbus_photon::PhotonMapper::new(&gpu, &s, settings)?;
@@ -391,43 +343,7 @@ fn run(cli: Cli) -> Result<()> {
                 impostors: impostors.then(Default::default),
                 half_res: pm_args.half_res,
             };
-            let mut csv = String::from(
-                "frame,sun_azimuth_deg,traced,upsampled,impostor,tracing_ms,update_ms,upsampling_ms,raymarching_ms,sun_transmittance_ms,gpu_total_ms,wall_ms\n",
-            );
-            let mut fixed_exposure = exposure;
-            animate(&mut pm, &s, &opts, |img, r| {
-                let e = *fixed_exposure.get_or_insert_with(|| img.auto_exposure());
-                img.write_png(out.join(format!("frame_{:05}.png", r.frame)), e)
-                    .map_err(|e| nimbus_photon::PmError::Unsupported(e.to_string()))?;
-                let ms = |n: &str| {
-                    r.stages
-                        .iter()
-                        .filter(|(s, _)| s.starts_with(n))
-                        .map(|(_, v)| v)
-                        .sum::<f64>()
-                };
-                let (t, u, up, rm, st) = (
-                    ms("tracing"),
-                    ms("update"),
-                    ms("upsampl") + ms("conversion"),
-                    ms("ray"),
-                    ms("sun transmittance"),
-                );
-                csv += &format!(
-                    "{},{:.4},{},{},{},{t:.4},{u:.4},{up:.4},{rm:.4},{st:.4},{:.4},{:.3}\n",
-                    r.frame,
-                    r.sun_azimuth_deg,
-                    r.traced as u8,
-                    r.upsampled as u8,
-                    r.refresh.map_or("reuse", |x| x.name()),
-                    t + u + up + rm + st,
-                    r.wall_ms
-                );
-                Ok(())
-            })?;
-            let csv_path = out.join("timings.csv");
-            std::fs::write(&csv_path, csv)
-                .with_context(|| format!("cannot write {}", csv_path.display()))?;
+            nimbus_photon::animate::animate_to_dir(&mut pm, &s, &opts, &out, exposure)?;
             say!(
                 "{} frames on {} -> {}",
                 frames,

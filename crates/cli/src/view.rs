@@ -85,7 +85,7 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
         exposure,
         pm: pm_args,
     } = args;
-    use nimbus_viewer::{Method, Script, ViewerOptions};
+    use nimbus_viewer::{Script, ViewMode, ViewerOptions};
     let (mut s, source) = match &scene {
         Some(p) => {
             let s = Scene::load(p)?;
@@ -131,8 +131,7 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
         )
         .map_err(|e| anyhow::anyhow!("--size: {e}"))?;
     }
-    let method = Method::parse(&method)
-        .with_context(|| format!("--method: expected pm, pt or rpnn, got `{method}`"))?;
+    let method = ViewMode::parse(&method).map_err(|e| anyhow::anyhow!("--method: {e}"))?;
     if !(sun_speed.is_finite() && density_fps.is_finite() && density_fps > 0.0) {
         bail!("--sun-speed must be finite and --density-fps positive");
     }
@@ -163,13 +162,13 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
         density_fps,
         play_sun,
         play_density: animated,
-        method: nimbus_viewer::Method::Pm,
+        method: ViewMode::Pm,
         exposure,
         rpnn_model: model.unwrap_or_else(nimbus_rpnn::model::default_model_path),
     };
     // Start in photon mapping and switch, so RPNN mode loads its model the same way as the key.
     let mut script = script;
-    if method != nimbus_viewer::Method::Pm {
+    if method != ViewMode::Pm {
         script.actions.insert(
             0,
             nimbus_viewer::script::Timed {

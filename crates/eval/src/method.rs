@@ -12,106 +12,19 @@
 //! variance — holds for the heavy-tailed samples of a delta sun through an HG lobe. The metrics
 //! subtract it to measure bias ([`crate::metrics`]).
 
-use std::fmt;
 use std::path::PathBuf;
-use std::str::FromStr;
-use std::time::Instant;
 
-use anyhow::{Context, Result, bail};
-use nimbus_gpu::Gpu;
+use anyhow::{Result, bail};
+use nimbus_render::{NetBackend, Options, RpnnSettings};
 use nimbus_scene::{Image, Scene};
 
-/// An estimator.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Method {
-    /// The CPU reference path tracer (f64).
-    Pt,
-    /// The WGSL path tracer (f32; HG/isotropic phase, constant sky).
-    PtGpu,
-    /// Temporally-coherent photon mapping (Elek 2012), converged ring of m frames, in the
-    /// default variant ([`nimbus_photon::PmVariant::default`]).
-    Pm,
-    /// Photon mapping exactly as the paper publishes it (`--pm-variant elek2012`), so the
-    /// default's improvements are measured against the paper.
-    PmElek2012,
-    /// Radiance-predicting neural network (Kallweit 2017).
-    Rpnn,
-}
-
-impl Method {
-    pub const ALL: [Method; 5] = [
-        Method::Pt,
-        Method::PtGpu,
-        Method::Pm,
-        Method::PmElek2012,
-        Method::Rpnn,
-    ];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Pt => "pt",
-            Method::PtGpu => "pt-gpu",
-            Method::Pm => "pm",
-            Method::PmElek2012 => "pm-elek2012",
-            Method::Rpnn => "rpnn",
-        }
-    }
-
-    /// What the budget counts.
-    pub fn budget_unit(self) -> &'static str {
-        match self {
-            Method::Pm | Method::PmElek2012 => "frames",
-            _ => "spp",
-        }
-    }
-
-    /// The default sweep: four times the work per step for the Monte Carlo methods (RMSE
-    /// halves per step when unbiased; every budget even, so it splits into two halves), ring
-    /// sizes up to the paper's m = 100 for photon mapping.
-    pub fn default_budgets(self) -> Vec<u32> {
-        match self {
-            Method::Pt => vec![2, 8, 32, 128],
-            Method::PtGpu => vec![4, 16, 64, 256],
-            Method::Pm | Method::PmElek2012 => vec![4, 16, 100],
-            Method::Rpnn => vec![2, 8, 32],
-        }
-    }
-
-    /// Whether each run reports a per-pixel variance (Monte Carlo estimators do; the photon
-    /// map's error is mostly low-frequency bias and is measured against the reference only).
-    pub fn has_variance(self) -> bool {
-        !self.is_photon_mapping()
-    }
-
-    pub fn is_photon_mapping(self) -> bool {
-        matches!(self, Method::Pm | Method::PmElek2012)
-    }
-}
-
-impl fmt::Display for Method {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl FromStr for Method {
-    type Err = anyhow::Error;
-    fn from_str(s: &str) -> Result<Self> {
-        Method::ALL
-            .into_iter()
-            .find(|m| m.name() == s.trim())
-            .with_context(|| {
-                format!("unknown method `{s}` (expected pt, pt-gpu, pm, pm-elek2012 or rpnn)")
-            })
-    }
-}
+pub use nimbus_render::{GpuSlot, Method};
 
 /// Parses `pt,pm,rpnn` (no duplicates).
 pub fn parse_methods(list: &str) -> Result<Vec<Method>> {
     let mut out: Vec<Method> = Vec::new();
     for m in list.split(',').filter(|s| !s.trim().is_empty()) {
-        let m: Method = m.parse()?;
+        let m: Method = m.parse().map_err(anyhow::Error::msg)?;
         if out.contains(&m) {
             bail!("--methods lists `{m}` twice");
         }
@@ -125,16 +38,16 @@ pub fn parse_methods(list: &str) -> Result<Vec<Method>> {
 
 /// Parses a budget override `method=b1,b2,…` (each budget 1 ..= 65 536).
 pub fn parse_budgets(spec: &str) -> Result<(Method, Vec<u32>)> {
-    let (m, list) = spec
-        .split_once('=')
-        .with_context(|| format!("--budgets `{spec}`: expected METHOD=B1,B2,… (e.g. pt=1,4,16)"))?;
-    let m: Method = m.parse()?;
+    let (m, list) = spec.split_once('=').ok_or_else(|| {
+        anyhow::anyhow!("--budgets `{spec}`: expected METHOD=B1,B2,… (e.g. pt=1,4,16)")
+    })?;
+    let m: Method = m.parse().map_err(anyhow::Error::msg)?;
     let mut b = Vec::new();
     for v in list.split(',') {
         let n: u32 = v
             .trim()
             .parse()
-            .with_context(|| format!("--budgets `{spec}`: `{v}` is not a whole number"))?;
+            .map_err(|_| anyhow::anyhow!("--budgets `{spec}`: `{v}` is not a whole number"))?;
         if !(1..=65_536).contains(&n) {
             bail!("--budgets `{spec}`: {n} lies outside 1..=65536");
         }
@@ -154,9 +67,8 @@ pub struct RunSettings {
     pub pm_beams: u32,
     /// RPNN: the ONNX model (default: the shipped one).
     pub model: Option<PathBuf>,
-    /// RPNN: network on the GPU (`Some(true)`), in ONNX Runtime (`Some(false)`), or the
-    /// renderer's automatic choice (wgpu on hardware, ort on a software rasteriser).
-    pub rpnn_gpu: Option<bool>,
+    /// RPNN: where the network runs.
+    pub rpnn_backend: NetBackend,
     /// RPNN: sky directions per shading point and sample.
     pub sky_dirs: u32,
 }
@@ -167,7 +79,7 @@ impl Default for RunSettings {
             seed: 1,
             pm_beams: 8192,
             model: None,
-            rpnn_gpu: None,
+            rpnn_backend: NetBackend::Auto,
             sky_dirs: 4,
         }
     }
@@ -224,20 +136,30 @@ fn variance_of(diff: &Option<Vec<f32>>) -> Option<Vec<f32>> {
         .map(|d| d.iter().map(|v| v * v / 4.0).collect())
 }
 
-/// A lazily created GPU, shared by the GPU methods of one evaluation.
-#[derive(Default)]
-pub struct GpuSlot(Option<Gpu>);
-
-impl GpuSlot {
-    pub fn get(&mut self) -> Result<&Gpu> {
-        if self.0.is_none() {
-            self.0 = Some(Gpu::new().context("no GPU adapter for a GPU method")?);
+impl RunSettings {
+    /// The estimators' options for these settings (everything else at its default).
+    pub fn options(&self) -> Options {
+        Options {
+            progress: false,
+            pm: nimbus_photon::PmSettings {
+                beams_per_frame: self.pm_beams,
+                ..Default::default()
+            },
+            pm_half_res: false,
+            rpnn: RpnnSettings {
+                model: self.model.clone(),
+                backend: self.rpnn_backend,
+                sky_dirs: self.sky_dirs,
+                strict: false,
+            },
         }
-        Ok(self.0.as_ref().expect("set above"))
     }
 }
 
-/// Runs `method` on `scene` for each budget (ascending), calling `each` after every run.
+/// Runs `method` on `scene` for each budget (ascending), calling `each` after every run: one
+/// [`nimbus_render::prepare`] (its time is the runs' `setup_s`), then one render per budget
+/// (Monte Carlo budgets as two halves; a photon map is built per ring size, and that build is
+/// its `setup_s`).
 pub fn sweep(
     scene: &Scene,
     method: Method,
@@ -246,170 +168,44 @@ pub fn sweep(
     gpu: &mut GpuSlot,
     each: &mut dyn FnMut(&Run),
 ) -> Result<Vec<Run>> {
-    let label = scene.source.display().to_string();
+    let gpu: &GpuSlot = gpu;
+    let mut est = nimbus_render::prepare(scene, method, &settings.options(), gpu)?;
     let mut runs = Vec::new();
-    let t_setup = Instant::now();
-    match method {
-        Method::Pt => {
-            let tracer = nimbus_trace::PathTracer::new(scene);
-            let setup_s = t_setup.elapsed().as_secs_f64();
-            for &spp in budgets {
-                let (image, half_diff, time_s) = halves(spp, settings.seed, |spp, seed| {
-                    let out = nimbus_trace::render_with(
-                        &tracer,
-                        &nimbus_trace::RenderOptions {
-                            spp,
-                            seed,
-                            progress: false,
-                        },
-                    );
-                    Ok((out.image, out.stats.seconds))
-                })?;
-                runs.push(Run {
-                    method,
-                    budget: spp,
-                    image,
-                    variance: variance_of(&half_diff),
-                    half_diff,
-                    time_s,
-                    gpu_ms: None,
-                    setup_s,
-                    device: format!("cpu ({} threads)", rayon_threads()),
-                });
-                each(runs.last().expect("pushed"));
+    for &budget in budgets {
+        let run = if method.has_variance() {
+            let (image, half_diff, time_s) = halves(budget, settings.seed, |spp, seed| {
+                let r = est.render(spp, seed)?;
+                Ok((r.image, r.seconds))
+            })?;
+            Run {
+                method,
+                budget,
+                image,
+                variance: variance_of(&half_diff),
+                half_diff,
+                time_s,
+                gpu_ms: None,
+                setup_s: est.prepare_s,
+                device: est.device.clone(),
             }
-        }
-        Method::PtGpu => {
-            let gpu = gpu.get()?;
-            let mut gpt = nimbus_trace::gpu::GpuPathTracer::new(gpu, scene)
-                .with_context(|| format!("{label}: GPU path tracer"))?;
-            let setup_s = t_setup.elapsed().as_secs_f64();
-            for &spp in budgets {
-                let (image, half_diff, time_s) = halves(spp, settings.seed, |spp, seed| {
-                    let t0 = Instant::now();
-                    let (image, _) = gpt.render(spp, seed)?;
-                    Ok((image, t0.elapsed().as_secs_f64()))
-                })?;
-                runs.push(Run {
-                    method,
-                    budget: spp,
-                    image,
-                    variance: variance_of(&half_diff),
-                    half_diff,
-                    time_s,
-                    gpu_ms: None,
-                    setup_s,
-                    device: gpu.describe(),
-                });
-                each(runs.last().expect("pushed"));
+        } else {
+            let r = est.render(budget, settings.seed)?;
+            Run {
+                method,
+                budget,
+                image: r.image,
+                variance: None,
+                half_diff: None,
+                time_s: r.seconds,
+                gpu_ms: r.gpu_ms,
+                setup_s: r.setup_s,
+                device: est.device.clone(),
             }
-        }
-        Method::Pm | Method::PmElek2012 => {
-            let gpu = gpu.get()?;
-            for &frames in budgets {
-                let t0 = Instant::now();
-                let pm_settings = nimbus_photon::PmSettings {
-                    beams_per_frame: settings.pm_beams,
-                    ring: frames,
-                    seed: settings.seed as u32,
-                    variant: if method == Method::PmElek2012 {
-                        nimbus_photon::PmVariant::Elek2012
-                    } else {
-                        nimbus_photon::PmVariant::default()
-                    },
-                    ..Default::default()
-                };
-                let mut pm = nimbus_photon::PhotonMapper::new(gpu, scene, pm_settings)
-                    .with_context(|| format!("{label}: photon mapper"))?;
-                let setup_s = t0.elapsed().as_secs_f64();
-                let t1 = Instant::now();
-                let mut gpu_ms = 0.0;
-                while !pm.ring_full() {
-                    pm.trace_frame(None);
-                    gpu_ms += stage_sum(&pm.last_times);
-                }
-                pm.upsample();
-                gpu_ms += stage_sum(&pm.last_times);
-                let image = pm.raymarch(&scene.camera)?;
-                gpu_ms += stage_sum(&pm.last_times);
-                runs.push(Run {
-                    method,
-                    budget: frames,
-                    image,
-                    variance: None,
-                    half_diff: None,
-                    time_s: t1.elapsed().as_secs_f64(),
-                    gpu_ms: gpu.has_timestamps().then_some(gpu_ms).filter(|&v| v > 0.0),
-                    setup_s,
-                    device: gpu.describe(),
-                });
-                each(runs.last().expect("pushed"));
-            }
-        }
-        Method::Rpnn => {
-            use nimbus_rpnn::render::{Backend, RpnnOptions};
-            let path = settings
-                .model
-                .clone()
-                .unwrap_or_else(nimbus_rpnn::model::default_model_path);
-            let model = nimbus_rpnn::model::Rpnn::load(&path)?;
-            let pyr = nimbus_rpnn::Pyramid::for_rendering(&scene.volume)?;
-            let use_gpu = match settings.rpnn_gpu {
-                Some(v) => v,
-                None => gpu.get().is_ok_and(|g| !g.is_software()),
-            };
-            let (mut backend, device) = if use_gpu {
-                let g = gpu.get()?;
-                let b = nimbus_rpnn::gpu_mlp::GpuRpnn::new(
-                    g,
-                    &pyr,
-                    &model,
-                    nimbus_rpnn::gpu_mlp::DEFAULT_BATCH,
-                )?;
-                (
-                    Backend::Wgpu(Box::new(b)),
-                    format!("wgpu on {}", g.describe()),
-                )
-            } else {
-                let b = nimbus_rpnn::ort_backend::OrtModel::load(&path, 0)?;
-                (Backend::Ort(b), "ort (cpu)".to_string())
-            };
-            let setup_s = t_setup.elapsed().as_secs_f64();
-            for &spp in budgets {
-                let (image, half_diff, time_s) = halves(spp, settings.seed, |spp, seed| {
-                    let opts = RpnnOptions {
-                        spp,
-                        seed,
-                        sky_dirs: settings.sky_dirs,
-                    };
-                    let out = nimbus_rpnn::render::render(scene, &pyr, &mut backend, &opts)
-                        .with_context(|| format!("{label}: RPNN render"))?;
-                    Ok((out.image, out.times.total_ms / 1e3))
-                })?;
-                runs.push(Run {
-                    method,
-                    budget: spp,
-                    image,
-                    variance: variance_of(&half_diff),
-                    half_diff,
-                    time_s,
-                    gpu_ms: None,
-                    setup_s,
-                    device: device.clone(),
-                });
-                each(runs.last().expect("pushed"));
-            }
-        }
+        };
+        runs.push(run);
+        each(runs.last().expect("pushed"));
     }
     Ok(runs)
-}
-
-fn stage_sum(t: &[(&'static str, f64)]) -> f64 {
-    t.iter().map(|(_, v)| v).sum()
-}
-
-fn rayon_threads() -> usize {
-    rayon::current_num_threads()
 }
 
 #[cfg(test)]

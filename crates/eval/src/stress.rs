@@ -332,7 +332,7 @@ pub fn run_child(scene_path: &Path, method: Method) -> ChildReport {
     };
     let settings = RunSettings {
         pm_beams: 1024,
-        rpnn_gpu: None,
+        rpnn_backend: nimbus_render::NetBackend::Auto,
         ..Default::default()
     };
     let mut gpu = GpuSlot::default();

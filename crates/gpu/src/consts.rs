@@ -12,7 +12,7 @@ pub const WG: u32 = 64;
 /// the u32 cache words.
 pub const W_SCALE: f64 = 4096.0;
 /// Photon cache: u32 words per cell (energy, flux vector, two-lobe sums; see
-/// `nimbus_photon::reference`).
+/// `nimbus_photon::cpu`).
 pub const CELL_WORDS: u32 = 11;
 
 /// RPNN stencil (Kallweit 2017 §4.2): points per level, 5 × 5 × 9.

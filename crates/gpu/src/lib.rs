@@ -334,11 +334,6 @@ impl Gpu {
         }
         self.queue.submit([enc.finish()]);
     }
-
-    /// Waits until all submitted work is done.
-    pub fn wait(&self) {
-        let _ = self.device.poll(wgpu::PollType::wait_indefinitely());
-    }
 }
 
 #[cfg(test)]

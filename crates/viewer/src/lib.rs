@@ -11,7 +11,7 @@ pub mod script;
 pub mod viewer;
 pub mod window;
 
-pub use script::{Action, Method, Script};
+pub use script::{Action, Script, ViewMode};
 pub use viewer::{FrameStats, Viewer, ViewerError, ViewerOptions};
 
 /// The scene `nimbus view` opens without arguments: the demo cumulus, back-lit by a low sun.

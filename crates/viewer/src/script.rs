@@ -23,9 +23,10 @@
 
 use std::path::{Path, PathBuf};
 
-/// Estimators the viewer can show.
+/// How the viewer shows a [`nimbus_render::Method`]: live or progressively. The viewer shows
+/// `pm`, `pt` and `rpnn`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Method {
+pub enum ViewMode {
     /// Photon mapping, live (Elek 2012): the ring follows every change.
     Pm,
     /// Progressive path tracing: one sample per pixel per frame, restarted on any change.
@@ -34,21 +35,28 @@ pub enum Method {
     Rpnn,
 }
 
-impl Method {
+impl ViewMode {
     pub fn name(self) -> &'static str {
+        self.method().describe()
+    }
+
+    /// The estimator this mode shows.
+    pub fn method(self) -> nimbus_render::Method {
         match self {
-            Method::Pm => "photon mapping",
-            Method::Pt => "path tracing",
-            Method::Rpnn => "RPNN",
+            ViewMode::Pm => nimbus_render::Method::Pm,
+            ViewMode::Pt => nimbus_render::Method::Pt,
+            ViewMode::Rpnn => nimbus_render::Method::Rpnn,
         }
     }
 
-    pub fn parse(s: &str) -> Option<Self> {
-        match s {
-            "pm" => Some(Method::Pm),
-            "pt" => Some(Method::Pt),
-            "rpnn" => Some(Method::Rpnn),
-            _ => None,
+    /// The mode of a method name (`pm`, `pt`, `rpnn`); an error for the others.
+    pub fn parse(s: &str) -> Result<Self, String> {
+        let m: nimbus_render::Method = s.parse()?;
+        match m {
+            nimbus_render::Method::Pm => Ok(ViewMode::Pm),
+            nimbus_render::Method::Pt => Ok(ViewMode::Pt),
+            nimbus_render::Method::Rpnn => Ok(ViewMode::Rpnn),
+            other => Err(format!("the viewer shows pm, pt or rpnn, not `{other}`")),
         }
     }
 }
@@ -82,7 +90,7 @@ pub enum Action {
     },
     ToggleSunMotion,
     ToggleDensityAnimation,
-    Method(Method),
+    Method(ViewMode),
     Resize {
         width: u32,
         height: u32,
@@ -212,9 +220,7 @@ impl Script {
                 }
                 "method" => {
                     count(1)?;
-                    Action::Method(Method::parse(args[0]).ok_or_else(|| {
-                        err(format!("unknown method `{}` (pm, pt or rpnn)", args[0]))
-                    })?)
+                    Action::Method(ViewMode::parse(args[0]).map_err(err)?)
                 }
                 "resize" => {
                     count(2)?;
@@ -299,7 +305,11 @@ mod tests {
             ("0 zoom -1\n", "t:1: `zoom` factor must be positive, got -1"),
             (
                 "0 method foo\n",
-                "t:1: unknown method `foo` (pm, pt or rpnn)",
+                "t:1: unknown method `foo` (expected pt, pt-gpu, pm, pm-elek2012 or rpnn)",
+            ),
+            (
+                "0 method pt-gpu\n",
+                "t:1: the viewer shows pm, pt or rpnn, not `pt-gpu`",
             ),
             ("0 fly\n", "t:1: unknown action `fly`"),
             ("0 sun NaN 3\n", "t:1: `sun`: `NaN` is not finite"),

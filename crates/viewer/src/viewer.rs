@@ -29,7 +29,7 @@ use nimbus_scene::grid::DensityGrid;
 use nimbus_scene::volume::Volume;
 use nimbus_scene::{Camera, Image, Scene};
 
-use crate::script::{Action, Method};
+use crate::script::{Action, ViewMode};
 
 /// Errors of the viewer.
 #[derive(Debug, thiserror::Error)]
@@ -61,7 +61,7 @@ pub struct ViewerOptions {
     pub density_fps: f64,
     pub play_sun: bool,
     pub play_density: bool,
-    pub method: Method,
+    pub method: ViewMode,
     /// Display exposure; `None`: fixed from the first image (99th percentile → 0.9).
     pub exposure: Option<f64>,
     /// The RPNN model for RPNN mode (loaded only when that mode is chosen).
@@ -91,7 +91,7 @@ impl Default for ViewerOptions {
             density_fps: 10.0,
             play_sun: false,
             play_density: false,
-            method: Method::Pm,
+            method: ViewMode::Pm,
             exposure: None,
             rpnn_model: nimbus_rpnn::model::default_model_path(),
         }
@@ -177,7 +177,7 @@ pub struct Viewer<'g> {
     opts: ViewerOptions,
     pm: PhotonMapper<'g>,
     camera: Camera,
-    method: Method,
+    method: ViewMode,
     play_sun: bool,
     play_density: bool,
     density_clock: f64,
@@ -255,7 +255,7 @@ impl<'g> Viewer<'g> {
         &self.scene
     }
 
-    pub fn method(&self) -> Method {
+    pub fn method(&self) -> ViewMode {
         self.method
     }
 
@@ -381,7 +381,7 @@ impl<'g> Viewer<'g> {
                 }
             }
             Action::Method(m) => {
-                if *m == Method::Rpnn && self.method != Method::Rpnn {
+                if *m == ViewMode::Rpnn && self.method != ViewMode::Rpnn {
                     match self.start_rpnn() {
                         Ok(r) => self.rpnn = Some(r),
                         Err(e) => {
@@ -393,7 +393,7 @@ impl<'g> Viewer<'g> {
                 if *m != self.method {
                     self.method = *m;
                     self.pt = None;
-                    if *m != Method::Rpnn {
+                    if *m != ViewMode::Rpnn {
                         self.rpnn = None;
                     }
                     self.impostor_image = None;
@@ -501,9 +501,9 @@ impl<'g> Viewer<'g> {
             ..Default::default()
         };
         match self.method {
-            Method::Pm => self.frame_pm(&mut stats)?,
-            Method::Pt => self.frame_pt(&mut stats)?,
-            Method::Rpnn => self.frame_rpnn(&mut stats)?,
+            ViewMode::Pm => self.frame_pm(&mut stats)?,
+            ViewMode::Pt => self.frame_pt(&mut stats)?,
+            ViewMode::Rpnn => self.frame_rpnn(&mut stats)?,
         }
         if self.exposure.is_none() {
             self.exposure = Some(self.image.auto_exposure());
@@ -673,29 +673,21 @@ impl<'g> Viewer<'g> {
         Ok(())
     }
 
-    /// Loads the model and builds the backend: WGSL on a hardware GPU, ONNX Runtime on a
-    /// software rasteriser.
+    /// Loads the model and builds the backend where `nimbus_render` chooses it automatically
+    /// (WGSL on a hardware GPU, ONNX Runtime on a software rasteriser).
     fn start_rpnn(&self) -> Result<RpnnView<'g>, String> {
         let model =
             nimbus_rpnn::model::Rpnn::load(&self.opts.rpnn_model).map_err(|e| e.to_string())?;
         let pyr =
             nimbus_rpnn::Pyramid::for_rendering(&self.scene.volume).map_err(|e| e.to_string())?;
-        let backend = if self.gpu.is_software() {
-            nimbus_rpnn::render::Backend::Ort(
-                nimbus_rpnn::ort_backend::OrtModel::load(&self.opts.rpnn_model, 0)
-                    .map_err(|e| e.to_string())?,
-            )
-        } else {
-            nimbus_rpnn::render::Backend::Wgpu(Box::new(
-                nimbus_rpnn::gpu_mlp::GpuRpnn::new(
-                    self.gpu,
-                    &pyr,
-                    &model,
-                    nimbus_rpnn::gpu_mlp::DEFAULT_BATCH,
-                )
-                .map_err(|e| e.to_string())?,
-            ))
-        };
+        let (backend, _) = nimbus_render::rpnn_backend(
+            nimbus_render::NetBackend::Auto,
+            Some(self.gpu),
+            &self.opts.rpnn_model,
+            &model,
+            &pyr,
+        )
+        .map_err(|e| format!("{e:#}"))?;
         Ok(RpnnView {
             backend,
             pyr,
@@ -751,7 +743,7 @@ impl<'g> Viewer<'g> {
             line += &format!(" ({})", parts.join(", "));
         }
         match self.method {
-            Method::Pt | Method::Rpnn => line += &format!(" | {} spp", s.spp),
+            ViewMode::Pt | ViewMode::Rpnn => line += &format!(" | {} spp", s.spp),
             _ => {
                 line += &format!(
                     " | {} photon beams this frame (sun {}, sky {}) | ring {}/{}",

@@ -26,7 +26,7 @@ use winit::event_loop::{ActiveEventLoop, ControlFlow, EventLoop};
 use winit::keyboard::{Key, NamedKey};
 use winit::window::{Window, WindowId};
 
-use crate::script::{Action, Method, Script};
+use crate::script::{Action, Script, ViewMode};
 use crate::viewer::{SceneSource, Viewer, ViewerError, ViewerOptions};
 
 /// Extra settings of a windowed session.
@@ -442,9 +442,9 @@ impl App {
             Key::Character(c) => match c.as_str() {
                 "q" | "Q" => Some(Action::Quit),
                 "d" | "D" => Some(Action::ToggleDensityAnimation),
-                "1" => Some(Action::Method(Method::Pm)),
-                "2" => Some(Action::Method(Method::Pt)),
-                "3" => Some(Action::Method(Method::Rpnn)),
+                "1" => Some(Action::Method(ViewMode::Pm)),
+                "2" => Some(Action::Method(ViewMode::Pt)),
+                "3" => Some(Action::Method(ViewMode::Rpnn)),
                 "+" | "=" => {
                     r.viewer.scale_exposure(2f64.sqrt());
                     None

@@ -6,7 +6,7 @@ use std::path::Path;
 use nimbus_gpu::Gpu;
 use nimbus_photon::{LobeAxis, PmSettings};
 use nimbus_scene::{Image, Scene};
-use nimbus_viewer::{Action, Method, Viewer, ViewerOptions, run_frame};
+use nimbus_viewer::{Action, ViewMode, Viewer, ViewerOptions, run_frame};
 
 const SCENE: &str = r#"
 [volume]
@@ -157,7 +157,7 @@ fn small_orbit_reuses_the_impostor_large_one_refreshes() {
 fn path_tracing_accumulates_and_restarts_on_change() {
     let gpu = Gpu::new().unwrap();
     let mut v = Viewer::new(&gpu, scene(), None, options()).unwrap();
-    v.apply(&Action::Method(Method::Pt)).unwrap();
+    v.apply(&Action::Method(ViewMode::Pt)).unwrap();
     frames(&mut v, 3);
     assert_eq!(v.stats().spp, 3);
     v.apply(&Action::Zoom { factor: 0.9 }).unwrap();
@@ -168,9 +168,9 @@ fn path_tracing_accumulates_and_restarts_on_change() {
     let mut opts = options();
     opts.rpnn_model = "no/such/model.onnx".into();
     let mut v = Viewer::new(&gpu, scene(), None, opts).unwrap();
-    v.apply(&Action::Method(Method::Rpnn)).unwrap();
+    v.apply(&Action::Method(ViewMode::Rpnn)).unwrap();
     frames(&mut v, 1);
-    assert_eq!(v.method(), Method::Pm);
+    assert_eq!(v.method(), ViewMode::Pm);
     let note = v.stats().note.clone().unwrap();
     assert!(
         note.contains("RPNN unavailable") && note.contains("no/such/model.onnx"),
@@ -185,9 +185,9 @@ fn rpnn_mode_accumulates_and_restarts() {
     opts.rpnn_model =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../rpnn/tests/data/rpnn-tiny.onnx");
     let mut v = Viewer::new(&gpu, scene(), None, opts).unwrap();
-    v.apply(&Action::Method(Method::Rpnn)).unwrap();
+    v.apply(&Action::Method(ViewMode::Rpnn)).unwrap();
     frames(&mut v, 2);
-    assert_eq!(v.method(), Method::Rpnn);
+    assert_eq!(v.method(), ViewMode::Rpnn);
     assert_eq!(v.stats().spp, 2);
     assert!(v.status_line().contains("inference"));
     v.apply(&Action::Orbit {

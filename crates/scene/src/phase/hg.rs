@@ -77,6 +77,18 @@ pub fn eval_f32(g: f32, cos_theta: f32) -> f32 {
     (1.0 - g * g) / (4.0 * std::f32::consts::PI * denom * denom.sqrt())
 }
 
+/// [`sample_cos`] in single precision as `hg_sample_cos` in `shaders/lib/hg.wgsl` (its
+/// small-|g| branch starts at 1e-3, the f32 balance documented there), for CPU twins.
+#[inline]
+pub fn sample_cos_f32(g: f32, u: f32) -> f32 {
+    let s = 2.0 * u - 1.0;
+    if g.abs() < 1.0e-3 {
+        return (s + 1.5 * g * (1.0 - s * s)).clamp(-1.0, 1.0);
+    }
+    let t = (1.0 - g * g) / (1.0 + g * s);
+    ((1.0 + g * g - t * t) / (2.0 * g)).clamp(-1.0, 1.0)
+}
+
 #[inline]
 pub fn sample_cos(g: f64, u: f64) -> f64 {
     let s = 2.0 * u - 1.0;

@@ -1,0 +1,83 @@
+//! Where the GPU estimators and the RPNN network run: the one place that opens the GPU and
+//! chooses the network's backend.
+
+use std::cell::OnceCell;
+
+use anyhow::{Context, Result};
+use nimbus_gpu::Gpu;
+
+/// Where RPNN's network runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum NetBackend {
+    /// wgpu on a hardware GPU, ONNX Runtime when the only adapter is a software rasteriser
+    /// (lavapipe runs the network ≈ 30× slower than ONNX Runtime on the same CPU) or there is
+    /// none.
+    #[default]
+    Auto,
+    /// Descriptors and network in WGSL compute shaders (any GPU or lavapipe).
+    Wgpu,
+    /// Descriptors on the CPU, network in ONNX Runtime (PyPI onnxruntime, found at run time).
+    Ort,
+}
+
+impl NetBackend {
+    /// Whether the network runs in WGSL, given the adapter `Auto` would use (`None`: no
+    /// adapter).
+    pub fn uses_wgpu(self, adapter_is_software: Option<bool>) -> bool {
+        match self {
+            NetBackend::Wgpu => true,
+            NetBackend::Ort => false,
+            NetBackend::Auto => adapter_is_software == Some(false),
+        }
+    }
+}
+
+/// A GPU opened on first use and shared by every estimator of one program run (the
+/// evaluation renders several methods on one device).
+#[derive(Default)]
+pub struct GpuSlot {
+    gpu: OnceCell<Gpu>,
+}
+
+impl GpuSlot {
+    /// An empty slot: no adapter is opened until a method needs one.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// A slot holding an already opened GPU (the viewer owns its device and surface).
+    pub fn with(gpu: Gpu) -> Self {
+        let s = Self::default();
+        let _ = s.gpu.set(gpu);
+        s
+    }
+
+    /// The GPU, opened now if it is not yet.
+    pub fn get(&self) -> Result<&Gpu> {
+        if let Some(g) = self.gpu.get() {
+            return Ok(g);
+        }
+        let g = Gpu::new().context("no GPU adapter for a GPU method")?;
+        Ok(self.gpu.get_or_init(|| g))
+    }
+
+    /// The GPU if one can be opened, without an error when there is none.
+    pub fn try_get(&self) -> Option<&Gpu> {
+        self.get().ok()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Auto takes the GPU only when it is real hardware; the explicit choices are obeyed.
+    #[test]
+    fn backend_choice() {
+        assert!(NetBackend::Auto.uses_wgpu(Some(false)));
+        assert!(!NetBackend::Auto.uses_wgpu(Some(true)));
+        assert!(!NetBackend::Auto.uses_wgpu(None));
+        assert!(NetBackend::Wgpu.uses_wgpu(Some(true)));
+        assert!(!NetBackend::Ort.uses_wgpu(Some(false)));
+    }
+}

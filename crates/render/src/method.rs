@@ -1,0 +1,131 @@
+//! The estimators Nimbus can render with: one enum for the command line, the evaluation and
+//! the viewer.
+
+use std::fmt;
+use std::str::FromStr;
+
+/// An estimator of light transport in the cloud.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// The CPU reference path tracer (f64; delta/ratio tracking, NEE + MIS).
+    Pt,
+    /// The WGSL path tracer (f32; HG/isotropic phase, constant sky).
+    PtGpu,
+    /// Temporally-coherent photon mapping (Elek 2012), converged ring of m frames, in the
+    /// default variant ([`nimbus_photon::PmVariant::default`]).
+    Pm,
+    /// Photon mapping exactly as the paper publishes it (`--pm-variant elek2012`), so the
+    /// default's improvements are measured against the paper.
+    PmElek2012,
+    /// Radiance-predicting neural network (Kallweit 2017): Monte Carlo direct light, network
+    /// indirect light.
+    Rpnn,
+}
+
+impl Method {
+    pub const ALL: [Method; 5] = [
+        Method::Pt,
+        Method::PtGpu,
+        Method::Pm,
+        Method::PmElek2012,
+        Method::Rpnn,
+    ];
+
+    /// The name on the command line and in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Pt => "pt",
+            Method::PtGpu => "pt-gpu",
+            Method::Pm => "pm",
+            Method::PmElek2012 => "pm-elek2012",
+            Method::Rpnn => "rpnn",
+        }
+    }
+
+    /// A phrase for messages ("photon mapping").
+    pub fn describe(self) -> &'static str {
+        match self {
+            Method::Pt => "path tracing",
+            Method::PtGpu => "GPU path tracing",
+            Method::Pm => "photon mapping",
+            Method::PmElek2012 => "photon mapping (Elek 2012 as published)",
+            Method::Rpnn => "RPNN",
+        }
+    }
+
+    /// What a budget counts: samples per pixel, or the photon map's ring frames.
+    pub fn budget_unit(self) -> &'static str {
+        if self.is_photon_mapping() {
+            "frames"
+        } else {
+            "spp"
+        }
+    }
+
+    /// The default evaluation sweep: four times the work per step for the Monte Carlo methods
+    /// (RMSE halves per step when unbiased; every budget even, so it splits into two halves),
+    /// ring sizes up to the paper's m = 100 for photon mapping.
+    pub fn default_budgets(self) -> Vec<u32> {
+        match self {
+            Method::Pt => vec![2, 8, 32, 128],
+            Method::PtGpu => vec![4, 16, 64, 256],
+            Method::Pm | Method::PmElek2012 => vec![4, 16, 100],
+            Method::Rpnn => vec![2, 8, 32],
+        }
+    }
+
+    /// Whether each render reports a per-pixel variance (Monte Carlo estimators do; the photon
+    /// map's error is mostly low-frequency bias and is measured against a reference only).
+    pub fn has_variance(self) -> bool {
+        !self.is_photon_mapping()
+    }
+
+    pub fn is_photon_mapping(self) -> bool {
+        matches!(self, Method::Pm | Method::PmElek2012)
+    }
+
+    /// Whether the method always needs a GPU adapter (RPNN uses one only when its backend
+    /// runs the network in WGSL).
+    pub fn needs_gpu(self) -> bool {
+        matches!(self, Method::PtGpu | Method::Pm | Method::PmElek2012)
+    }
+}
+
+impl fmt::Display for Method {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Method {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Method::ALL
+            .into_iter()
+            .find(|m| m.name() == s.trim())
+            .ok_or_else(|| {
+                format!("unknown method `{s}` (expected pt, pt-gpu, pm, pm-elek2012 or rpnn)")
+            })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every name parses back to its method; an unknown name lists the known ones.
+    #[test]
+    fn names_round_trip() {
+        for m in Method::ALL {
+            assert_eq!(m.name().parse::<Method>().unwrap(), m);
+            assert_eq!(m.to_string(), m.name());
+        }
+        let e = "pm-elek".parse::<Method>().unwrap_err();
+        assert!(e.contains("pm-elek2012"), "{e}");
+        assert!(Method::PmElek2012.is_photon_mapping() && !Method::PmElek2012.has_variance());
+        assert_eq!(Method::PmElek2012.budget_unit(), "frames");
+        assert_eq!(Method::Rpnn.budget_unit(), "spp");
+        assert!(Method::PtGpu.needs_gpu() && !Method::Pt.needs_gpu() && !Method::Rpnn.needs_gpu());
+    }
+}
