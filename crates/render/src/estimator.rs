@@ -149,7 +149,9 @@ pub fn prepare<'a>(
                 }
                 warnings.push(w);
             }
-            let pyramid = Pyramid::for_rendering(&scene.volume).with_context(|| label.clone())?;
+            // The pyramid's errors carry their cause in their message: formatted once.
+            let pyramid = Pyramid::for_rendering(&scene.volume)
+                .map_err(|e| anyhow::anyhow!("{label}: {e}"))?;
             let adapter = match r.backend {
                 NetBackend::Ort => None,
                 NetBackend::Wgpu => Some(gpu.get()?),
