@@ -141,10 +141,7 @@ pub fn datagen(a: DatagenArgs) -> Result<()> {
         seed: a.seed,
         max_samples: a.max_samples,
         albedo: 1.0,
-        gpu: match a.device {
-            Some(d) => d == Device::Gpu,
-            None => a.phase == "hg" && nimbus_gpu::Gpu::new().is_ok_and(|g| !g.is_software()),
-        },
+        gpu: dataset::datagen_on_gpu(a.device.map(|d| d == Device::Gpu), &a.phase),
         phase: a.phase,
         progress: !a.quiet,
         part: a.shard,

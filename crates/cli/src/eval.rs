@@ -227,21 +227,10 @@ pub(crate) struct StressArgs {
     /// Writes OUT/stability.md and the case scenes to OUT/stability/cases/.
     #[arg(long, short, default_value = "docs")]
     out: PathBuf,
-    /// Internal: run one method on one case scene and print a JSON report.
-    #[arg(long, hide = true)]
-    child: Option<PathBuf>,
-    #[arg(long, hide = true, default_value = "pt")]
-    method: String,
 }
 
 pub(crate) fn stress(args: &StressArgs) -> Result<()> {
     use nimbus_eval::stress;
-    if let Some(scene) = &args.child {
-        let m: nimbus_eval::Method = args.method.parse().map_err(anyhow::Error::msg)?;
-        let r = stress::run_child(scene, m);
-        say!("{}", serde_json::to_string(&r)?);
-        return Ok(());
-    }
     let methods = nimbus_eval::method::parse_methods(&args.methods)?;
     if !(1..=86_400).contains(&args.time_limit) {
         bail!(

@@ -208,6 +208,10 @@ enum Command {
 }
 
 fn main() {
+    // `nimbus stress` starts this executable as its child (nimbus_eval::stress::CHILD_ENV).
+    if let Some(code) = nimbus_eval::stress::serve_child_if_requested() {
+        std::process::exit(code);
+    }
     if let Err(e) = run(Cli::parse()) {
         eprintln!("error: {e:#}");
         std::process::exit(1);

@@ -12,8 +12,12 @@
 //! - invalid voxels (NaN, +∞, negative) that must be rejected with an error naming the file
 //!   and the voxel.
 //!
-//! Each (case, method) runs in a child process (`nimbus stress --child …`) under a time limit,
-//! so a hang or an abort is reported instead of stopping the matrix. A valid case passes when
+//! Each (case, method) runs in a child process under a time limit, so a hang or an abort is
+//! reported instead of stopping the matrix. The child is the same executable, started with no
+//! arguments and the environment variable [`CHILD_ENV`] set to
+//! `nimbus-stress-child/1␉METHOD␉SCENE` ([`CHILD_PROTOCOL`], tab-separated); an executable that
+//! calls [`serve_child_if_requested`] first thing in `main` answers with one line of JSON
+//! ([`ChildReport`]) on stdout. The protocol belongs to this library, not to a command line. A valid case passes when
 //! the method renders (or refuses with a clear error), every pixel is finite, and no pixel is
 //! brighter than the brightest radiance present without the medium — per channel the larger of
 //! the sky radiance and the sun disc's radiance E / Ω_sun. With albedo ≤ 1, scattering averages
@@ -276,6 +280,60 @@ pub fn write_case(c: &Case, dir: &Path) -> Result<PathBuf> {
     Ok(p)
 }
 
+/// Environment variable that turns an executable into a stress child (module docs).
+pub const CHILD_ENV: &str = "NIMBUS_STRESS_CHILD";
+/// Name and version of the child protocol; a child refuses any other version.
+pub const CHILD_PROTOCOL: &str = "nimbus-stress-child/1";
+
+/// The request a parent encodes in [`CHILD_ENV`].
+pub fn child_request(method: Method, scene: &Path) -> String {
+    format!("{CHILD_PROTOCOL}\t{}\t{}", method.name(), scene.display())
+}
+
+/// Parses a [`child_request`].
+pub fn parse_child_request(req: &str) -> Result<(Method, PathBuf), String> {
+    let mut parts = req.splitn(3, '\t');
+    let (proto, method, scene) = (parts.next(), parts.next(), parts.next());
+    match (proto, method, scene) {
+        (Some(p), Some(m), Some(s)) if p == CHILD_PROTOCOL && !s.is_empty() => {
+            Ok((m.parse()?, PathBuf::from(s)))
+        }
+        (Some(p), _, _) if p != CHILD_PROTOCOL => Err(format!(
+            "{CHILD_ENV}: protocol `{p}`, this executable speaks `{CHILD_PROTOCOL}`"
+        )),
+        _ => Err(format!(
+            "{CHILD_ENV}: expected `{CHILD_PROTOCOL}<TAB>METHOD<TAB>SCENE`, got `{req}`"
+        )),
+    }
+}
+
+/// If this process was started as a stress child ([`CHILD_ENV`] set), runs the requested
+/// case, prints its [`ChildReport`] as one line of JSON and returns the exit code; `None`
+/// for an ordinary start.
+pub fn serve_child_if_requested() -> Option<i32> {
+    let req = std::env::var(CHILD_ENV).ok()?;
+    match parse_child_request(&req) {
+        Ok((method, scene)) => {
+            let r = run_child(&scene, method);
+            match serde_json::to_string(&r) {
+                Ok(line) => {
+                    use std::io::Write;
+                    let _ = writeln!(std::io::stdout(), "{line}");
+                    Some(0)
+                }
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    Some(1)
+                }
+            }
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            Some(2)
+        }
+    }
+}
+
 /// What a child reports.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ChildReport {
@@ -390,7 +448,8 @@ pub struct Outcome {
     pub max_over_bound: f64,
 }
 
-/// Runs `exe stress --child SCENE --method M` under `limit` and judges the result.
+/// Runs `exe` as a stress child ([`CHILD_ENV`]) on `scene` with `method` under `limit` and
+/// judges the result.
 pub fn run_case(exe: &Path, case: &Case, scene: &Path, method: Method, limit: Duration) -> Outcome {
     let t0 = Instant::now();
     let mut out = Outcome {
@@ -406,9 +465,7 @@ pub fn run_case(exe: &Path, case: &Case, scene: &Path, method: Method, limit: Du
         max_over_bound: 0.0,
     };
     let child = Command::new(exe)
-        .args(["stress", "--child"])
-        .arg(scene)
-        .args(["--method", method.name()])
+        .env(CHILD_ENV, child_request(method, scene))
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn();
@@ -610,4 +667,27 @@ pub fn markdown(
         }
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A request round-trips; another version, a missing field or an unknown method is an
+    /// error naming what was expected.
+    #[test]
+    fn child_protocol_round_trips_and_checks_its_version() {
+        let scene = Path::new("/tmp/a dir/case.toml");
+        let req = child_request(Method::PmElek2012, scene);
+        assert_eq!(
+            parse_child_request(&req).unwrap(),
+            (Method::PmElek2012, scene.to_path_buf())
+        );
+        let e = parse_child_request("nimbus-stress-child/2\tpt\tx.toml").unwrap_err();
+        assert!(e.contains("speaks `nimbus-stress-child/1`"), "{e}");
+        let e = parse_child_request("nimbus-stress-child/1\tpt").unwrap_err();
+        assert!(e.contains("expected"), "{e}");
+        let e = parse_child_request("nimbus-stress-child/1\tfoo\tx.toml").unwrap_err();
+        assert!(e.contains("unknown method"), "{e}");
+    }
 }

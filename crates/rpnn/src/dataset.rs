@@ -532,6 +532,14 @@ fn check_settings(
     write_text(&path, &want_text)
 }
 
+/// Whether `datagen` estimates labels on the GPU: `choice` when given (`--device`), else the
+/// GPU when the phase function is HG (the WGSL tracer's) and the adapter is real hardware
+/// (on lavapipe the CPU path tracer is faster).
+pub fn datagen_on_gpu(choice: Option<bool>, phase: &str) -> bool {
+    choice
+        .unwrap_or_else(|| phase == "hg" && nimbus_gpu::Gpu::new().is_ok_and(|g| !g.is_software()))
+}
+
 /// Generates (or completes) a data set in `out`.
 pub fn run(
     clouds: &[CloudSpec],
