@@ -1,6 +1,6 @@
 //! NumPy `.npy` grids: float32 (or float64, converted) arrays of shape `[z][y][x]` in C order —
-//! the same voxel order as `.vol`. Parsing goes through the `npyz` crate; sizes are checked
-//! against the file length before any allocation.
+//! the same voxel order as `.vol`. The header is parsed by the `npyz` crate; sizes are checked
+//! against the file length before any allocation, and [`read`] streams the data into the grid.
 
 use std::io::Cursor;
 use std::path::Path;
@@ -59,24 +59,33 @@ fn check_header_nesting(bytes: &[u8], path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Parses any little-endian float32/float64 C-order array as (shape, f32 values). The data
-/// size must match the header's shape exactly, so nothing is allocated beyond the file's size.
-fn parse_array(bytes: &[u8], path: &Path) -> Result<(Vec<u64>, Vec<f32>)> {
-    check_header_nesting(bytes, path)?;
-    let mut cursor = Cursor::new(bytes);
+/// An array's layout from its header: shape, bytes per element (4: `<f4`, 8: `<f8`) and where
+/// the data starts.
+struct Layout {
+    shape: Vec<u64>,
+    elem: u64,
+    data_start: usize,
+}
+
+/// Parses and checks the header at the start of `head` (the file's first bytes: at least the
+/// whole header) against a file of `file_len` bytes: little-endian float32/float64, C order,
+/// and a data size equal to what the file holds after the header, so nothing is allocated
+/// beyond the file's size.
+fn parse_layout(head: &[u8], file_len: u64, path: &Path) -> Result<Layout> {
+    check_header_nesting(head, path)?;
+    let mut cursor = Cursor::new(head);
     let header = npyz::NpyHeader::from_reader(&mut cursor)
         .map_err(|e| Error::invalid(path, "header", format!("not a valid .npy header: {e}")))?;
     let data_start = cursor.position() as usize;
-    let npy = npyz::NpyFile::with_header(header, &bytes[data_start..]);
-    if npy.order() != Order::C {
+    if header.order() != Order::C {
         return Err(Error::invalid(
             path,
             "header.fortran_order",
             "Fortran-ordered arrays are not supported; save with C order ([z][y][x])",
         ));
     }
-    let shape = npy.shape().to_vec();
-    let descr = npy.dtype().descr();
+    let shape = header.shape().to_vec();
+    let descr = header.dtype().descr();
     let descr = descr.trim_matches('\'');
     let elem: u64 = match descr {
         "<f4" => 4,
@@ -89,7 +98,7 @@ fn parse_array(bytes: &[u8], path: &Path) -> Result<(Vec<u64>, Vec<f32>)> {
             ));
         }
     };
-    let available = (bytes.len() - data_start) as u64;
+    let available = file_len.saturating_sub(data_start as u64);
     let needed = shape.iter().try_fold(elem, |a, &b| a.checked_mul(b));
     if needed != Some(available) {
         return Err(Error::invalid(
@@ -101,22 +110,37 @@ fn parse_array(bytes: &[u8], path: &Path) -> Result<(Vec<u64>, Vec<f32>)> {
             ),
         ));
     }
-    let data: Vec<f32> = if elem == 4 {
-        npy.into_vec::<f32>()
-            .map_err(|e| Error::invalid(path, "data", e.to_string()))?
-    } else {
-        npy.into_vec::<f64>()
-            .map_err(|e| Error::invalid(path, "data", e.to_string()))?
-            .into_iter()
-            .map(|v| v as f32)
-            .collect()
-    };
-    Ok((shape, data))
+    Ok(Layout {
+        shape,
+        elem,
+        data_start,
+    })
 }
 
-/// Parses `.npy` bytes; `path` only labels errors.
-pub fn parse(bytes: &[u8], path: &Path) -> Result<DensityGrid> {
-    let (shape, data) = parse_array(bytes, path)?;
+/// Converts little-endian float32 or float64 bytes (`elem` 4 or 8) into `out`.
+fn convert(bytes: &[u8], elem: u64, out: &mut [f32]) {
+    if elem == 4 {
+        for (o, b) in out.iter_mut().zip(bytes.chunks_exact(4)) {
+            *o = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+        }
+    } else {
+        for (o, b) in out.iter_mut().zip(bytes.chunks_exact(8)) {
+            *o = f64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]) as f32;
+        }
+    }
+}
+
+/// Parses any little-endian float32/float64 C-order array as (shape, f32 values).
+fn parse_array(bytes: &[u8], path: &Path) -> Result<(Vec<u64>, Vec<f32>)> {
+    let l = parse_layout(bytes, bytes.len() as u64, path)?;
+    let n = ((bytes.len() - l.data_start) as u64 / l.elem) as usize;
+    let mut data = crate::memory::filled(n, 0.0f32, "data", "the array").map_err(|e| e.at(path))?;
+    convert(&bytes[l.data_start..], l.elem, &mut data);
+    Ok((l.shape, data))
+}
+
+/// Grid resolution (x, y, z) of a `[z][y][x]` shape.
+fn resolution(shape: &[u64], path: &Path) -> Result<[usize; 3]> {
     if shape.len() != 3 {
         return Err(Error::invalid(
             path,
@@ -125,11 +149,17 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<DensityGrid> {
         ));
     }
     let as_i64 = |v: u64| i64::try_from(v).unwrap_or(i64::MAX);
-    let res = check_resolution(
+    check_resolution(
         [as_i64(shape[2]), as_i64(shape[1]), as_i64(shape[0])],
         "header.shape",
     )
-    .map_err(|e| e.at(path))?;
+    .map_err(|e| e.at(path))
+}
+
+/// Parses `.npy` bytes; `path` only labels errors.
+pub fn parse(bytes: &[u8], path: &Path) -> Result<DensityGrid> {
+    let (shape, data) = parse_array(bytes, path)?;
+    let res = resolution(&shape, path)?;
     DensityGrid::new(res, data).map_err(|e| e.at(path))
 }
 
@@ -142,11 +172,59 @@ pub fn read_array(path: &Path) -> Result<(Vec<usize>, Vec<f32>)> {
     Ok((shape.into_iter().map(|v| v as usize).collect(), data))
 }
 
+/// Reads a grid, streaming: the header first (checked against the file's length), then the
+/// data straight into the grid (float64 files through a 1 MiB buffer), so the file's bytes and
+/// the grid are never held at once.
 pub fn read(path: &Path) -> Result<DensityGrid> {
-    // The file's bytes and the grid are held at once (float64 files: 1.5×).
-    crate::memory::check_file(path, 2)?;
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    parse(&bytes, path)
+    use std::io::Read;
+    let io = |e| Error::io(path, e);
+    let mut f = std::fs::File::open(path).map_err(io)?;
+    let len = f.metadata().map_err(io)?.len();
+    // Magic (6), version (2), header length (2 in version 1, 4 later), then the header.
+    let mut pre = vec![0u8; 12.min(len as usize)];
+    f.read_exact(&mut pre).map_err(io)?;
+    let header_len = match pre.get(6) {
+        Some(1) if pre.len() >= 10 => 10 + u16::from_le_bytes([pre[8], pre[9]]) as u64,
+        Some(_) if pre.len() >= 12 => {
+            12 + u32::from_le_bytes([pre[8], pre[9], pre[10], pre[11]]) as u64
+        }
+        _ => len,
+    };
+    if header_len > len {
+        return Err(Error::invalid(
+            path,
+            "header.length",
+            format!("header of {header_len} bytes does not fit in the file ({len} bytes)"),
+        ));
+    }
+    let mut head = pre;
+    head.resize(header_len as usize, 0);
+    if header_len as usize > 12.min(len as usize) {
+        let at = 12.min(len as usize);
+        f.read_exact(&mut head[at..]).map_err(io)?;
+    } else {
+        head.truncate(header_len as usize);
+    }
+    let l = parse_layout(&head, len, path)?;
+    let res = resolution(&l.shape, path)?;
+    let what = format!("a {}×{}×{} grid", res[0], res[1], res[2]);
+    let mut data = crate::memory::filled(res[0] * res[1] * res[2], 0.0f32, "data", &what)
+        .map_err(|e| e.at(path))?;
+    if l.elem == 4 {
+        f.read_exact(bytemuck::cast_slice_mut(&mut data))
+            .map_err(io)?;
+        for v in data.iter_mut() {
+            *v = f32::from_bits(u32::from_le(v.to_bits()));
+        }
+    } else {
+        let mut buf = vec![0u8; 1 << 20];
+        for chunk in data.chunks_mut((1 << 20) / 8) {
+            let bytes = &mut buf[..chunk.len() * 8];
+            f.read_exact(bytes).map_err(io)?;
+            convert(bytes, 8, chunk);
+        }
+    }
+    DensityGrid::new(res, data).map_err(|e| e.at(path))
 }
 
 /// Serialises a grid as float32 `.npy` bytes of shape `[z][y][x]`.
@@ -259,5 +337,59 @@ mod tests {
             }
             let _ = parse(&b, p); // must not panic
         }
+    }
+
+    /// The streamed reader gives what the in-memory parser gives, for float32 and float64
+    /// files, and the same errors for a short file, a header longer than the file and garbage.
+    #[test]
+    fn streamed_read_matches_parse() {
+        let dir = std::env::temp_dir().join(format!("nimbus-npy-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let data: Vec<f32> = (0..4 * 3 * 5).map(|i| i as f32 * 0.25).collect();
+        let g = DensityGrid::new([4, 3, 5], data.clone()).unwrap();
+        let f32_path = dir.join("g32.npy");
+        std::fs::write(&f32_path, to_bytes(&g)).unwrap();
+        assert_eq!(read(&f32_path).unwrap(), g);
+        // float64, written by npyz, converted on the fly in 1 MiB pieces.
+        let f64_path = dir.join("g64.npy");
+        let mut buf = Vec::new();
+        {
+            let mut w = npyz::WriteOptions::new()
+                .default_dtype()
+                .shape(&[5, 3, 4])
+                .writer(&mut buf)
+                .begin_nd()
+                .unwrap();
+            for v in &data {
+                w.push(&(*v as f64)).unwrap();
+            }
+            w.finish().unwrap();
+        }
+        std::fs::write(&f64_path, &buf).unwrap();
+        assert_eq!(read(&f64_path).unwrap(), g);
+        assert_eq!(parse(&buf, &f64_path).unwrap(), g);
+        // One value short.
+        let short = dir.join("short.npy");
+        let b = to_bytes(&g);
+        std::fs::write(&short, &b[..b.len() - 4]).unwrap();
+        let m = read(&short).unwrap_err().to_string();
+        assert!(
+            m.contains("short.npy") && m.contains("`data`") && m.contains("needs 240 bytes"),
+            "{m}"
+        );
+        // A header length beyond the file.
+        let mut long = b.clone();
+        long[8] = 0xff;
+        long[9] = 0xff;
+        let lp = dir.join("long.npy");
+        std::fs::write(&lp, &long[..300]).unwrap();
+        let m = read(&lp).unwrap_err().to_string();
+        assert!(m.contains("header.length") || m.contains("header"), "{m}");
+        let gp = dir.join("garbage.npy");
+        std::fs::write(&gp, b"garbage").unwrap();
+        assert!(read(&gp).unwrap_err().to_string().contains("header"));
+        std::fs::write(&gp, b"").unwrap();
+        assert!(read(&gp).is_err());
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
