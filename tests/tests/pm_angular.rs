@@ -27,7 +27,8 @@
 use glam::DVec3;
 use nimbus_photon::{LobeAxis, PhotonMapper, PmSettings};
 use nimbus_scene::{
-    Aabb, Camera, DensityGrid, Medium, Phase, Scene, Sun, Volume, phase::HenyeyGreenstein,
+    Camera, DensityGrid, Scene,
+    build::{self, SceneBuilder},
 };
 use nimbus_trace::{RenderOptions, compare, render, tau};
 
@@ -49,19 +50,13 @@ fn sphere(tau: f64, camera: Camera) -> Scene {
         }
     }
     let grid = DensityGrid::new([N; 3], data).unwrap();
-    let aabb = Aabb::new(DVec3::splat(-1.0), DVec3::splat(1.0)).unwrap();
-    Scene::in_memory(
-        "sphere",
-        Volume::new(grid, aabb, tau / 1.7).unwrap(),
-        Medium::new(
-            1.0,
-            Phase::HenyeyGreenstein(HenyeyGreenstein::new(0.857).unwrap()),
-        )
-        .unwrap(),
-        Some(Sun::new(SUN, DVec3::ONE, 0.0).unwrap()),
-        None,
-        camera,
-    )
+    let volume = build::volume(grid, DVec3::splat(-1.0), DVec3::splat(1.0), tau / 1.7).unwrap();
+    SceneBuilder::new(volume)
+        .label("sphere")
+        .sun(SUN, DVec3::ONE)
+        .camera(camera)
+        .build()
+        .unwrap()
 }
 
 /// Unit vector towards the sun (from +x, a little above).

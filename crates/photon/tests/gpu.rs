@@ -6,10 +6,8 @@ use std::path::Path;
 use glam::{DVec3, Vec3, Vec4};
 use nimbus_gpu::Gpu;
 use nimbus_photon::{PhotonMapper, PmSettings, PmVariant, cpu};
-use nimbus_scene::{
-    Aabb, Camera, DensityGrid, Medium, Phase, Scene, Sky, Sun, Volume, generate,
-    phase::HenyeyGreenstein,
-};
+use nimbus_scene::build::{self, SceneBuilder};
+use nimbus_scene::{Aabb, Camera, DensityGrid, Scene, Sky, Sun, Volume, generate};
 
 fn gpu() -> Gpu {
     Gpu::new().expect("a GPU adapter (install mesa-vulkan-drivers for lavapipe)")
@@ -23,40 +21,25 @@ fn scene(
     sky: Option<Sky>,
     camera: Camera,
 ) -> Scene {
-    Scene::in_memory(
-        "test",
-        volume,
-        Medium::new(
-            albedo,
-            Phase::HenyeyGreenstein(HenyeyGreenstein::new(g).unwrap()),
-        )
-        .unwrap(),
-        sun,
-        sky,
-        camera,
-    )
+    let mut s = SceneBuilder::new(volume)
+        .albedo(albedo)
+        .hg(g)
+        .camera(camera)
+        .build()
+        .unwrap();
+    (s.sun, s.sky) = (sun, sky);
+    s
 }
 
 fn small_cloud() -> Scene {
-    let res = [24, 18, 24];
-    let grid = generate::generate(nimbus_scene::CloudKind::Cumulus, 3, res).unwrap();
-    let (lo, hi) = generate::default_aabb(res);
-    scene(
-        Volume::new(grid, Aabb::new(lo, hi).unwrap(), 20.0).unwrap(),
-        1.0,
-        0.857,
-        Some(Sun::new(DVec3::new(1.0, 0.6, 0.3), DVec3::new(1.0, 0.9, 0.8), 0.0).unwrap()),
-        Some(Sky::Constant(DVec3::new(0.1, 0.15, 0.3))),
-        Camera::new(
-            DVec3::new(0.3, 0.3, 3.0),
-            DVec3::ZERO,
-            DVec3::Y,
-            40.0,
-            32,
-            24,
-        )
-        .unwrap(),
+    SceneBuilder::new(
+        build::generated(nimbus_scene::CloudKind::Cumulus, 3, [24, 18, 24], 20.0).unwrap(),
     )
+    .sun(DVec3::new(1.0, 0.6, 0.3), DVec3::new(1.0, 0.9, 0.8))
+    .sky(DVec3::new(0.1, 0.15, 0.3))
+    .look(DVec3::new(0.3, 0.3, 3.0), DVec3::ZERO, 40.0, 32, 24)
+    .build()
+    .unwrap()
 }
 
 #[test]

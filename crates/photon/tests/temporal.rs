@@ -4,34 +4,17 @@ use glam::{DQuat, DVec3};
 use nimbus_gpu::Gpu;
 use nimbus_photon::animate::{AnimateOptions, DensitySequence, animate};
 use nimbus_photon::{PhotonMapper, PmSettings};
-use nimbus_scene::{
-    Aabb, Camera, Image, Medium, Phase, Scene, Sun, Volume, generate, phase::HenyeyGreenstein,
-};
+use nimbus_scene::build::{self, SceneBuilder};
+use nimbus_scene::{Image, Scene};
 
 fn scene(sun_dir: DVec3) -> Scene {
-    let res = [32, 24, 32];
-    let grid = generate::generate(nimbus_scene::CloudKind::Cumulus, 3, res).unwrap();
-    let (lo, hi) = generate::default_aabb(res);
-    Scene::in_memory(
-        "test",
-        Volume::new(grid, Aabb::new(lo, hi).unwrap(), 30.0).unwrap(),
-        Medium::new(
-            1.0,
-            Phase::HenyeyGreenstein(HenyeyGreenstein::new(0.857).unwrap()),
-        )
-        .unwrap(),
-        Some(Sun::new(sun_dir, DVec3::ONE, 0.0).unwrap()),
-        None,
-        Camera::new(
-            DVec3::new(0.3, 0.3, 3.0),
-            DVec3::ZERO,
-            DVec3::Y,
-            40.0,
-            48,
-            36,
-        )
-        .unwrap(),
+    SceneBuilder::new(
+        build::generated(nimbus_scene::CloudKind::Cumulus, 3, [32, 24, 32], 30.0).unwrap(),
     )
+    .sun(sun_dir, DVec3::ONE)
+    .look(DVec3::new(0.3, 0.3, 3.0), DVec3::ZERO, 40.0, 48, 36)
+    .build()
+    .unwrap()
 }
 
 /// Mean |a − b| / mean a over pixels where a is lit (> 5 % of its maximum), and the largest

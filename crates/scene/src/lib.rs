@@ -21,6 +21,7 @@
 
 pub mod atmosphere;
 pub mod brick;
+pub mod build;
 pub mod camera;
 pub mod error;
 pub mod frame;

@@ -1,12 +1,11 @@
 //! Path tracer against analytic and numerically integrated solutions.
 
 use std::path::Path;
-use std::sync::Arc;
 
 use glam::DVec3;
 use nimbus_scene::{
-    Aabb, Camera, DensityGrid, MajorantGrid, Medium, Phase, RenderSettings, Scene, Sky, Sun,
-    Volume, VolumeSource, generate, phase::HenyeyGreenstein,
+    Aabb, Camera, DensityGrid, MajorantGrid, Medium, Phase, Scene, Sky, Sun, Volume,
+    phase::HenyeyGreenstein,
 };
 use nimbus_trace::{PathTracer, RenderOptions, render, render_with};
 
@@ -17,25 +16,17 @@ fn scene(
     sky: Option<Sky>,
     camera: Camera,
 ) -> Scene {
-    Scene {
-        source: "test".into(),
-        volume: Arc::new(volume),
-        volume_source: VolumeSource::Memory,
-        medium,
-        phase_desc: String::new(),
-        sun,
-        sky,
-        camera,
-        render: RenderSettings::default(),
-        atmosphere: None,
-    }
+    Scene::in_memory("test", volume, medium, sun, sky, camera)
 }
 
 fn cloud(density_scale: f64) -> Volume {
-    let res = [24, 18, 24];
-    let g = generate::generate(nimbus_scene::CloudKind::Cumulus, 5, res).unwrap();
-    let (lo, hi) = generate::default_aabb(res);
-    Volume::new(g, Aabb::new(lo, hi).unwrap(), density_scale).unwrap()
+    nimbus_scene::build::generated(
+        nimbus_scene::CloudKind::Cumulus,
+        5,
+        [24, 18, 24],
+        density_scale,
+    )
+    .unwrap()
 }
 
 fn camera(w: usize, h: usize) -> Camera {
