@@ -102,6 +102,9 @@ echo "system packages: ok" >&2
 
 # Mesa warns without a runtime dir; the GPU tests run headless.
 export XDG_RUNTIME_DIR=${XDG_RUNTIME_DIR:-/tmp}
+# The adapter is installed above, so a GPU test that finds none is a failure here, not a skip
+# (a plain `cargo test` on a machine without one skips them with a message).
+export NIMBUS_REQUIRE_GPU=1
 
 bash training/setup.sh
 cargo test --workspace --release

@@ -27,7 +27,11 @@ fn photon_mapping_agrees_with_path_tracing_on_cumulus() {
         reference.height,
     )
     .unwrap();
-    let gpu = nimbus_gpu::Gpu::new().expect("a GPU adapter (mesa-vulkan-drivers on CI)");
+    let Some(gpu) =
+        nimbus_gpu::testing::gpu("pm_vs_pt::photon_mapping_agrees_with_path_tracing_on_cumulus")
+    else {
+        return;
+    };
     let mut pm = nimbus_photon::PhotonMapper::new(&gpu, &scene, Default::default()).unwrap();
     let img = pm.render(&scene.camera).unwrap();
     let vs_ref = compare::compare(&img, &reference, Some(&mask));
@@ -79,7 +83,11 @@ fn exact_single_scattering_matches_path_traced_single_scattering() {
         scene.camera.height,
     )
     .unwrap();
-    let gpu = nimbus_gpu::Gpu::new().expect("a GPU adapter (mesa-vulkan-drivers on CI)");
+    let Some(gpu) = nimbus_gpu::testing::gpu(
+        "pm_vs_pt::exact_single_scattering_matches_path_traced_single_scattering",
+    ) else {
+        return;
+    };
     let mut pm = nimbus_photon::PhotonMapper::new(
         &gpu,
         &scene,

@@ -24,6 +24,9 @@ struct Case {
     #[serde(default)]
     present: Vec<String>,
     seconds: u64,
+    /// The case runs GPU work (skipped where there is no adapter, see `nimbus_gpu::testing`).
+    #[serde(default)]
+    gpu: bool,
 }
 
 fn here() -> PathBuf {
@@ -39,7 +42,15 @@ fn every_bad_input_fails_clearly_and_in_time() {
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scene/tests/data");
     let root = std::env::temp_dir().join(format!("nimbus-bad-inputs-{}", std::process::id()));
     let mut failures = Vec::new();
+    let mut gpu = None;
     for (i, c) in cases.case.iter().enumerate() {
+        if c.gpu
+            && !*gpu.get_or_insert_with(|| {
+                nimbus_gpu::testing::has_adapter("bad_inputs: the cases with `gpu = true`")
+            })
+        {
+            continue;
+        }
         let out = root.join(format!("{i:02}"));
         std::fs::create_dir_all(&out).unwrap();
         let fill = |s: &str| {

@@ -83,6 +83,11 @@ fn col(name: &str) -> usize {
 
 #[test]
 fn compare_scene_writes_a_report_and_reuses_the_cached_reference() {
+    if !nimbus_gpu::testing::has_adapter(
+        "eval::compare_scene_writes_a_report_and_reuses_the_cached_reference",
+    ) {
+        return;
+    }
     let d = tmp("compare");
     let scene = d.join("tiny.toml");
     std::fs::write(&scene, SCENE).unwrap();
@@ -263,6 +268,9 @@ fn compare_rejects_bad_arguments() {
 
 #[test]
 fn bench_suite_writes_the_table() {
+    if !nimbus_gpu::testing::has_adapter("eval::bench_suite_writes_the_table") {
+        return;
+    }
     let d = tmp("suite");
     let o = nimbus(&[
         "bench-suite",
@@ -350,6 +358,9 @@ fn stress_subset_passes_and_rejects_invalid_voxels() {
 /// adapter (lavapipe in CI) and writes every measure with a positive, finite value.
 #[test]
 fn device_benchmark_script_small() {
+    if !nimbus_gpu::testing::has_adapter("eval::device_benchmark_script_small") {
+        return;
+    }
     let d = tmp("device");
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let o = std::process::Command::new("bash")

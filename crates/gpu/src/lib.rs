@@ -8,6 +8,7 @@ pub mod compose;
 pub mod consts;
 pub mod params;
 pub mod shaders;
+pub mod testing;
 pub mod timing;
 
 use bytemuck::Pod;
@@ -83,7 +84,8 @@ pub fn adapter_hint(info: &wgpu::AdapterInfo) -> Option<String> {
 /// Every adapter wgpu sees, best first (the first is the one [`Gpu::new`] opens), as
 /// "name (type, backend)" lines.
 pub fn list_adapters() -> Vec<String> {
-    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
+    let instance =
+        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
     let mut infos: Vec<wgpu::AdapterInfo> =
         pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()))
             .iter()
@@ -101,7 +103,8 @@ impl Gpu {
     /// on machines without a GPU). Requests only the features Nimbus uses (timestamp queries,
     /// when offered) and the adapter's own limits.
     pub fn new() -> Result<Self, GpuError> {
-        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         Ok(Self::for_surface(&instance, None)?.0)
     }
 

@@ -4,14 +4,9 @@
 use std::path::Path;
 
 use glam::{DVec3, Vec3, Vec4};
-use nimbus_gpu::Gpu;
 use nimbus_photon::{PhotonMapper, PmSettings, PmVariant, cpu};
 use nimbus_scene::build::{self, SceneBuilder};
 use nimbus_scene::{Aabb, Camera, DensityGrid, Scene, Sky, Sun, Volume, generate};
-
-fn gpu() -> Gpu {
-    Gpu::new().expect("a GPU adapter (install mesa-vulkan-drivers for lavapipe)")
-}
 
 fn scene(
     volume: Volume,
@@ -57,7 +52,9 @@ fn upsampling_and_raymarching_match_cpu() {
 /// Detail noise of `noise` voxels (0 = off); `other_readings`: the upsampling's alternative
 /// readings of Elek §4.3 (mean attenuation, extrapolated g').
 fn check_against_cpu(noise: f32, variant: PmVariant, other_readings: bool) {
-    let gpu = gpu();
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu::check_against_cpu") else {
+        return;
+    };
     let s = small_cloud();
     let mut pm = PhotonMapper::new(
         &gpu,
@@ -194,7 +191,9 @@ fn check_against_cpu(noise: f32, variant: PmVariant, other_readings: bool) {
 
 #[test]
 fn same_seed_same_image() {
-    let gpu = gpu();
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu::same_seed_same_image") else {
+        return;
+    };
     let s = small_cloud();
     let settings = PmSettings {
         beams_per_frame: 2048,
@@ -231,7 +230,9 @@ fn same_seed_same_image() {
 /// tolerance 2.5 % (5σ).
 #[test]
 fn deposited_energy_matches_slab_solution() {
-    let gpu = gpu();
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu::deposited_energy_matches_slab_solution") else {
+        return;
+    };
     let sigma = 2.0;
     let grid = DensityGrid::constant([8, 8, 8], 0.5).unwrap();
     let vol = Volume::new(
@@ -291,7 +292,9 @@ fn deposited_energy_matches_slab_solution() {
 /// image: mean luminance within 2 % (the cloud's silhouette is blurred, its energy kept).
 #[test]
 fn half_resolution_is_close_to_full() {
-    let gpu = gpu();
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu::half_resolution_is_close_to_full") else {
+        return;
+    };
     let s = small_cloud();
     let mut pm = PhotonMapper::new(
         &gpu,
@@ -320,7 +323,10 @@ fn half_resolution_is_close_to_full() {
 /// Workgroup-memory and global-atomic accumulation are the same integer sums: identical caches.
 #[test]
 fn shared_and_global_accumulation_agree_exactly() {
-    let gpu = gpu();
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu::shared_and_global_accumulation_agree_exactly")
+    else {
+        return;
+    };
     let s = small_cloud();
     let run = |force| {
         let mut pm = PhotonMapper::new(
@@ -345,7 +351,9 @@ fn shared_and_global_accumulation_agree_exactly() {
 /// Equal cache and density resolution: no filtering, J is the cache in physical units.
 #[test]
 fn equal_resolution_skips_the_filter() {
-    let gpu = gpu();
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu::equal_resolution_skips_the_filter") else {
+        return;
+    };
     let res = [10, 8, 10];
     let grid = generate::generate(nimbus_scene::CloudKind::Cumulus, 4, res).unwrap();
     let (lo, hi) = generate::default_aabb(res);
@@ -382,7 +390,9 @@ fn equal_resolution_skips_the_filter() {
 /// not a crash (lavapipe allows 128 MiB per binding; 300³ voxels × 16 bytes = 432 MB).
 #[test]
 fn oversized_grids_are_refused() {
-    let gpu = gpu();
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu::oversized_grids_are_refused") else {
+        return;
+    };
     let limit = gpu
         .limits
         .max_storage_buffer_binding_size
@@ -419,7 +429,9 @@ fn oversized_grids_are_refused() {
 /// ≥ 25 % here).
 #[test]
 fn varying_budget_keeps_energy() {
-    let gpu = gpu();
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu::varying_budget_keeps_energy") else {
+        return;
+    };
     let s = small_cloud();
     let fluence = |budgets: &[u32], seed: u32| {
         let mut pm = PhotonMapper::new(
@@ -457,7 +469,9 @@ fn varying_budget_keeps_energy() {
 /// of the default variant keeps the furnace within 1 % (seen: 0.9975).
 #[test]
 fn sky_only_furnace() {
-    let gpu = gpu();
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu::sky_only_furnace") else {
+        return;
+    };
     let mut s = small_cloud();
     s.sun = None;
     s.sky = Some(Sky::Constant(DVec3::splat(0.5)));
@@ -511,7 +525,9 @@ fn sky_only_furnace() {
 
 #[test]
 fn settings_are_checked() {
-    let gpu = gpu();
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu::settings_are_checked") else {
+        return;
+    };
     let s = small_cloud();
     let bad = |st: PmSettings| {
         PhotonMapper::new(&gpu, &s, st)
@@ -548,7 +564,11 @@ fn settings_are_checked() {
 /// weighting (σ(x)/σ̄ = 1 everywhere: the same sums, divisor 1).
 #[test]
 fn density_weighted_deposits_match_cpu_and_are_neutral_in_a_homogeneous_box() {
-    let gpu = gpu();
+    let Some(gpu) = nimbus_gpu::testing::gpu(
+        "gpu::density_weighted_deposits_match_cpu_and_are_neutral_in_a_homogeneous_box",
+    ) else {
+        return;
+    };
     let s = small_cloud();
     let mut pm = PhotonMapper::new(
         &gpu,
@@ -639,7 +659,9 @@ fn density_weighted_deposits_match_cpu_and_are_neutral_in_a_homogeneous_box() {
 /// update). The same box at σ = 1 (≈ 2 deposits per beam) stays far inside 32 bits.
 #[test]
 fn cache_overflow_is_an_error() {
-    let gpu = gpu();
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu::cache_overflow_is_an_error") else {
+        return;
+    };
     let render = |scale: f64, beams: u32, ring: u32| {
         let grid = DensityGrid::constant([8, 8, 8], 1.0).unwrap();
         let aabb = Aabb::new(DVec3::splat(-0.5), DVec3::splat(0.5)).unwrap();
@@ -681,7 +703,9 @@ fn cache_overflow_is_an_error() {
 /// and frame numbers, give the same ring total.
 #[test]
 fn tracing_and_ring_update_match_cpu() {
-    let gpu = gpu();
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu::tracing_and_ring_update_match_cpu") else {
+        return;
+    };
     let s = small_cloud();
     let mut pm = PhotonMapper::new(
         &gpu,

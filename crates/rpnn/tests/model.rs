@@ -196,7 +196,10 @@ fn max_rel(a: &[f32], b: &[f32]) -> f32 {
 #[test]
 fn wgsl_network_agrees_with_the_cpu_reference() {
     use nimbus_rpnn::gpu_mlp::GpuMlp;
-    let gpu = nimbus_gpu::Gpu::new().unwrap();
+    let Some(gpu) = nimbus_gpu::testing::gpu("model::wgsl_network_agrees_with_the_cpu_reference")
+    else {
+        return;
+    };
     // The fixture (real export) on its 16 rows …
     let tiny = Rpnn::load(&data("rpnn-tiny.onnx")).unwrap();
     let (xs, _) = fixture_io();
@@ -239,7 +242,11 @@ fn gpu_descriptor_and_network_equal_cpu_descriptor_and_onnx_runtime() {
     use nimbus_rpnn::gpu_mlp::GpuRpnn;
     use nimbus_rpnn::ort_backend::OrtModel;
     use nimbus_rpnn::{Config, Pyramid, descriptors};
-    let gpu = nimbus_gpu::Gpu::new().unwrap();
+    let Some(gpu) = nimbus_gpu::testing::gpu(
+        "model::gpu_descriptor_and_network_equal_cpu_descriptor_and_onnx_runtime",
+    ) else {
+        return;
+    };
     let grid = nimbus_scene::generate::generate(nimbus_scene::CloudKind::Cumulus, 4, [32, 24, 32])
         .unwrap();
     let (lo, hi) = nimbus_scene::generate::default_aabb([32, 24, 32]);

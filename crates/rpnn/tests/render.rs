@@ -57,7 +57,10 @@ fn wgpu_and_ort_backends_render_the_same_image() {
         seed: 1,
         sky_dirs: 3,
     };
-    let gpu = nimbus_gpu::Gpu::new().unwrap();
+    let Some(gpu) = nimbus_gpu::testing::gpu("render::wgpu_and_ort_backends_render_the_same_image")
+    else {
+        return;
+    };
     let mut g = Backend::Wgpu(Box::new(GpuRpnn::new(&gpu, &pyr, &model, 256).unwrap()));
     let a = render(&s, &pyr, &mut g, &opts).unwrap();
     let mut o = Backend::Ort(OrtModel::load(&path, 1).unwrap());

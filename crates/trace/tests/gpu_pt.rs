@@ -36,7 +36,9 @@ fn check(disc_deg: Option<f64>) {
         scene.sun = Some(nimbus_scene::Sun::new(s.dir, s.irradiance, r).unwrap());
     }
     resize(&mut scene, 64, 48);
-    let gpu = nimbus_gpu::Gpu::new().expect("GPU adapter (mesa-vulkan-drivers)");
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu_pt::check") else {
+        return;
+    };
     let mut gpt = GpuPathTracer::new(&gpu, &scene).unwrap();
     let (gimg, gvar) = gpt.render(64, 3).unwrap();
     let cpu = render(
@@ -76,7 +78,9 @@ fn unsupported_scenes_are_refused() {
     scene.sky = Some(nimbus_scene::Sky::Env(
         nimbus_scene::EnvMap::new(nimbus_scene::Image::new(4, 2), 1.0).unwrap(),
     ));
-    let gpu = nimbus_gpu::Gpu::new().unwrap();
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu_pt::unsupported_scenes_are_refused") else {
+        return;
+    };
     let e = GpuPathTracer::new(&gpu, &scene).err().unwrap().to_string();
     assert!(
         e.contains("environment-map") && e.contains("--device cpu"),
@@ -96,7 +100,11 @@ fn absurd_majorants_end_and_leave_empty_space_empty() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let mut scene = Scene::load(root.join("scenes/refs/cube_iso.toml")).unwrap();
     resize(&mut scene, 32, 24);
-    let gpu = nimbus_gpu::Gpu::new().expect("GPU adapter (mesa-vulkan-drivers)");
+    let Some(gpu) =
+        nimbus_gpu::testing::gpu("gpu_pt::absurd_majorants_end_and_leave_empty_space_empty")
+    else {
+        return;
+    };
     let image = |scale: f64, corner: f32| {
         let mut data = vec![0.0f32; 8 * 8 * 8];
         data[8 * 8 * 8 - 1] = corner;

@@ -292,7 +292,8 @@ impl App {
                 )
                 .map_err(|e| ViewerError::Other(format!("cannot create a window: {e}")))?,
         );
-        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let surface = instance
             .create_surface(window.clone())
             .map_err(|e| ViewerError::Other(format!("cannot create a GPU surface: {e}")))?;

@@ -3,7 +3,6 @@
 
 use std::path::Path;
 
-use nimbus_gpu::Gpu;
 use nimbus_photon::{LobeAxis, PmSettings};
 use nimbus_scene::{Image, Scene};
 use nimbus_viewer::{Action, ViewMode, Viewer, ViewerOptions, run_frame};
@@ -64,7 +63,11 @@ fn rel_diff(a: &Image, b: &Image) -> f64 {
 
 #[test]
 fn converged_viewer_equals_a_photon_mapping_render() {
-    let gpu = Gpu::new().unwrap();
+    let Some(gpu) =
+        nimbus_gpu::testing::gpu("headless::converged_viewer_equals_a_photon_mapping_render")
+    else {
+        return;
+    };
     let mut v = Viewer::new(&gpu, scene(), None, options()).unwrap();
     frames(&mut v, 8);
     let mut pm = nimbus_photon::PhotonMapper::new(&gpu, &scene(), options().pm).unwrap();
@@ -86,7 +89,9 @@ fn sun_change_traces_new_generations_and_alters_the_image() {
 }
 
 fn sun_change(axis: LobeAxis) {
-    let gpu = Gpu::new().unwrap();
+    let Some(gpu) = nimbus_gpu::testing::gpu("headless::sun_change") else {
+        return;
+    };
     let mut opts = options();
     opts.pm.lobe_axis = Some(axis);
     let mut v = Viewer::new(&gpu, scene(), None, opts).unwrap();
@@ -125,7 +130,11 @@ fn sun_change(axis: LobeAxis) {
 
 #[test]
 fn small_orbit_reuses_the_impostor_large_one_refreshes() {
-    let gpu = Gpu::new().unwrap();
+    let Some(gpu) =
+        nimbus_gpu::testing::gpu("headless::small_orbit_reuses_the_impostor_large_one_refreshes")
+    else {
+        return;
+    };
     let mut v = Viewer::new(&gpu, scene(), None, options()).unwrap();
     frames(&mut v, 9);
     let still = v.image().clone();
@@ -155,7 +164,11 @@ fn small_orbit_reuses_the_impostor_large_one_refreshes() {
 
 #[test]
 fn path_tracing_accumulates_and_restarts_on_change() {
-    let gpu = Gpu::new().unwrap();
+    let Some(gpu) =
+        nimbus_gpu::testing::gpu("headless::path_tracing_accumulates_and_restarts_on_change")
+    else {
+        return;
+    };
     let mut v = Viewer::new(&gpu, scene(), None, options()).unwrap();
     v.apply(&Action::Method(ViewMode::Pt)).unwrap();
     frames(&mut v, 3);
@@ -180,7 +193,9 @@ fn path_tracing_accumulates_and_restarts_on_change() {
 
 #[test]
 fn rpnn_mode_accumulates_and_restarts() {
-    let gpu = Gpu::new().unwrap();
+    let Some(gpu) = nimbus_gpu::testing::gpu("headless::rpnn_mode_accumulates_and_restarts") else {
+        return;
+    };
     let mut opts = options();
     opts.rpnn_model =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../rpnn/tests/data/rpnn-tiny.onnx");
@@ -208,7 +223,9 @@ fn rpnn_mode_accumulates_and_restarts() {
 
 #[test]
 fn resize_and_saved_scene_round_trip() {
-    let gpu = Gpu::new().unwrap();
+    let Some(gpu) = nimbus_gpu::testing::gpu("headless::resize_and_saved_scene_round_trip") else {
+        return;
+    };
     let dir = std::env::temp_dir().join(format!("nimbus-viewer-{}", std::process::id()));
     let mut v = Viewer::new(
         &gpu,
@@ -254,7 +271,10 @@ fn resize_and_saved_scene_round_trip() {
 
 #[test]
 fn sun_motion_and_density_animation_play() {
-    let gpu = Gpu::new().unwrap();
+    let Some(gpu) = nimbus_gpu::testing::gpu("headless::sun_motion_and_density_animation_play")
+    else {
+        return;
+    };
     let s = scene();
     let opts = ViewerOptions {
         density: nimbus_photon::animate::DensitySequence::morph(
