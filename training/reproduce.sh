@@ -12,7 +12,7 @@
 # clouds, light directions uniform in the angle gamma, density scales 10 … 300.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-CLOUDS=${CLOUDS:-gen:150}
+CLOUDS=${CLOUDS:-gen:150}           # or e.g. gen:150:congestus,stratus,cirrus,mixture (other kinds)
 DENSITY_RANGE=${DENSITY_RANGE:-10,300}
 RECORDS=${RECORDS:-1000000}
 SAMPLES=${SAMPLES:-128}

@@ -15,7 +15,9 @@ use crate::Device;
 pub struct DatagenArgs {
     #[command(subcommand)]
     action: Option<DatagenAction>,
-    /// `gen:N` for N generated clouds, or a folder of .vol/.npy/.vdb files.
+    /// `gen:N` for N generated clouds (kinds cumulus, stratus, cirrus, mixture in turn),
+    /// `gen:N:KIND,KIND,…` to choose the kinds (cumulus, stratus, cirrus, congestus,
+    /// mixture), or a folder of .vol/.npy/.vdb files.
     #[arg(long, default_value = "gen:40")]
     clouds: String,
     /// Training records.
@@ -109,10 +111,17 @@ pub fn datagen(a: DatagenArgs) -> Result<()> {
         bail!("datagen needs --records and --out");
     };
     let set = match a.clouds.strip_prefix("gen:") {
-        Some(n) => {
-            let n: usize = n
-                .parse()
-                .map_err(|e| anyhow::anyhow!("--clouds {}: expected gen:N ({e})", a.clouds))?;
+        Some(spec) => {
+            let (n, kinds) = match spec.split_once(':') {
+                Some((n, kinds)) => (n, kinds.split(',').map(str::trim).collect()),
+                None => (spec, dataset::DEFAULT_KINDS.to_vec()),
+            };
+            let n: usize = n.parse().map_err(|e| {
+                anyhow::anyhow!(
+                    "--clouds {}: expected gen:N or gen:N:KIND,… ({e})",
+                    a.clouds
+                )
+            })?;
             if n == 0 {
                 bail!("--clouds gen:N needs N ≥ 1");
             }
@@ -120,7 +129,7 @@ pub fn datagen(a: DatagenArgs) -> Result<()> {
             if !(d.len() == 2 && d.iter().all(|d| d.is_finite() && *d > 0.0) && d[0] <= d[1]) {
                 bail!("--density-range needs LO,HI with 0 < LO <= HI, got {d:?}");
             }
-            dataset::generated_set_in(n, a.seed, [d[0], d[1]])
+            dataset::generated_set_of(n, a.seed, [d[0], d[1]], &kinds)?
         }
         None => dataset::folder_set(std::path::Path::new(&a.clouds), a.density_scale)?,
     };

@@ -37,9 +37,11 @@
 //! validation and test splits use `eval_samples` (e.g. 16 384: ≈ 4 % relative noise per record)
 //! so that they can tell models apart.
 //!
-//! ## The generated cloud set (`gen:N`)
+//! ## The generated cloud set (`gen:N`, `gen:N:KIND,KIND,…`)
 //! Cloud i: kind cycles cumulus, stratus, cirrus, mixture (max of a cumulus and a 0.6-scaled
-//! stratus); x-resolution cycles 48, 64, 80, 96 (with the kind's proportions); density scale
+//! stratus), or the kinds listed after a second colon (e.g. `gen:150:congestus,stratus,cirrus`,
+//! see [`generated_set_of`]); x-resolution cycles 48, 64, 80, 96 (with the kind's proportions),
+//! advancing once per cycle of kinds; density scale
 //! lo × (hi/lo)^u with u from the seed (default 10 × 2^(3u), 10…80); every fifth cloud
 //! (i mod 5 = 4) is a test cloud and every tenth (i mod 10 = 2) a validation cloud; neither
 //! enters training.
@@ -106,17 +108,51 @@ pub fn generated_set(n: usize, seed: u64) -> Vec<CloudSpec> {
     generated_set_in(n, seed, [10.0, 80.0])
 }
 
+/// The kinds `gen:N` cycles through (the shipped model's training set).
+pub const DEFAULT_KINDS: [&str; 4] = ["cumulus", "stratus", "cirrus", "mixture"];
+
 /// The generated set of `n` clouds with density scales log-uniform in `density` = [lo, hi].
 pub fn generated_set_in(n: usize, seed: u64, density: [f64; 2]) -> Vec<CloudSpec> {
-    let kinds = ["cumulus", "stratus", "cirrus", "mixture"];
+    generated_set_of(n, seed, density, &DEFAULT_KINDS).expect("the default kinds are valid")
+}
+
+/// Like [`generated_set_in`], cycling through `kinds` (generator names as in the scene format
+/// — `cumulus`, `stratus`, `cirrus`, `congestus` — or `mixture`; a kind named twice comes twice
+/// as often). With [`DEFAULT_KINDS`] it is [`generated_set_in`]'s set, cloud for cloud. An unknown
+/// or missing kind is an error naming `--clouds`.
+pub fn generated_set_of(
+    n: usize,
+    seed: u64,
+    density: [f64; 2],
+    kinds: &[&str],
+) -> Result<Vec<CloudSpec>, DatagenError> {
+    let err = |msg: String| DatagenError::Set {
+        what: "--clouds".into(),
+        msg,
+    };
+    if kinds.is_empty() {
+        return Err(err("the list of cloud kinds is empty".into()));
+    }
+    let mut tall = Vec::with_capacity(kinds.len());
+    for k in kinds {
+        if *k == "mixture" {
+            tall.push(true);
+            continue;
+        }
+        let kind: CloudKind = k
+            .parse()
+            .map_err(|e: nimbus_scene::FieldError| err(format!("{e}, or mixture")))?;
+        tall.push(matches!(kind, CloudKind::Cumulus | CloudKind::Congestus));
+    }
     let sizes = [48, 64, 80, 96];
-    (0..n)
+    Ok((0..n)
         .map(|i| {
-            let kind = kinds[i % 4];
-            let nx = sizes[(i / 4) % 4];
-            let res = match kind {
-                "cumulus" | "mixture" => [nx, nx * 3 / 4, nx],
-                _ => [nx, (nx / 4).max(8), nx],
+            let kind = kinds[i % kinds.len()];
+            let nx = sizes[(i / kinds.len()) % 4];
+            let res = if tall[i % kinds.len()] {
+                [nx, nx * 3 / 4, nx]
+            } else {
+                [nx, (nx / 4).max(8), nx]
             };
             let s = mix64(seed ^ (i as u64).wrapping_mul(0x9e37_79b9));
             let u = (s >> 11) as f64 / (1u64 << 53) as f64;
@@ -131,7 +167,7 @@ pub fn generated_set_in(n: usize, seed: u64, density: [f64; 2]) -> Vec<CloudSpec
                 split: split_of(i),
             }
         })
-        .collect()
+        .collect())
 }
 
 /// The clouds of a folder (.vol/.npy/.vdb, sorted); splits as for generated sets. The grids are

@@ -592,3 +592,43 @@ fn f16_descriptors_halve_x_and_keep_everything_else() {
     let e = dataset::run(&set, &o(false), &b).unwrap_err().to_string();
     assert!(e.contains("f16_descriptors"), "{e}");
 }
+
+/// `gen:N:KIND,…`: the default kinds give the default set cloud for cloud; a chosen list is
+/// cycled (congestus clouds get cumulus proportions and build); unknown kinds name `--clouds`.
+#[test]
+fn generated_set_with_chosen_kinds() {
+    let d = [10.0, 300.0];
+    assert_eq!(
+        dataset::generated_set_of(12, 3, d, &dataset::DEFAULT_KINDS).unwrap(),
+        dataset::generated_set_in(12, 3, d)
+    );
+    let set = dataset::generated_set_of(6, 3, d, &["congestus", "stratus"]).unwrap();
+    let names: Vec<_> = set.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "congestus_000",
+            "stratus_001",
+            "congestus_002",
+            "stratus_003",
+            "congestus_004",
+            "stratus_005"
+        ]
+    );
+    let dataset::CloudSource::Generated { resolution, .. } = &set[2].source else {
+        panic!("generated");
+    };
+    // The size advances once per cycle of kinds: the second congestus is 64 wide.
+    assert_eq!(*resolution, [64, 48, 64]);
+    let mut small = set[0].clone();
+    if let dataset::CloudSource::Generated { resolution, .. } = &mut small.source {
+        *resolution = [24, 18, 24];
+    }
+    assert!(dataset::build_volume(&small).is_ok());
+    for bad in [&["fog"][..], &[][..]] {
+        let e = dataset::generated_set_of(4, 3, d, bad)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--clouds"), "{e}");
+    }
+}
