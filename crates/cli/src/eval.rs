@@ -3,7 +3,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use clap::ValueEnum;
 use nimbus_eval::{CompareOptions, GpuSlot, RefDevice, ReferenceSettings, RunSettings};
 
@@ -267,17 +267,7 @@ pub(crate) fn stress(args: &StressArgs) -> Result<()> {
             o.detail.lines().next().unwrap_or("")
         )
     })?;
-    let machine = format!(
-        "{} cores{}",
-        std::thread::available_parallelism().map_or(1, |n| n.get()),
-        match nimbus_gpu::Gpu::new() {
-            Ok(g) => format!(", GPU: {}", g.describe()),
-            Err(_) => String::new(),
-        }
-    );
-    let md = stress::markdown(&outcomes, &methods, limit, &machine);
-    let p = args.out.join("stability.md");
-    std::fs::write(&p, md).with_context(|| format!("cannot write {}", p.display()))?;
+    let p = stress::write_markdown(&outcomes, &methods, limit, &args.out)?;
     let fails = outcomes.iter().filter(|o| !o.pass).count();
     say!(
         "{} of {} runs pass -> {}",

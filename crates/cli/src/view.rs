@@ -105,14 +105,7 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
             let label = Path::new("scenes/demo-cumulus.toml");
             let mut s = Scene::from_toml_str(text, Path::new("."), label)?;
             let (w, h) = nimbus_viewer::DEFAULT_SIZE;
-            s.camera = nimbus_scene::Camera::new(
-                s.camera.origin,
-                s.camera.target(),
-                s.camera.up_hint(),
-                s.camera.vfov_deg(),
-                w,
-                h,
-            )?;
+            s.camera = s.camera.with_size(w, h)?;
             (s, Some((text.to_string(), std::env::current_dir()?)))
         }
     };
@@ -121,15 +114,10 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
             .split_once('x')
             .and_then(|(w, h)| Some((w.parse::<usize>().ok()?, h.parse::<usize>().ok()?)))
             .with_context(|| format!("--size: expected WIDTHxHEIGHT, got `{size}`"))?;
-        s.camera = nimbus_scene::Camera::new(
-            s.camera.origin,
-            s.camera.target(),
-            s.camera.up_hint(),
-            s.camera.vfov_deg(),
-            w,
-            h,
-        )
-        .map_err(|e| anyhow::anyhow!("--size: {e}"))?;
+        s.camera = s
+            .camera
+            .with_size(w, h)
+            .map_err(|e| anyhow::anyhow!("--size: {e}"))?;
     }
     let method = ViewMode::parse(&method).map_err(|e| anyhow::anyhow!("--method: {e}"))?;
     if !(sun_speed.is_finite() && density_fps.is_finite() && density_fps > 0.0) {

@@ -589,6 +589,30 @@ pub fn run_matrix(
     Ok(all)
 }
 
+/// Writes the Markdown page (see [`markdown`]) to `<out>/stability.md`, whole or not at all,
+/// with this machine's cores and GPU adapter in its header; returns the path.
+pub fn write_markdown(
+    outcomes: &[Outcome],
+    methods: &[Method],
+    limit: Duration,
+    out: &Path,
+) -> Result<PathBuf> {
+    let machine = format!(
+        "{} cores{}",
+        std::thread::available_parallelism().map_or(1, |n| n.get()),
+        match nimbus_gpu::Gpu::new() {
+            Ok(g) => format!(", GPU: {}", g.describe()),
+            Err(_) => String::new(),
+        }
+    );
+    let md = markdown(outcomes, methods, limit, &machine);
+    let p = out.join("stability.md");
+    io::write_atomically(&p, |tmp| {
+        std::fs::write(tmp, &md).map_err(|e| nimbus_scene::Error::io(tmp, e))
+    })?;
+    Ok(p)
+}
+
 /// The Markdown page `docs/stability.md`.
 pub fn markdown(
     outcomes: &[Outcome],

@@ -716,15 +716,9 @@ impl<'g> PhotonMapper<'g> {
     /// (Elek §4.4: the detail noise is of lower frequency than the screen sampling).
     pub fn raymarch_half(&mut self, camera: &Camera) -> Result<Image, PmError> {
         let (w, h) = (camera.width, camera.height);
-        let half = Camera::new(
-            camera.origin,
-            camera.target(),
-            camera.up_hint(),
-            camera.vfov_deg(),
-            w.div_ceil(2),
-            h.div_ceil(2),
-        )
-        .map_err(|e| PmError::Unsupported(e.to_string()))?;
+        let half = camera
+            .with_size(w.div_ceil(2), h.div_ceil(2))
+            .map_err(|e| PmError::Unsupported(e.to_string()))?;
         Ok(self.raymarch(&half)?.resize_bilinear(w, h))
     }
 

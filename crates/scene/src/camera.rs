@@ -130,11 +130,43 @@ impl Camera {
     pub fn up_hint(&self) -> DVec3 {
         self.up_hint
     }
+
+    /// The same view at another image size (the size is checked as in [`Camera::new`]).
+    pub fn with_size(&self, width: usize, height: usize) -> Result<Self, FieldError> {
+        Self::new(
+            self.origin,
+            self.target,
+            self.up_hint,
+            self.vfov_deg,
+            width,
+            height,
+        )
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn with_size_keeps_the_view() {
+        let c = Camera::new(
+            DVec3::new(1.0, 2.0, 3.0),
+            DVec3::ZERO,
+            DVec3::Y,
+            35.0,
+            64,
+            48,
+        )
+        .unwrap();
+        let d = c.with_size(320, 200).unwrap();
+        assert_eq!((d.width, d.height), (320, 200));
+        assert_eq!(
+            (d.origin, d.target(), d.up_hint(), d.vfov_deg(), d.forward()),
+            (c.origin, c.target(), c.up_hint(), c.vfov_deg(), c.forward())
+        );
+        assert!(c.with_size(0, 10).is_err());
+    }
 
     #[test]
     fn orientation() {

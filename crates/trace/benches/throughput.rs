@@ -15,15 +15,7 @@ fn load() -> Scene {
     let mut s = Scene::load(root.join("scenes/refs/cumulus_side.toml"))
         .expect("scenes/refs/cumulus_side.toml needs ../shared/refs beside the checkout");
     // 64×48 pixels keeps one iteration short; the path statistics match the full image.
-    s.camera = nimbus_scene::Camera::new(
-        s.camera.origin,
-        s.camera.target(),
-        s.camera.up_hint(),
-        s.camera.vfov_deg(),
-        64,
-        48,
-    )
-    .unwrap();
+    s.camera = s.camera.with_size(64, 48).unwrap();
     s
 }
 

@@ -23,9 +23,7 @@ fn gpu_sun_disc_matches_cpu() {
 
 /// The scene's camera at `w` × `h` pixels (small images keep lavapipe quick).
 fn resize(scene: &mut Scene, w: usize, h: usize) {
-    let c = &scene.camera;
-    scene.camera =
-        nimbus_scene::Camera::new(c.origin, c.target(), c.up_hint(), c.vfov_deg(), w, h).unwrap();
+    scene.camera = scene.camera.with_size(w, h).unwrap();
 }
 
 fn check(disc_deg: Option<f64>) {
