@@ -13,6 +13,10 @@ records and export it to ONNX.
   the run (averages out label noise at the end), ``constant`` is the paper's.
 - ``--mirror`` (default): each minibatch mirrors a random half of its rows across the plane of
   the view and light directions (stencil ix -> 4 - ix): a free second record.
+- ``--axis-turns DEG``: rows within DEG degrees of gamma = 0 or 180 (view parallel to the light,
+  where the frame's x axis is arbitrary) are turned by a random number of quarter turns about
+  the light axis (exact on the stencil; the label is exact on the axis and approximate beside
+  it, see ``rpnn.model.quarter_turn_columns``).
 - Validation: the data set's "val" split (held-out clouds with precise labels) when it has one,
   else 25 % of the training records (fixed seed); the test clouds' records (split "test") are
   reported separately, with the per-record median relative error by gamma and target size.
@@ -47,7 +51,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from rpnn import data as rdata  # noqa: E402
 from rpnn import export as rexport  # noqa: E402
-from rpnn.model import LOSSES, RPNN, mirror_columns, parameter_count  # noqa: E402
+from rpnn.model import (  # noqa: E402
+    LOSSES,
+    RPNN,
+    axis_turns,
+    mirror_columns,
+    parameter_count,
+    quarter_turn_columns,
+)
 
 
 def parse_args(argv=None):
@@ -70,6 +81,10 @@ def parse_args(argv=None):
                    help="rel-l2: unbiased under label noise (default); log: the paper's §5.2 loss")
     p.add_argument("--mirror", action=argparse.BooleanOptionalAction, default=True,
                    help="mirror a random half of each minibatch (ix -> 4 - ix)")
+    p.add_argument("--axis-turns", type=float, default=0.0, metavar="DEG",
+                   help="quarter-turn the stencil about the light axis at random for records "
+                        "within DEG degrees of gamma = 0 or 180, where the frame's azimuth is "
+                        "arbitrary (0: off, as the shipped model was trained)")
     p.add_argument("--schedule", default="constant", choices=["constant", "cosine"],
                    help="step size over the epochs: constant (the paper) or cosine decay to 0")
     p.add_argument("--max-minutes", type=float, default=0.0,
@@ -316,6 +331,9 @@ def _train(args, dist: Dist, device) -> dict:
     test = Batches(test_recs, np.arange(len(test_recs)), device, preload)
     loss_fn = LOSSES[args.loss]
     mirror = mirror_columns(args.levels).to(device) if args.mirror else None
+    if not 0.0 <= args.axis_turns <= 90.0:
+        raise SystemExit(f"--axis-turns must lie in [0, 90] degrees, got {args.axis_turns}")
+    turn = quarter_turn_columns(args.levels).to(device) if args.axis_turns > 0 else None
 
     model = build_model(args)
     model.init_output_bias(float(np.mean(train_recs.gather(fit_idx[:200_000])[1])))
@@ -361,6 +379,7 @@ def _train(args, dist: Dist, device) -> dict:
         # The same global order and mirroring on every rank (they depend on seed and epoch only).
         order = np.random.default_rng([args.seed, epoch]).permutation(len(fit))
         flip_rng = torch.Generator().manual_seed(args.seed * 1_000_003 + epoch)
+        turn_rng = torch.Generator().manual_seed(args.seed * 1_000_033 + epoch)
         tl, tn = 0.0, 0
         batches = fit.iterate_global(args.batch, order, dist.rank, dist.world)
         for step, (x, y, n_global, where) in enumerate(batches):
@@ -372,6 +391,9 @@ def _train(args, dist: Dist, device) -> dict:
                 flip = torch.rand(n_global, generator=flip_rng) < 0.5
                 flip = flip[torch.from_numpy(where)].to(x.device)
                 x = torch.where(flip[:, None], x[:, mirror], x)
+            if turn is not None:
+                q = torch.randint(0, 4, (n_global,), generator=turn_rng)
+                x = axis_turns(x, np.radians(args.axis_turns), turn, q[torch.from_numpy(where)])
             # This rank's share of the global mean: DDP averages the gradients over the ranks.
             share = len(y) * dist.world / n_global
             if len(y) == 0:
@@ -478,7 +500,8 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
                  "val_records": result["val"] if result["val_from_clouds"] else 0,
                  "test_records": result["test"],
                  "convergence_rate": m.get("convergence_rate")},
-        "training": {"loss": args.loss, "mirror": args.mirror, "schedule": args.schedule,
+        "training": {"loss": args.loss, "mirror": args.mirror,
+                     "axis_turns_deg": args.axis_turns, "schedule": args.schedule,
                      "steps": s["epoch"] * -(-result["fit"] // args.batch),
                      "epochs": s["epoch"], "best_epoch": s["best_epoch"],
                      "select": args.select,

@@ -171,7 +171,10 @@ def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
            if t.get("loss") == "rel-l2" else "(log(1 + ŷ) − log(1 + y))², Kallweit §5.2")
         + f"), Adam, step size {t['lr']} ({t.get('schedule', 'constant')}), minibatch "
         f"{t['batch']}, {t['epochs']} epochs ({t.get('steps', '?')} steps), mirror augmentation "
-        f"{'on' if t.get('mirror') else 'off'}, seed {t['seed']}, device {t['device']}, "
+        f"{'on' if t.get('mirror') else 'off'}"
+        + (f", quarter turns about the light axis within {t['axis_turns_deg']:g}° of γ = 0 and 180°"
+           if t.get("axis_turns_deg") else "")
+        + f", seed {t['seed']}, device {t['device']}, "
         f"{t['seconds']:.0f} s.",
         (f"- Exported: the last epoch (`--select last`), validation loss "
          f"{t['best_val_loss']:.4g} (epoch {t['best_epoch']}); "

@@ -20,6 +20,7 @@ sun irradiance.
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -129,6 +130,45 @@ def rel_l2_loss(pred: torch.Tensor, target: torch.Tensor, eps: float = 0.01) -> 
 
 
 LOSSES = {"rel-l2": rel_l2_loss, "log": log_loss}
+
+
+def quarter_turn_columns(levels: int = LEVELS, points: int = POINTS) -> torch.Tensor:
+    """Column permutation of a descriptor row that turns the stencil's frame by 90 degrees about
+    its z axis (the light direction): the new x axis is the old y, the new y the old -x, so the
+    new point (ix, iy, iz) reads the old (4 - iy, ix, iz). The 5x5 grid maps onto itself, so the
+    turn is exact; gamma is unchanged. Four turns are the identity.
+
+    Where the view is parallel to the light (gamma = 0 or pi) the frame's x axis
+    (z x view, crates/rpnn/src/descriptor.rs) is arbitrary, and every turn describes the same
+    configuration; at an angle delta from that axis a turn describes the view direction turned
+    by 90 degrees about the light, at most sqrt(2) sin(delta) radians away (used near the axis
+    only: see ``axis_turns``).
+    """
+    if points != 225:
+        raise ValueError("turning needs the 5x5x9 stencil (225 points)")
+    idx = []
+    for k in range(levels):
+        for p in range(points):
+            ix, iy, iz = p % 5, (p // 5) % 5, p // 25
+            idx.append(k * points + (4 - iy) + 5 * ix + 25 * iz)
+    idx.append(levels * points)
+    return torch.tensor(idx, dtype=torch.long)
+
+
+def axis_turns(x: torch.Tensor, band_rad: float, turn: torch.Tensor,
+               q: torch.Tensor) -> torch.Tensor:
+    """Turns the stencil of each row whose gamma (last column) lies within ``band_rad`` of 0 or
+    pi by ``q`` (0-3, one per row) quarter turns about the light axis (``turn`` from
+    ``quarter_turn_columns``): near the frame's singular direction the network sees the
+    arbitrary azimuth of the frame in every orientation. Rows outside the band are unchanged.
+    """
+    g = x[:, -1]
+    near = (g < band_rad) | (g > np.pi - band_rad)
+    q = q.to(x.device)
+    out = x
+    for k in range(1, 4):
+        out = torch.where((near & (q >= k))[:, None], out[:, turn], out)
+    return out
 
 
 def mirror_columns(levels: int = LEVELS, points: int = POINTS) -> torch.Tensor:

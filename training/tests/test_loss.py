@@ -7,7 +7,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from rpnn.model import LOSSES, mirror_columns, rel_l2_loss
+from rpnn.model import LOSSES, axis_turns, mirror_columns, quarter_turn_columns, rel_l2_loss
 
 
 def noisy_labels(truth: np.ndarray, samples: np.ndarray, rng) -> np.ndarray:
@@ -91,3 +91,36 @@ def test_mirror_is_an_involution_that_flips_x_only():
     assert m[2250] == 2250
     # The plane ix = 2 is fixed.
     assert m[2 + 5 * 3 + 25 * 7] == 2 + 5 * 3 + 25 * 7
+
+
+def test_quarter_turn_is_exact_and_of_order_four():
+    t = quarter_turn_columns()
+    ident = torch.arange(2251)
+    assert not torch.equal(t, ident)
+    assert torch.equal(t[t[t[t]]], ident)
+    # Two turns are the half turn (ix, iy) -> (4 - ix, 4 - iy); gamma stays.
+    p = 1 + 5 * 3 + 25 * 6
+    assert t[t][4 * 225 + p] == 4 * 225 + 3 + 5 * 1 + 25 * 6
+    assert t[2250] == 2250
+    # The new point (ix, iy) reads the old (4 - iy, ix): the new x axis is the old y.
+    assert t[0 * 225 + 1 + 5 * 0 + 25 * 2] == 4 + 5 * 1 + 25 * 2
+    # The stencil's axis column (ix = iy = 2) is fixed.
+    for iz in range(9):
+        assert t[7 * 225 + 2 + 10 + 25 * iz] == 7 * 225 + 2 + 10 + 25 * iz
+
+
+def test_axis_turns_touch_only_rows_near_the_axis():
+    g = torch.Generator().manual_seed(0)
+    x = torch.rand((8, 2251), generator=g)
+    x[:, -1] = torch.tensor([0.01, 0.5, 1.5, 3.13, 3.0, 0.0, np.pi, 0.06])
+    t = quarter_turn_columns()
+    q = torch.tensor([1, 1, 2, 3, 1, 0, 2, 1])
+    y = axis_turns(x, np.radians(3.0), t, q)
+    # 3° = 0.0524 rad: rows 0, 3, 5, 6 are near the axis; 1, 2, 4, 7 are not.
+    for r in (1, 2, 4, 7):
+        assert torch.equal(y[r], x[r])
+    assert torch.equal(y[0], x[0][t])
+    assert torch.equal(y[3], x[3][t[t[t]]])
+    assert torch.equal(y[5], x[5])  # q = 0
+    assert torch.equal(y[6], x[6][t[t]])
+    assert torch.equal(y[:, -1], x[:, -1])
