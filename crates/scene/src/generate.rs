@@ -15,7 +15,9 @@
 //!
 //! All grids are normalised so that their maximum is 1 (the scene's `density_scale` then sets
 //! σ_t), and the outermost voxel layer is zero so the cloud never touches its box. Generation is
-//! deterministic for a given kind, seed and resolution (on any thread count).
+//! deterministic for a given kind, seed and resolution (on any thread count). Grids of more than
+//! [`SPARSE_ABOVE_VOXELS`] come out as 8³ bricks (`crate::brick`) holding only the bricks the
+//! cloud reaches; the values are those of the dense path, bit for bit.
 
 use std::str::FromStr;
 
@@ -320,79 +322,180 @@ fn make_field(kind: CloudKind, seed: u64, res: [usize; 3], fast: bool) -> (Field
     }
 }
 
-/// Generates a cloud of `kind` with `seed` at resolution `res` (voxels along x, y, z).
+/// Grids of more voxels than this (256 MiB as dense f32) are generated as sparse 8³ bricks:
+/// memory then grows with the cloud, not with its box. Smaller ones stay dense (a dense lookup
+/// is the cheaper one for the path tracer; the values are the same either way).
+pub const SPARSE_ABOVE_VOXELS: usize = 1 << 26;
+
+/// Generates a cloud of `kind` with `seed` at resolution `res` (voxels along x, y, z), dense or
+/// as bricks (see [`SPARSE_ABOVE_VOXELS`]).
 pub fn generate(kind: CloudKind, seed: u64, res: [usize; 3]) -> Result<DensityGrid, FieldError> {
-    generate_with(kind, seed, res, true)
+    let sparse = res
+        .iter()
+        .try_fold(1usize, |n, &r| n.checked_mul(r))
+        .is_none_or(|n| n > SPARSE_ABOVE_VOXELS);
+    generate_with(kind, seed, res, true, sparse)
 }
 
-/// [`generate`], with the shortcuts that skip empty space and unneeded noise on or off (the
-/// same grid either way).
+/// Tiles of T×T voxels in x, y: a tile whose every voxel the shape puts in empty space is
+/// skipped without evaluating noise (cumulus: most of the box).
+const T: usize = 8;
+
+/// Fills z slice `z` (x fastest, `slice.len()` = nx × ny, zero on entry) of a cloud.
+fn fill_slice(field: &Field, cull: &Option<Cull>, res: [usize; 3], z: usize, slice: &mut [f32]) {
+    let [nx, ny, nz] = res;
+    if z == 0 || z == nz - 1 {
+        return;
+    }
+    let scale = 2.0 / nx as f64;
+    let depth = nz as f64 * scale;
+    let half = (2.0 * (T as f64 / 2.0).powi(2) + 0.25).sqrt() * scale;
+    let pz = (z as f64 + 0.5) * scale - depth / 2.0;
+    for ty in (0..ny).step_by(T) {
+        for tx in (0..nx).step_by(T) {
+            if let Some(cull) = cull {
+                let c = [
+                    (tx as f64 + T as f64 / 2.0) * scale - 1.0,
+                    (ty as f64 + T as f64 / 2.0) * scale,
+                    pz,
+                ];
+                if cull(c, half) {
+                    continue;
+                }
+            }
+            for y in ty.max(1)..(ty + T).min(ny - 1) {
+                for x in tx.max(1)..(tx + T).min(nx - 1) {
+                    let p = [(x as f64 + 0.5) * scale - 1.0, (y as f64 + 0.5) * scale, pz];
+                    slice[y * nx + x] = field(p).max(0.0) as f32;
+                }
+            }
+        }
+    }
+}
+
+/// [`generate`], with the shortcuts that skip empty space and unneeded noise on or off, dense or
+/// sparse (the same values every way).
 fn generate_with(
     kind: CloudKind,
     seed: u64,
     res: [usize; 3],
     fast: bool,
+    sparse: bool,
 ) -> Result<DensityGrid, FieldError> {
-    let res = check_resolution(res.map(|r| r as i64), "resolution")?;
+    let res = if sparse {
+        crate::brick::check_sparse_resolution(res.map(|r| r as i64), "resolution")?
+    } else {
+        check_resolution(res.map(|r| r as i64), "resolution")?
+    };
     if res.iter().any(|&r| r < 4) {
         return Err(FieldError::new(
             "resolution",
             format!("procedural clouds need at least 4 voxels per axis, got {res:?}"),
         ));
     }
-    let scale = 2.0 / res[0] as f64;
-    let depth = res[2] as f64 * scale;
     let [nx, ny, nz] = res;
     let what = format!("a {nx}×{ny}×{nz} grid");
-    let mut data = crate::memory::filled(nx * ny * nz, 0.0f32, "resolution", &what)?;
-    // One z slice per task, in 8×8-voxel tiles: a tile whose every voxel the shape puts in
-    // empty space is skipped without evaluating noise (cumulus: most of the box).
-    const T: usize = 8;
-    let half = (2.0 * (T as f64 / 2.0).powi(2) + 0.25).sqrt() * scale;
-    data.par_chunks_mut(nx * ny).enumerate().for_each_init(
-        || {
-            let (field, cull) = make_field(kind, seed, res, fast);
-            (field, cull.filter(|_| fast))
-        },
-        |(field, cull), (z, slice)| {
-            if z == 0 || z == nz - 1 {
-                return;
-            }
-            let pz = (z as f64 + 0.5) * scale - depth / 2.0;
-            for ty in (0..ny).step_by(T) {
-                for tx in (0..nx).step_by(T) {
-                    if let Some(cull) = cull {
-                        let c = [
-                            (tx as f64 + T as f64 / 2.0) * scale - 1.0,
-                            (ty as f64 + T as f64 / 2.0) * scale,
-                            pz,
-                        ];
-                        if cull(c, half) {
-                            continue;
-                        }
-                    }
-                    for y in ty.max(1)..(ty + T).min(ny - 1) {
-                        for x in tx.max(1)..(tx + T).min(nx - 1) {
-                            let p = [(x as f64 + 0.5) * scale - 1.0, (y as f64 + 0.5) * scale, pz];
-                            slice[y * nx + x] = field(p).max(0.0) as f32;
-                        }
-                    }
-                }
-            }
-        },
-    );
-    let max = data.iter().cloned().fold(0.0f32, f32::max);
-    if max <= 0.0 {
-        return Err(FieldError::new(
+    let init = || {
+        let (field, cull) = make_field(kind, seed, res, fast);
+        (field, cull.filter(|_| fast))
+    };
+    let empty = || {
+        FieldError::new(
             "seed",
             format!(
                 "{} with seed {seed} at {res:?} came out empty; try another seed",
                 kind.name()
             ),
-        ));
+        )
+    };
+    if sparse {
+        return generate_bricks(res, &what, init, empty);
+    }
+    let mut data = crate::memory::filled(nx * ny * nz, 0.0f32, "resolution", &what)?;
+    // One z slice per task.
+    data.par_chunks_mut(nx * ny)
+        .enumerate()
+        .for_each_init(init, |(field, cull), (z, slice)| {
+            fill_slice(field, cull, res, z, slice)
+        });
+    let max = data.iter().cloned().fold(0.0f32, f32::max);
+    if max <= 0.0 {
+        return Err(empty());
     }
     data.iter_mut().for_each(|v| *v /= max);
     DensityGrid::new(res, data)
+}
+
+/// The sparse path of [`generate_with`]: one slab of 8 z slices per task, cut into 8³ bricks
+/// of which only those holding a non-zero voxel are kept; then normalised by the maximum (the
+/// same f32 division as the dense path) into a [`BrickBuilder`](crate::brick::BrickBuilder).
+fn generate_bricks(
+    res: [usize; 3],
+    what: &str,
+    init: impl Fn() -> (Field, Option<Cull>) + Sync + Send,
+    empty: impl Fn() -> FieldError,
+) -> Result<DensityGrid, FieldError> {
+    use crate::brick::{BrickBuilder, DIM, VOXELS};
+    let [nx, ny, nz] = res;
+    let (bx, by, bz) = (nx.div_ceil(DIM), ny.div_ceil(DIM), nz.div_ceil(DIM));
+    // The index is checked (and made) before any work; the kept bricks are checked as they are
+    // added.
+    let mut builder = BrickBuilder::new(res, [0; 3], 0, "resolution", what)?;
+    // Each slab: the non-zero bricks (their x, y brick coordinates and values) and its maximum.
+    type Slab = (Vec<(usize, usize, Box<[f32]>)>, f32);
+    let slabs: Vec<Slab> = (0..bz)
+        .into_par_iter()
+        .map_init(init, |(field, cull), k| {
+            let mut slab = vec![0.0f32; nx * ny * DIM];
+            for (l, slice) in slab.chunks_mut(nx * ny).enumerate() {
+                let z = k * DIM + l;
+                if z < nz {
+                    fill_slice(field, cull, res, z, slice);
+                }
+            }
+            let mut kept = Vec::new();
+            let mut max = 0.0f32;
+            for j in 0..by {
+                for i in 0..bx {
+                    let mut v = vec![0.0f32; VOXELS].into_boxed_slice();
+                    let mut any = false;
+                    for l in 0..DIM {
+                        for y in j * DIM..((j + 1) * DIM).min(ny) {
+                            let row = (l * ny + y) * nx;
+                            let x0 = i * DIM;
+                            let x1 = ((i + 1) * DIM).min(nx);
+                            let dst = (l * DIM + (y - j * DIM)) * DIM;
+                            for (d, &s) in v[dst..dst + x1 - x0]
+                                .iter_mut()
+                                .zip(&slab[row + x0..row + x1])
+                            {
+                                *d = s;
+                                any |= s != 0.0;
+                                max = max.max(s);
+                            }
+                        }
+                    }
+                    if any {
+                        kept.push((i, j, v));
+                    }
+                }
+            }
+            (kept, max)
+        })
+        .collect();
+    let max = slabs.iter().map(|s| s.1).fold(0.0f32, f32::max);
+    if max <= 0.0 {
+        return Err(empty());
+    }
+    for (k, (kept, _)) in slabs.into_iter().enumerate() {
+        for (i, j, v) in kept {
+            let dst = builder.stored_mut([i, j, k])?;
+            for (d, s) in dst.iter_mut().zip(v.iter()) {
+                *d = s / max;
+            }
+        }
+    }
+    Ok(DensityGrid::from_bricks(builder.finish()?))
 }
 
 /// The world box a generated grid fills by default: centred at the origin, 2 units along x,
@@ -433,9 +536,42 @@ mod tests {
         for seed in [1, 7, 42] {
             let res = [72, 54, 72];
             for kind in [CloudKind::Cumulus, CloudKind::Congestus] {
-                let a = generate_with(kind, seed, res, true).unwrap();
-                let b = generate_with(kind, seed, res, false).unwrap();
+                let a = generate_with(kind, seed, res, true, false).unwrap();
+                let b = generate_with(kind, seed, res, false, false).unwrap();
                 assert!(a == b, "{kind:?} seed {seed}");
+            }
+        }
+    }
+
+    #[test]
+    fn sparse_generation_gives_the_same_values() {
+        // Resolutions not multiples of 8 exercise the edge bricks.
+        for kind in CloudKind::ALL {
+            let res = [44, 21, 37];
+            let d = generate_with(kind, 5, res, true, false).unwrap();
+            let s = generate_with(kind, 5, res, true, true).unwrap();
+            assert!(d.as_dense().is_some() && s.as_bricks().is_some());
+            for z in 0..res[2] {
+                for y in 0..res[1] {
+                    for x in 0..res[0] {
+                        assert_eq!(
+                            d.get(x, y, z).to_bits(),
+                            s.get(x, y, z).to_bits(),
+                            "{kind:?}"
+                        );
+                    }
+                }
+            }
+            assert_eq!(d.stats().max, s.stats().max);
+            // The heaps leave most of their box empty, which is absent: fewer bytes than the
+            // dense grid (a thin sheet or filaments reach most bricks of so small a box).
+            if matches!(kind, CloudKind::Cumulus | CloudKind::Congestus) {
+                assert!(
+                    s.bytes() < d.bytes(),
+                    "{kind:?}: {} vs {}",
+                    s.bytes(),
+                    d.bytes()
+                );
             }
         }
     }
