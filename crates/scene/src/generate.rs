@@ -438,9 +438,40 @@ fn generate_bricks(
     use crate::brick::{BrickBuilder, DIM, VOXELS};
     let [nx, ny, nz] = res;
     let (bx, by, bz) = (nx.div_ceil(DIM), ny.div_ceil(DIM), nz.div_ceil(DIM));
-    // The index is checked (and made) before any work; the kept bricks are checked as they are
-    // added.
-    let mut builder = BrickBuilder::new(res, [0; 3], 0, "resolution", what)?;
+    // Before any noise: the bricks the cloud can reach at most (those the shape's bound does
+    // not rule out; every brick for kinds without one), held twice at the end (the slabs' copies
+    // and the grid), plus the index, against the memory budget.
+    let (_, cull) = init();
+    let scale = 2.0 / nx as f64;
+    let depth = nz as f64 * scale;
+    let half = (3.0 * (DIM as f64 / 2.0).powi(2)).sqrt() * scale;
+    let reachable: usize = (0..bz)
+        .map(|k| {
+            let Some(cull) = &cull else {
+                return bx * by;
+            };
+            let mut n = 0;
+            for j in 0..by {
+                for i in 0..bx {
+                    let c = [
+                        (i as f64 + 0.5) * DIM as f64 * scale - 1.0,
+                        (j as f64 + 0.5) * DIM as f64 * scale,
+                        (k as f64 + 0.5) * DIM as f64 * scale - depth / 2.0,
+                    ];
+                    n += usize::from(!cull(c, half));
+                }
+            }
+            n
+        })
+        .sum();
+    crate::memory::check(
+        (bx * by * bz) as u128 * 4 + 2 * reachable as u128 * (VOXELS as u128 * 4),
+        "resolution",
+        &format!(
+            "{what} (as 8³ bricks: {reachable} the cloud can reach, of {})",
+            bx * by * bz
+        ),
+    )?;
     // Each slab: the non-zero bricks (their x, y brick coordinates and values) and its maximum.
     type Slab = (Vec<(usize, usize, Box<[f32]>)>, f32);
     let slabs: Vec<Slab> = (0..bz)
@@ -487,6 +518,8 @@ fn generate_bricks(
     if max <= 0.0 {
         return Err(empty());
     }
+    let kept = slabs.iter().map(|s| s.0.len()).sum();
+    let mut builder = BrickBuilder::new(res, [0; 3], kept, "resolution", what)?;
     for (k, (kept, _)) in slabs.into_iter().enumerate() {
         for (i, j, v) in kept {
             let dst = builder.stored_mut([i, j, k])?;
