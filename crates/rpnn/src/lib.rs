@@ -5,6 +5,7 @@
 //! ([`gpu`]); training records ([`datagen`]), sharded data sets ([`dataset`]) and sets assembled from
 //! parts written on several machines ([`shards`]).
 
+pub mod clouds;
 pub mod datagen;
 pub mod dataset;
 pub mod descriptor;
