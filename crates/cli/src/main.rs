@@ -310,7 +310,10 @@ fn run(cli: Cli) -> Result<()> {
             image.write_png(&png, e)?;
             say!("wrote {} and {}", exr.display(), png.display());
             if let Some(r) = reference {
-                print_metrics(&exr, &r, None)?;
+                // Cloud pixels from the scene's own camera optical depth (τ ≥ 0.1), unless the
+                // reference comes with its `_tau.npy`.
+                let tau = nimbus_trace::tau::optical_depth_image(&s);
+                print_metrics(&exr, &r, None, Some(nimbus_trace::tau::cloud_mask(&tau)))?;
             }
         }
         Command::View(args) => view(args)?,
@@ -480,7 +483,7 @@ fn run(cli: Cli) -> Result<()> {
                 bail!("compare needs a scene (.toml), or a test EXR and a reference EXR");
             };
             let (test, reference) = (test.clone(), reference.clone());
-            print_metrics(&test, &reference, mask.clone())?;
+            print_metrics(&test, &reference, mask.clone(), None)?;
             if let Some(out) = png {
                 if !(range.is_finite() && range > 0.0) {
                     bail!("--range must be > 0");
@@ -533,7 +536,15 @@ fn mask_for(reference: &Path, mask: Option<PathBuf>) -> Option<PathBuf> {
     mask.or_else(|| auto.exists().then_some(auto))
 }
 
-fn print_metrics(test: &Path, reference: &Path, mask: Option<PathBuf>) -> Result<()> {
+/// Error metrics of `test` against `reference` over the cloud pixels: the mask file given, else
+/// `<reference>_tau.npy`, else `scene_mask` (the scene's camera optical depth), else the
+/// reference's bright pixels.
+fn print_metrics(
+    test: &Path,
+    reference: &Path,
+    mask: Option<PathBuf>,
+    scene_mask: Option<Vec<bool>>,
+) -> Result<()> {
     let t = nimbus_scene::Image::read_exr(test)?;
     let r = nimbus_scene::Image::read_exr(reference)?;
     if (t.width, t.height) != (r.width, r.height) {
@@ -550,7 +561,7 @@ fn print_metrics(test: &Path, reference: &Path, mask: Option<PathBuf>) -> Result
     let mask_path = mask_for(reference, mask);
     let m = match &mask_path {
         Some(p) => Some(compare::tau_mask(p, r.width, r.height)?),
-        None => None,
+        None => scene_mask.filter(|m| m.len() == r.width * r.height),
     };
     let res = compare::compare(&t, &r, m.as_deref());
     if res.cloud_pixels == 0 || !res.mean_lum_ratio.is_finite() && res.nonfinite == 0 {

@@ -7,6 +7,9 @@
 //!   reference luminance; `rel_rmse_4x4` the same on the means of 4×4 blocks lying fully in the
 //!   cloud; `mean_ratio`: mean test / mean reference luminance; `rel_rmse_all`: relative RMSE
 //!   over every pixel, sky included (for comparison with brightness-masked figures);
+//! - blocks of the noise, bias and speed-up figures: 4×4 tiles at least half in the cloud,
+//!   averaged over their cloud pixels ([`cloud_blocks`]); `rel_rmse_4x4` keeps the definition
+//!   of `shared/refs/compare.py` (tiles fully in the cloud) so it compares with Mitsuba figures;
 //! - `noise`, `noise_4x4`: the run's own noise variance per pixel and per block, from its two
 //!   halves ((A − B)²/4, see [`crate::method`]);
 //! - `ttuv` = time × mean pixel variance ("time to unit variance", §6): variance only;
@@ -68,7 +71,7 @@ impl Row {
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct RefStats {
     pub cloud_pixels: usize,
-    /// 4×4 blocks lying fully in the cloud.
+    /// 4×4 blocks at least half in the cloud ([`cloud_blocks`]).
     pub cloud_blocks: usize,
     pub mean_lum: f64,
     /// Mean variance of the reference's pixel means (from its halves).
@@ -92,13 +95,23 @@ pub fn cloud_mask(reference: &Reference) -> Vec<bool> {
     nimbus_trace::tau::cloud_mask(&reference.tau)
 }
 
-/// The 4×4 blocks lying fully inside `mask` (pixel indices of each).
-pub fn cloud_blocks(mask: &[bool], w: usize, h: usize) -> Vec<[usize; 16]> {
+/// Fewest cloud pixels of a 4×4 tile that counts as a block: half of it.
+pub const MIN_BLOCK_PIXELS: usize = 8;
+
+/// The 4×4 tiles with at least [`MIN_BLOCK_PIXELS`] pixels inside `mask`, each as the indices
+/// of its cloud pixels (block means are taken over those). Tiles only partly in the cloud
+/// count: a thin cloud (cirrus at 128×72: 4 tiles lie fully inside it, ≈ 40 at least half)
+/// would otherwise be judged on a handful of blocks, whose noise estimate from two halves is
+/// itself too uncertain for a bias to be told from noise.
+pub fn cloud_blocks(mask: &[bool], w: usize, h: usize) -> Vec<Vec<usize>> {
     let mut out = Vec::new();
     for by in 0..h / 4 {
         for bx in 0..w / 4 {
-            let b: [usize; 16] = std::array::from_fn(|k| (by * 4 + k / 4) * w + bx * 4 + k % 4);
-            if b.iter().all(|&i| mask[i]) {
+            let b: Vec<usize> = (0..16)
+                .map(|k| (by * 4 + k / 4) * w + bx * 4 + k % 4)
+                .filter(|&i| mask[i])
+                .collect();
+            if b.len() >= MIN_BLOCK_PIXELS {
                 out.push(b);
             }
         }
@@ -106,20 +119,26 @@ pub fn cloud_blocks(mask: &[bool], w: usize, h: usize) -> Vec<[usize; 16]> {
     out
 }
 
-/// Mean over blocks of (block mean of `d`)² / 4: the variance of the block means of (A + B)/2
-/// when `d` = A − B.
-fn block_half_noise(d: &[f32], blocks: &[[usize; 16]]) -> f64 {
+/// Mean over blocks of `v` averaged over each block's pixels, squared: the block MSE of a
+/// per-pixel difference.
+pub fn block_mean_square(v: impl Fn(usize) -> f64, blocks: &[Vec<usize>]) -> f64 {
     if blocks.is_empty() {
         return 0.0;
     }
     blocks
         .iter()
         .map(|b| {
-            let m = b.iter().map(|&i| d[i] as f64).sum::<f64>() / 16.0;
-            m * m / 4.0
+            let m = b.iter().map(|&i| v(i)).sum::<f64>() / b.len() as f64;
+            m * m
         })
         .sum::<f64>()
         / blocks.len() as f64
+}
+
+/// Mean over blocks of (block mean of `d`)² / 4: the variance of the block means of (A + B)/2
+/// when `d` = A − B.
+fn block_half_noise(d: &[f32], blocks: &[Vec<usize>]) -> f64 {
+    block_mean_square(|i| d[i] as f64, blocks) / 4.0
 }
 
 pub fn ref_stats(reference: &Reference) -> RefStats {
@@ -187,21 +206,7 @@ pub fn evaluate(scene: &str, runs: &[Run], reference: &Reference) -> Vec<Row> {
                 .map(|(t, r)| (t - r).powi(2))
                 .sum::<f64>()
                 / ref_lum.len().max(1) as f64;
-            let mse_4x4 = if blocks.is_empty() {
-                0.0
-            } else {
-                blocks
-                    .iter()
-                    .map(|b| {
-                        b.iter()
-                            .map(|&i| t_lum[i] - ref_lum[i])
-                            .sum::<f64>()
-                            .powi(2)
-                            / 256.0
-                    })
-                    .sum::<f64>()
-                    / blocks.len() as f64
-            };
+            let mse_4x4 = block_mean_square(|i| t_lum[i] - ref_lum[i], &blocks);
             let noise = r
                 .variance
                 .as_ref()
@@ -395,6 +400,30 @@ mod tests {
         assert!(pm.ttuv.is_none() && pm.noise.is_none() && pm.noise_4x4.is_none());
         assert!((pm.bias.unwrap() - (0.0025f64 - 1e-4).sqrt()).abs() < 1e-5);
         assert!((pm.mean_ratio - 0.95).abs() < 1e-6);
+    }
+
+    /// Tiles count from half their pixels in the cloud, and their means are over those pixels:
+    /// a difference of 1 on the cloud pixels (0 outside) gives block mean squares of 1.
+    #[test]
+    fn partial_tiles_count_from_half_in_the_cloud() {
+        let (w, h) = (8, 4);
+        // Left tile: 8 cloud pixels (its top two rows); right tile: 7.
+        let mask: Vec<bool> = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                if x < 4 {
+                    y < 2
+                } else {
+                    y < 1 || (y == 1 && x < 7)
+                }
+            })
+            .collect();
+        let blocks = cloud_blocks(&mask, w, h);
+        assert_eq!(blocks.len(), 1);
+        assert_eq!(blocks[0].len(), MIN_BLOCK_PIXELS);
+        let d: Vec<f64> = mask.iter().map(|&m| if m { 1.0 } else { 0.0 }).collect();
+        assert_eq!(block_mean_square(|i| d[i], &blocks), 1.0);
+        assert_eq!(block_mean_square(|i| d[i], &[]), 0.0);
     }
 
     #[test]

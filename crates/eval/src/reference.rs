@@ -302,8 +302,9 @@ fn round_seed(seed: u64, round: u32, k: usize) -> u64 {
     nimbus_trace::rng::mix64(seed ^ nimbus_trace::rng::mix64(((round as u64) << 1) | k as u64))
 }
 
-/// Relative noise of the mean (A + B)/2 over 4×4 blocks lying fully in the cloud:
-/// √(mean over blocks of (Ā_b − B̄_b)²/4) / mean cloud luminance. Without a full cloud block
+/// Relative noise of the mean (A + B)/2 over 4×4 blocks at least half in the cloud
+/// ([`crate::metrics::cloud_blocks`]): √(mean over blocks of (Ā_b − B̄_b)²/4) / mean cloud
+/// luminance. Without such a block
 /// (a tiny or thin cloud) the same per pixel; without cloud pixels 0 (nothing to converge).
 pub fn block_noise(a: &[f64], b: &[f64], mask: &[bool], w: usize, h: usize) -> f64 {
     let cloud: Vec<usize> = (0..w * h).filter(|&i| mask[i]).collect();
@@ -322,15 +323,7 @@ pub fn block_noise(a: &[f64], b: &[f64], mask: &[bool], w: usize, h: usize) -> f
             .sum::<f64>();
         return (px / cloud.len() as f64).sqrt() / mean_cloud;
     }
-    let s: f64 = blocks
-        .iter()
-        .map(|blk| {
-            let d = blk.iter().map(|&i| a[i] - b[i]).sum::<f64>() / 16.0;
-            d * d / 4.0
-        })
-        .sum();
-    let n = blocks.len();
-    (s / n as f64).sqrt() / mean_cloud
+    (crate::metrics::block_mean_square(|i| a[i] - b[i], &blocks) / 4.0).sqrt() / mean_cloud
 }
 
 fn load(files: [&PathBuf; 4], key: &str, w: usize, h: usize) -> Result<Reference> {

@@ -395,7 +395,8 @@ fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> St
         }
         s += "\n";
     }
-    s += "\nBias: relative RMSE over 4×4 cloud blocks of each method's largest budget after the \
+    s += "\nBias: relative RMSE over 4×4 cloud blocks (tiles at least half in the cloud, averaged \
+          over their cloud pixels) of each method's largest budget after the \
           noise of run and reference (both estimated from independent halves) is removed; the \
           floor is the noise removed, and a bias below twice its floor cannot be told from 0 \
           (`pm` keeps its own noise: an upper bound). The path tracer's own bias checks the \
