@@ -201,12 +201,28 @@ impl DensityGrid {
     }
 
     /// The eight voxels (x[i], y[j], z[k]) in the order i + 2j + 4k (trilinear interpolation's
-    /// corners).
+    /// corners); each pair is a voxel and itself or its successor (`x[1] - x[0]` ∈ {0, 1}).
     #[inline]
     pub fn corners(&self, x: [usize; 2], y: [usize; 2], z: [usize; 2]) -> [f32; 8] {
+        debug_assert!(
+            [x, y, z].iter().all(|p| p[1] == p[0] || p[1] == p[0] + 1),
+            "corners {x:?} {y:?} {z:?}"
+        );
         match &self.storage {
             Storage::Dense(d) => {
-                std::array::from_fn(|n| d[self.index(x[n & 1], y[(n >> 1) & 1], z[n >> 2])])
+                // One base index and three strides (the corners are 0 or 1 voxel apart per
+                // axis): the index arithmetic of a trilinear lookup, the path tracer's most
+                // frequent operation, done once instead of eight times.
+                let base = self.index(x[0], y[0], z[0]);
+                let dx = x[1] - x[0];
+                let dy = (y[1] - y[0]) * self.res[0];
+                let dz = (z[1] - z[0]) * self.res[0] * self.res[1];
+                let row = |o: usize| [d[base + o], d[base + o + dx]];
+                let [c0, c1] = row(0);
+                let [c2, c3] = row(dy);
+                let [c4, c5] = row(dz);
+                let [c6, c7] = row(dy + dz);
+                [c0, c1, c2, c3, c4, c5, c6, c7]
             }
             Storage::Sparse(b) => b.corners(x, y, z),
         }

@@ -188,6 +188,8 @@ pub struct MajorantGrid {
     res: [usize; 3],
     values: Vec<f64>,
     aabb: Aabb,
+    /// Cells per world unit along each axis (res / extent).
+    cells_per_unit: [f64; 3],
 }
 
 impl MajorantGrid {
@@ -218,10 +220,12 @@ impl MajorantGrid {
                 }
             }
         }
+        let ext = volume.aabb().extent();
         Self {
             res,
             values,
             aabb: *volume.aabb(),
+            cells_per_unit: std::array::from_fn(|a| res[a] as f64 / ext[a]),
         }
     }
 
@@ -241,6 +245,12 @@ impl MajorantGrid {
 
     pub fn aabb(&self) -> &Aabb {
         &self.aabb
+    }
+
+    /// Cells per world unit along each axis.
+    #[inline]
+    pub fn cells_per_unit(&self) -> [f64; 3] {
+        self.cells_per_unit
     }
 
     #[inline]

@@ -28,27 +28,29 @@ pub struct DdaSegments<'a> {
 impl<'a> DdaSegments<'a> {
     /// Segments of `o + t d` for t in [t0, t1]; the segment must lie inside the grid's box.
     pub fn new(grid: &'a MajorantGrid, o: DVec3, d: DVec3, t0: f64, t1: f64) -> Self {
-        let aabb = grid.aabb();
+        let min = grid.aabb().min;
         let res = grid.res();
-        let ext = aabb.extent();
-        let p = (o + d * t0 - aabb.min) / ext; // in [0, 1]^3 up to round-off
+        let scale = grid.cells_per_unit();
+        let p = o + d * t0 - min;
         let mut cell = [0i64; 3];
         let mut step = [0i64; 3];
         let mut next_t = [f64::INFINITY; 3];
         let mut delta_t = [f64::INFINITY; 3];
+        // One division per axis: this runs for every walk and shadow ray.
         for a in 0..3 {
-            let n = res[a] as f64;
-            let pg = p[a] * n;
+            let pg = p[a] * scale[a]; // in [0, res] up to round-off
             cell[a] = (pg.floor() as i64).clamp(0, res[a] as i64 - 1);
-            let dg = d[a] / ext[a] * n; // grid cells per unit t
+            let dg = d[a] * scale[a]; // grid cells per unit t
             if dg > 0.0 {
+                let inv = 1.0 / dg;
                 step[a] = 1;
-                delta_t[a] = 1.0 / dg;
-                next_t[a] = t0 + ((cell[a] + 1) as f64 - pg) / dg;
+                delta_t[a] = inv;
+                next_t[a] = t0 + ((cell[a] + 1) as f64 - pg) * inv;
             } else if dg < 0.0 {
+                let inv = 1.0 / dg;
                 step[a] = -1;
-                delta_t[a] = -1.0 / dg;
-                next_t[a] = t0 + (cell[a] as f64 - pg) / dg;
+                delta_t[a] = -inv;
+                next_t[a] = t0 + (cell[a] as f64 - pg) * inv;
             }
         }
         Self {
