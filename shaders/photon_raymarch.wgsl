@@ -10,6 +10,9 @@
 // direction separately for each cell"). At the shadowed and the
 // camera-facing sides of a cloud the scattered light flows outwards, not along the sun: with
 // the sun axis a side view loses ≈ 1/3 of the multiply scattered light (BENCHMARKS.md).
+// View mode (`P.view_mode` = 2, beyond the paper): J holds the radiance scattered towards the
+// camera, deposited by the trace with the exact phase function (photon_trace.wgsl words 11,
+// 12), and replaces both lobe reconstructions: L_s = σ_s(x) [E_sun J_x + L_sky J_y].
 // Detail (Elek §4.4): when `noise_amplitude` > 0, the lookup positions of D and J are displaced
 // by three octaves of vector value noise (amplitudes 1, ½, ¼; frequencies f, 2f, 4f), which
 // adds sub-voxel detail to a smooth density field.
@@ -151,8 +154,14 @@ fn raymarch(@builtin(global_invocation_id) gid: vec3<u32>) {
             if (sigma_t > 0.0) {
                 let jv = j_at(x);
                 // Light along the axis a scattered towards the camera (−d): cos = a·(−d).
-                var ls = sigma_s_scale * dens * (P.sun_irradiance * sun_in_scatter(x, jv, d)
-                    + P.sky_radiance * (jv.y / (4.0 * PI)));
+                var ls: vec3<f32>;
+                if (P.view_mode == 2u) {
+                    // J holds the in-scattering towards the camera itself (view mode).
+                    ls = sigma_s_scale * dens * (P.sun_irradiance * jv.x + P.sky_radiance * jv.y);
+                } else {
+                    ls = sigma_s_scale * dens * (P.sun_irradiance * sun_in_scatter(x, jv, d)
+                        + P.sky_radiance * (jv.y / (4.0 * PI)));
+                }
                 if (P.single_scatter != 0u) {
                     ls += sigma_s_scale * dens * P.sun_irradiance * (t_sun_at(x) * hg_eval(P.g, mu));
                 }

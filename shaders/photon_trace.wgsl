@@ -10,13 +10,16 @@
 // after `similarity_order` scatterings the beam switches to σ' = σ √(1 − g) and isotropic
 // scattering (Elek §4.1.1). Beams end when they leave the box or after `max_order` scatterings.
 //
-// Per cache cell, CELL_WORDS = 11 u32 (fixed point, scale W = 4096 per unit weight, stochastic
+// Per cache cell, CELL_WORDS = 13 u32 (fixed point, scale W = 4096 per unit weight, stochastic
 // rounding):
 //   0: Σ w (sun)   1: Σ w (sky)   2, 3, 4: Σ w (d_k + 1)/2 for k = x, y, z (sun beams; d the
 //   beam's propagation direction, so Σ w d = 2 (slots 2–4) − Σ w: the cell's net sun flux)
 //   5: Σ min(order, 1023)   6: number of deposits
 //   7, 8, 9, 10: slots 0 and 2–4 again for the sun deposits of order ≥ `P.lobe_split` only
 //   (0: no split, these stay 0), so high and low orders get lobes of their own.
+//   11, 12: with `P.view_mode` ≠ 0, Σ w p_HG(d · ω_v | g) for sun (11) and sky (12) deposits,
+//   ω_v the unit vector from the deposit towards `P.view_origin`: a collision estimate of the
+//   radiance the medium scatters towards that point (exact in angle: no lobe in between).
 // The paper projects each photon on the sun direction only (§4.1.2); the flux vector gives that
 // projection (`cells` in photon_upsample.wgsl) and also the per-cell lobe axis that Appendix C
 // allows ("storing the direction separately for each cell").
@@ -51,6 +54,15 @@ fn deposit(slot: u32, v: u32) {
         old = atomicAdd(&h_new[slot], v);
     }
     if (old > 0xffffffffu - v) { atomicStore(&overflow[0], 1u); }
+}
+
+// Phase function value for light travelling along d at x scattered towards P.view_origin
+// (isotropic when x is the view point itself).
+fn view_phase(x: vec3<f32>, d: vec3<f32>) -> f32 {
+    let v = P.view_origin - x;
+    let l = length(v);
+    if (!(l > 1.0e-20)) { return 1.0 / (4.0 * PI); }
+    return hg_eval(P.g, dot(d, v / l));
 }
 
 fn cell_of(p: vec3<f32>) -> u32 {
@@ -135,6 +147,12 @@ fn trace_beam(index: u32) {
             }
         } else {
             deposit(cell + 1u, wu);
+        }
+        // In-scattering towards the view point (drawn only in view mode, so the other modes keep
+        // their random streams).
+        if (P.view_mode != 0u && !skip) {
+            let vu = u32(floor(w * dw * W_SCALE * view_phase(x, d) + rand(&rng)));
+            deposit(cell + select(12u, 11u, is_sun), vu);
         }
         if (!skip) {
             deposit(cell + 5u, min(order, 1023u));

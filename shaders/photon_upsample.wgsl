@@ -15,7 +15,8 @@
 // of I is used. With `filtered == 0` (I and J of equal resolution) J is I converted to
 // physical units, without filtering.
 // J layout: 4 floats per voxel: sun fluence per unit irradiance, sky fluence per unit radiance,
-// g', γ. The lobe's axis: the sun's propagation direction (`P.lobe_axis` = 0, the paper, g' =
+// g', γ (with `P.view_mode` = 2: in-scattered radiance towards the view point per unit sun
+// irradiance and per unit sky radiance instead of the two fluences). The lobe's axis: the sun's propagation direction (`P.lobe_axis` = 0, the paper, g' =
 // the mean cosine to it), or each cell's mean sun-flux direction (1, Appendix C's per-cell
 // direction; g' = |mean propagation vector|), kept per coarse cell in `cell_dir` and
 // interpolated by the ray marcher.
@@ -97,7 +98,15 @@ fn cell_value(i: u32) -> CellValue {
         let m = cell_mean_density(c) / P.d_max;
         scale = select(0.0, 1.0 / m, m > 0.0);
     }
-    return CellValue(w_sun * P.sun_norm * scale, w_sky * P.sky_norm * scale, g, gamma, w_sun > 0.0,
+    // View mode 2: the cell's sun and sky values are the in-scattering towards the view point
+    // (words 11, 12) per unit irradiance / radiance, upsampled like the fluences they replace.
+    var v_sun = w_sun;
+    var v_sky = w_sky;
+    if (P.view_mode == 2u) {
+        v_sun = f32(total[b + 11u]);
+        v_sky = f32(total[b + 12u]);
+    }
+    return CellValue(v_sun * P.sun_norm * scale, v_sky * P.sky_norm * scale, g, gamma, w_sun > 0.0,
         dir, lo_u > 0u, f32(hi_u) * P.sun_norm * scale, dir_hi);
 }
 

@@ -84,20 +84,23 @@ fn photon_mapping_follows_the_path_tracer_at_every_angle() {
         return;
     };
     let views = [166.0, 99.0, 48.0];
-    // (lobe axis, split order): the default two flux lobes, one flux lobe, the sun axis.
+    // (view-dependent words, lobe axis, split order): the default (view-dependent words), the
+    // two flux lobes, one flux lobe, the sun axis.
     let configs = [
-        (LobeAxis::Flux, None),
-        (LobeAxis::Flux, Some(0)),
-        (LobeAxis::Sun, None),
+        (true, LobeAxis::Flux, None),
+        (false, LobeAxis::Flux, None),
+        (false, LobeAxis::Flux, Some(0)),
+        (false, LobeAxis::Sun, None),
     ];
-    let mut sums = [0.0f64; 3];
-    let mut default_ratios = Vec::new();
+    let mut sums = [0.0f64; 4];
+    let mut ratios = Vec::new();
     for tau_d in [5.0, 20.0, 80.0] {
         let scenes: Vec<Scene> = views.iter().map(|&v| sphere(tau_d, camera(v))).collect();
         let mut mappers: Vec<PhotonMapper> = configs
             .iter()
-            .map(|&(axis, split)| {
+            .map(|&(view, axis, split)| {
                 let settings = PmSettings {
+                    view_dependent: Some(view),
                     lobe_axis: Some(axis),
                     lobe_split: split,
                     beams_per_frame: 8192,
@@ -121,37 +124,102 @@ fn photon_mapping_follows_the_path_tracer_at_every_angle() {
                     progress: false,
                 },
             );
+            // The view-dependent words belong to a camera: retraced for each (the lobes'
+            // cache serves every view).
+            let pm0 = &mut mappers[0];
+            pm0.set_view(s.camera.origin);
+            pm0.converge();
+            pm0.upsample();
+            assert!(pm0.view_ready());
             let r: Vec<f64> = mappers
                 .iter_mut()
                 .map(|pm| mean_ratio(&pm.raymarch(&s.camera).unwrap(), &pt.image, &mask))
                 .collect();
             eprintln!(
-                "tau {tau_d:>4}, scattering angle {view:>3}°: pm/pt two flux lobes {:.3}, one flux lobe {:.3}, sun axis {:.3}",
-                r[0], r[1], r[2]
+                "tau {tau_d:>4}, scattering angle {view:>3}°: pm/pt view-dependent {:.3}, two flux lobes {:.3}, one flux lobe {:.3}, sun axis {:.3}",
+                r[0], r[1], r[2], r[3]
             );
-            for k in 0..3 {
+            for k in 0..4 {
                 sums[k] += r[k].ln().abs();
             }
-            default_ratios.push((tau_d, view, r[0]));
+            ratios.push((tau_d, view, r[0], r[1]));
         }
     }
     let means = sums.map(|v| v / 9.0);
     eprintln!(
-        "mean |ln ratio|: two flux lobes {:.3}, one flux lobe {:.3}, sun axis {:.3}",
-        means[0], means[1], means[2]
+        "mean |ln ratio|: view-dependent {:.3}, two flux lobes {:.3}, one flux lobe {:.3}, sun axis {:.3}",
+        means[0], means[1], means[2], means[3]
     );
-    for (tau_d, view, r) in default_ratios {
+    for (tau_d, view, r_view, r_lobes) in ratios {
         assert!(
-            (0.90..=1.12).contains(&r),
-            "tau {tau_d}, {view}°: pm / pt = {r:.3}"
+            (0.90..=1.12).contains(&r_view) && (0.90..=1.12).contains(&r_lobes),
+            "tau {tau_d}, {view}°: pm / pt = {r_view:.3} (view-dependent), {r_lobes:.3} (two flux lobes)"
         );
     }
     assert!(means[0] < 0.06, "mean |ln ratio| {:.3}", means[0]);
+    assert!(means[1] < 0.06, "mean |ln ratio| {:.3}", means[1]);
     assert!(
-        means[0] < means[1] && means[1] < means[2],
+        means[1] < means[2] && means[2] < means[3],
         "two flux lobes ({:.3}) must beat one ({:.3}), which must beat the sun axis ({:.3})",
-        means[0],
         means[1],
-        means[2]
+        means[2],
+        means[3]
+    );
+}
+
+/// Front-lit (the camera beside the sun) the camera sees the light that flows back out of a
+/// lit surface, which one HG lobe per cell and order group cannot hold alongside the light
+/// flowing in (BENCHMARKS.md: the held-out stratus, mean 0.79 of the path tracer with the
+/// lobes, 0.96 with the view words). A generated stratus at the bench's density and view, sun
+/// only. Measured on lavapipe (2026-12-03): pm / pt = 0.902 with the view words, 0.796 with the
+/// lobes (the cache at half the grid's resolution, 32×8×32 cells, is coarser in world units
+/// than the bench stratus's: the rest is spatial). Bounds: the view words within [0.85, 1.1]
+/// and closer to 1 than the lobes; noise: the path tracer's mean at 256 spp over the cloud
+/// pixels is within ≈ 1 %, the photon map's (ring 50 × 8 192 beams) ≈ 1 %, so the test fails
+/// when the view words lose half of their gain, not on noise.
+#[test]
+fn front_lit_view_words_follow_the_path_tracer() {
+    let Some(gpu) =
+        nimbus_gpu::testing::gpu("pm_angular::front_lit_view_words_follow_the_path_tracer")
+    else {
+        return;
+    };
+    let s = SceneBuilder::new(
+        build::generated(nimbus_scene::CloudKind::Stratus, 9, [64, 16, 64], 23.56).unwrap(),
+    )
+    .sun(DVec3::new(0.25, 0.5, 1.0), DVec3::ONE)
+    .look(DVec3::new(0.0, 1.25, 3.45), DVec3::ZERO, 38.0, 64, 36)
+    .build()
+    .unwrap();
+    let mask = tau::cloud_mask(&tau::optical_depth_image(&s));
+    let pt = render(
+        &s,
+        &RenderOptions {
+            spp: 256,
+            seed: 4,
+            progress: false,
+        },
+    );
+    let ratio = |view: bool| {
+        let mut pm = PhotonMapper::new(
+            &gpu,
+            &s,
+            PmSettings {
+                view_dependent: Some(view),
+                ring: 50,
+                seed: 2,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let img = pm.render(&s.camera).unwrap();
+        compare::compare(&img, &pt.image, Some(&mask)).mean_lum_ratio
+    };
+    let (view, lobes) = (ratio(true), ratio(false));
+    eprintln!("front-lit stratus, pm / pt: view words {view:.3}, lobes {lobes:.3}");
+    assert!((0.85..=1.1).contains(&view), "view words: {view:.3}");
+    assert!(
+        view.ln().abs() < lobes.ln().abs(),
+        "view {view:.3}, lobes {lobes:.3}"
     );
 }

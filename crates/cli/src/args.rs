@@ -22,6 +22,12 @@ pub(crate) enum UpsampleLambdaArg {
     Mean,
 }
 
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub(crate) enum InScatterArg {
+    View,
+    Lobes,
+}
+
 /// Photon-mapping settings shared by `render --method pm` and `animate`.
 #[derive(clap::Args)]
 pub(crate) struct PmArgs {
@@ -57,6 +63,12 @@ pub(crate) struct PmArgs {
     /// instead of using g^δ as a weight (its formula, default).
     #[arg(long)]
     pm_upsample_g_extrapolate: bool,
+    /// Photon mapping: in-scattering towards the camera: `view` (deposits weighted by the phase
+    /// function towards the camera, exact in angle; used once the ring was traced for the
+    /// camera's position) or `lobes` (each cell's HG lobes, view-independent). Default: the
+    /// variant's (exact: view, elek2012: lobes); see BENCHMARKS.md.
+    #[arg(long, value_enum)]
+    pm_in_scatter: Option<InScatterArg>,
     /// Photon mapping: partial caches in the ring (m).
     #[arg(long, default_value_t = 100)]
     pub(crate) ring: u32,
@@ -91,6 +103,7 @@ impl PmArgs {
                 LobeAxisArg::Flux => nimbus_photon::mapper::LobeAxis::Flux,
             }),
             lobe_split: self.pm_lobe_split,
+            view_dependent: self.pm_in_scatter.map(|a| a == InScatterArg::View),
             upsample_mean: self.pm_upsample_lambda == UpsampleLambdaArg::Mean,
             upsample_g_extrapolate: self.pm_upsample_g_extrapolate,
             beams_per_frame: self.beams,

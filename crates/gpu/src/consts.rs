@@ -11,9 +11,9 @@ pub const WG: u32 = 64;
 /// Photon cache (Elek 2012 §4.1, Appendix B): fixed-point scale of one unit of beam weight in
 /// the u32 cache words.
 pub const W_SCALE: f64 = 4096.0;
-/// Photon cache: u32 words per cell (energy, flux vector, two-lobe sums; see
-/// `nimbus_photon::cpu`).
-pub const CELL_WORDS: u32 = 11;
+/// Photon cache: u32 words per cell (energy, flux vector, two-lobe sums, in-scattering towards
+/// the camera; see `nimbus_photon::cpu`).
+pub const CELL_WORDS: u32 = 13;
 
 /// RPNN stencil (Kallweit 2017 §4.2): points per level, 5 × 5 × 9.
 pub const STENCIL_POINTS: u32 = 225;

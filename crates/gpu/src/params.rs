@@ -80,6 +80,14 @@ pub struct VolumeParams {
     /// (all of them, or one slice of an amortised rebuild).
     pub sun_first: u32,
     pub sun_count: u32,
+    /// Photon mapping: the point the view-dependent cache words are deposited for (the camera
+    /// the ring is traced for).
+    pub view_origin: [f32; 3],
+    /// Photon mapping: 0 = no view-dependent words; 1 = the trace deposits the sun and sky
+    /// in-scattering towards `view_origin` (words 11 and 12), the ray marcher uses the lobes;
+    /// 2 = as 1, and `cells`/the ray marcher use those words (every ring slot was traced for
+    /// `view_origin`).
+    pub view_mode: u32,
 }
 
 #[cfg(test)]
@@ -152,6 +160,8 @@ mod tests {
             ),
             ("sun_first", offset_of!(VolumeParams, sun_first)),
             ("sun_count", offset_of!(VolumeParams, sun_count)),
+            ("view_origin", offset_of!(VolumeParams, view_origin)),
+            ("view_mode", offset_of!(VolumeParams, view_mode)),
         ];
         assert_eq!(members.len(), rust.len());
         for ((m, moff), (name, off)) in members.iter().zip(rust) {

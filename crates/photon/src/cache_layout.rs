@@ -8,14 +8,14 @@ use nimbus_gpu::{consts, shaders};
 /// definition for both in `nimbus_gpu::consts`).
 pub const W_SCALE: f64 = consts::W_SCALE;
 /// Default of the trace shader's `override SHARED_CELLS` (cells in workgroup memory): 256 cells
-/// × 44 bytes fit the 16 KiB every WebGPU adapter offers; [`trace_constants`] sets what the
+/// × 52 bytes fit the 16 KiB every WebGPU adapter offers; [`trace_constants`] sets what the
 /// cache needs and the adapter allows.
 pub const SHARED_CELLS: u32 = 256;
 /// The most cells ever accumulated in workgroup memory (the paper's 2 400-cell budget).
 pub const SHARED_CELLS_MAX: u32 = 2400;
 /// u32 words per cache cell (`CELL_WORDS` in the shaders, from `nimbus_gpu::consts`).
 pub const CELL_WORDS: usize = consts::CELL_WORDS as usize;
-/// Bytes per cache cell (11 u32).
+/// Bytes per cache cell (13 u32).
 pub const CELL_BYTES: u32 = consts::CELL_WORDS * 4;
 
 /// Cells that fit the adapter's workgroup storage (at most 2 400); caches with more cells use
@@ -94,13 +94,13 @@ mod tests {
         }
     }
 
-    /// Shared-memory capacity: 16 KiB (WebGPU's minimum) holds 372 cells of 44 bytes, 32 KiB
-    /// 744, 48 KiB 1 117; never more than the paper's 2 400.
+    /// Shared-memory capacity: 16 KiB (WebGPU's minimum) holds 315 cells of 52 bytes, 32 KiB
+    /// 630, 48 KiB 945; never more than the paper's 2 400.
     #[test]
     fn shared_capacity_follows_the_adapter() {
-        assert_eq!(shared_cells(16384), 372);
-        assert_eq!(shared_cells(32768), 744);
-        assert_eq!(shared_cells(49152), 1117);
+        assert_eq!(shared_cells(16384), 315);
+        assert_eq!(shared_cells(32768), 630);
+        assert_eq!(shared_cells(49152), 945);
         assert_eq!(shared_cells(1 << 20), 2400);
         assert!(SHARED_CELLS <= shared_cells(16384));
     }

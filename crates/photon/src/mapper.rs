@@ -11,8 +11,13 @@ use nimbus_scene::{Camera, Image, Phase, Scene, Sky};
 
 use nimbus_gpu::params::VolumeParams;
 
+mod memory;
 mod readback;
 mod sun;
+mod view;
+
+pub use memory::buffer_bytes;
+use memory::check_host_memory;
 
 pub use crate::cache_layout::{
     CELL_BYTES, CELL_WORDS, SHARED_CELLS, W_SCALE, shared_cells, trace_constants, trace_source,
@@ -90,6 +95,10 @@ pub struct PhotonMapper<'g> {
     j_dir: wgpu::Buffer,
     j_hi: wgpu::Buffer,
     overflow: wgpu::Buffer,
+    /// The view point each ring slot's view-dependent words were traced for (`mapper/view.rs`).
+    slot_view: Vec<Option<[f32; 3]>>,
+    /// The view point J's in-scattering was upsampled for; `None`: J holds fluences and lobes.
+    j_view: Option<[f32; 3]>,
 }
 
 fn f3(v: DVec3) -> [f32; 3] {
@@ -150,7 +159,10 @@ impl<'g> PhotonMapper<'g> {
                 }
                 r
             }
-            None => default_cache_res(d_res, 2400),
+            None => default_cache_res(
+                d_res,
+                settings.default_max_cells(d_res, gpu.limits.max_storage_buffer_binding_size),
+            ),
         };
         let cells = i_res.iter().product::<u32>();
         // A sparse grid's box may exceed 2^32 voxels: the binding check comes first, with the
@@ -256,6 +268,8 @@ impl<'g> PhotonMapper<'g> {
             upsample_g_extrapolate: settings.upsample_g_extrapolate as u32,
             sun_first: 0,
             sun_count: 0,
+            view_origin: f3(scene.camera.origin),
+            view_mode: settings.effective_view() as u32,
         };
         gpu.check_storage("the upsampled cache J", voxels as u64 * 16)?;
         gpu.check_storage(
@@ -427,6 +441,8 @@ impl<'g> PhotonMapper<'g> {
             j_dir,
             j_hi,
             overflow,
+            slot_view: vec![None; settings.ring as usize],
+            j_view: None,
             settings,
         })
     }
@@ -440,6 +456,7 @@ impl<'g> PhotonMapper<'g> {
         self.gpu.queue.submit([enc.finish()]);
         self.slot_beams.iter_mut().for_each(|s| *s = (0, 0));
         self.frame = 0;
+        self.slot_view.iter_mut().for_each(|v| *v = None);
     }
 
     /// Whether any light reaches the cloud (no light → no photons are traced at all).
@@ -543,6 +560,7 @@ impl<'g> PhotonMapper<'g> {
         self.params.n_sun = n_sun;
         self.params.n_sky = n_sky;
         self.params.frame = self.frame;
+        self.params.view_mode = self.settings.effective_view() as u32;
         let slot = (self.frame % self.settings.ring) as usize;
         self.slot_beams[slot] = (n_sun as u64, n_sky as u64);
         self.gpu
@@ -578,12 +596,17 @@ impl<'g> PhotonMapper<'g> {
         self.timer.resolve(&mut enc);
         self.gpu.queue.submit([enc.finish()]);
         self.last_times = self.timer.read(self.gpu);
+        self.slot_view[slot] = self
+            .settings
+            .effective_view()
+            .then_some(self.params.view_origin);
         self.frame += 1;
     }
 
-    /// Traces until every ring slot holds a generation (m frames).
+    /// Traces until every ring slot holds a generation (m frames) — with view-dependent words,
+    /// one traced for the current view point.
     pub fn converge(&mut self) {
-        while !self.ring_full() {
+        while !self.ring_full() || self.view_pending() {
             self.trace_frame(None);
         }
     }
@@ -610,6 +633,12 @@ impl<'g> PhotonMapper<'g> {
     /// Upsamples I → J (Elek §4.3).
     pub fn upsample(&mut self) {
         self.update_norms();
+        self.j_view = self.view_ready().then_some(self.params.view_origin);
+        self.params.view_mode = if self.j_view.is_some() {
+            2
+        } else {
+            self.settings.effective_view() as u32
+        };
         self.gpu
             .queue
             .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
@@ -649,6 +678,15 @@ impl<'g> PhotonMapper<'g> {
 
     /// Ray marches the current J for `camera` (Elek §4.4).
     pub fn raymarch(&mut self, camera: &Camera) -> Result<Image, PmError> {
+        // J upsampled for a view point too far from this camera: upsampled again (with the lobes
+        // unless the ring is close enough to this camera).
+        if self
+            .j_view
+            .is_some_and(|v| !self.view_close(v, f3(camera.origin)))
+        {
+            self.set_view(camera.origin);
+            self.upsample();
+        }
         self.update_sun_transmittance();
         let (w, h) = (camera.width, camera.height);
         let (forward, right, up, tan_half) = camera.basis();
@@ -732,60 +770,10 @@ impl<'g> PhotonMapper<'g> {
     /// Converged render: fills the ring, upsamples, ray marches; an overflowed cache is an
     /// error.
     pub fn render(&mut self, camera: &Camera) -> Result<Image, PmError> {
+        self.set_view(camera.origin);
         self.converge();
         self.check_overflow()?;
         self.upsample();
         self.raymarch(camera)
     }
-}
-
-/// All of the photon map's buffers, in bytes: density, J and its flux directions, the
-/// sun-transmittance volume, the ring of partial caches with H_new and I, the per-cell
-/// read-outs and the image.
-pub fn buffer_bytes(
-    settings: &PmSettings,
-    params: &VolumeParams,
-    voxels: u32,
-    cells: u32,
-    camera: &Camera,
-) -> u64 {
-    let v = voxels as u64;
-    let per_voxel = 4
-        + 16
-        + if settings.variant == PmVariant::Exact {
-            4
-        } else {
-            0
-        }
-        + if params.lobe_axis != 0 { 16 } else { 0 }
-        + if params.lobe_split != 0 { 16 } else { 0 };
-    v * per_voxel
-        + cells as u64 * (CELL_BYTES as u64 * (settings.ring as u64 + 2) + 64)
-        + camera.width as u64 * camera.height as u64 * 16
-}
-
-/// On a software adapter (lavapipe) GPU buffers live in host memory: their total is checked
-/// against the memory budget like any other allocation sized by input, so a huge cache or ring
-/// is an error naming the settings instead of an allocation failure that aborts.
-fn check_host_memory(
-    gpu: &Gpu,
-    settings: &PmSettings,
-    params: &VolumeParams,
-    voxels: u32,
-    cells: u32,
-    camera: &Camera,
-) -> Result<(), PmError> {
-    if !gpu.is_software() {
-        return Ok(());
-    }
-    let bytes = buffer_bytes(settings, params, voxels, cells, camera);
-    nimbus_scene::memory::check(
-        bytes as u128,
-        "ring",
-        &format!(
-            "the photon map's buffers on {} (host memory): density and cache at {voxels} voxels, a ring of {} × {cells} cells",
-            gpu.info.name, settings.ring
-        ),
-    )
-    .map_err(PmError::Memory)
 }

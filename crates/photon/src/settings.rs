@@ -66,8 +66,9 @@ pub struct PmSettings {
     pub beams_per_frame: u32,
     /// Number of partial caches in the ring, m.
     pub ring: u32,
-    /// Resolution of the caches H and I; default: the largest grid of ≤ 2 400 cells with the
-    /// density grid's proportions (the paper's shared-memory budget).
+    /// Resolution of the caches H and I; default: the largest grid with the density grid's
+    /// proportions and at most [`PmSettings::default_max_cells`] cells (the paper's 2 400 with
+    /// lobes; half the density resolution per axis with the view-dependent words).
     pub cache_res: Option<[u32; 3]>,
     /// A beam stops when its weight (albedo^scatterings) falls below this.
     pub beam_threshold: f32,
@@ -109,6 +110,12 @@ pub struct PmSettings {
     /// Accumulate beams with global atomics even when the cache fits workgroup memory (the
     /// result is identical; for testing and measuring both paths).
     pub force_global_atomics: bool,
+    /// View-dependent cache words (beyond the paper): every deposit also adds the phase
+    /// function towards the camera, p(d · ω_v | g), so a converged ring holds the scattered
+    /// radiance towards that camera with no lobe approximation; the ray marcher uses it once
+    /// every ring slot was traced for the current camera position and the lobes before (and
+    /// while the camera moves). `None`: the variant's (see [`PmSettings::effective_view`]).
+    pub view_dependent: Option<bool>,
     /// Frames over which a sun-transmittance rebuild is spread (1 = at once, the default;
     /// the viewer amortises large volumes: `mapper/sun.rs`).
     pub sun_chunks: u32,
@@ -136,9 +143,30 @@ impl Default for PmSettings {
             detail_noise: 0.0,
             force_global_atomics: false,
             sun_chunks: 1,
+            view_dependent: None,
         }
     }
 }
+
+/// Largest default ring (all partial caches) with view-dependent words: 128 MiB, WebGPU's
+/// default `max_storage_buffer_binding_size` (lavapipe's limit).
+pub const VIEW_RING_BYTES: u64 = 128 << 20;
+
+/// Fewest beams in the ring per cache cell for the view-dependent default cache: the bench's
+/// ring of 100 × 8 192 beams then allows ≈ 25 600 cells (half the resolution of the held-out
+/// clouds), the CLI's smallest (2 × 2 048) the paper's 2 400.
+pub const VIEW_BEAMS_PER_CELL: u64 = 32;
+
+/// Fewest beams in the ring for the view-dependent words by default. Each deposit carries its
+/// phase value towards the camera — up to HG(1) · 4π ≈ 90 × its mean at g = 0.857 — so the
+/// words' noise is heavy-tailed, and a typical image from few beams is dark where the mean is
+/// right: on the demo cumulus the centre's luminance is 0.21 from 2 × 2 048 beams, 0.39 from
+/// 4 × 8 192, 0.356 from 100 × 8 192 (path tracer 0.360; the lobes 0.375 / 0.400 / 0.428).
+/// Below this budget the lobes are the default.
+pub const VIEW_MIN_RING_BEAMS: u64 = 32 * 1024;
+
+/// Whether the exact variant traces view-dependent words by default.
+pub const DEFAULT_VIEW_DEPENDENT: bool = true;
 
 /// Default split order of the two flux lobes (see [`PmSettings::lobe_split`]): orders 1–3
 /// (g^k ≥ 0.63 for g = 0.857) keep their forward peak in the low lobe. Measured on
@@ -150,6 +178,40 @@ impl PmSettings {
     /// The split order in effect with flux axes (0: one lobe).
     pub fn effective_lobe_split(&self) -> u32 {
         self.lobe_split.unwrap_or(DEFAULT_LOBE_SPLIT)
+    }
+
+    /// Whether the view-dependent words are traced (the setting, else the variant's: off for
+    /// the paper's method, and for a ring of fewer than [`VIEW_MIN_RING_BEAMS`] beams).
+    pub fn effective_view(&self) -> bool {
+        self.view_dependent.unwrap_or(
+            self.variant == PmVariant::Exact
+                && DEFAULT_VIEW_DEPENDENT
+                && self.ring as u64 * self.beams_per_frame as u64 >= VIEW_MIN_RING_BEAMS,
+        )
+    }
+
+    /// Most cells of the default cache (see [`default_cache_res`]): the paper's 2 400 with
+    /// lobes; with view-dependent words half the density resolution per axis, as long as the
+    /// ring holds at least [`VIEW_BEAMS_PER_CELL`] beams per cell (a finer cache with few beams
+    /// is mostly empty) — never below the paper's 2 400 cells — and fits one storage binding of
+    /// at most [`VIEW_RING_BYTES`]. Measured on the held-out bench clouds (BENCHMARKS.md): with
+    /// the words, the error left is the cache's spatial resolution (`stratus_009` front-lit,
+    /// mean ratio 0.88 / 0.96 / 1.01 with 2 205 cells, half and full resolution); with lobes a
+    /// finer cache does not help.
+    pub fn default_max_cells(&self, d_res: [usize; 3], max_binding: u64) -> u32 {
+        if !self.effective_view() {
+            return 2400;
+        }
+        let voxels = d_res.iter().map(|&v| v as u64).product::<u64>();
+        let ring = self.ring.max(1) as u64;
+        let beams = ring * self.beams_per_frame as u64 / VIEW_BEAMS_PER_CELL;
+        let ring_bytes = ring * crate::cache_layout::CELL_BYTES as u64;
+        let budget = max_binding.min(VIEW_RING_BYTES) / ring_bytes;
+        (voxels / 8)
+            .min(beams)
+            .max(2400)
+            .min(budget)
+            .clamp(1, u32::MAX as u64) as u32
     }
 
     /// The lobe axis in effect (the setting, else the variant's).

@@ -39,19 +39,21 @@ fn small_cloud() -> Scene {
 
 #[test]
 fn upsampling_and_raymarching_match_cpu() {
-    for (noise, variant, other_readings) in [
-        (0.0, PmVariant::Exact, false),
-        (1.5, PmVariant::Exact, false),
-        (0.0, PmVariant::Elek2012, false),
-        (0.0, PmVariant::Elek2012, true),
+    for (noise, variant, other_readings, view) in [
+        (0.0, PmVariant::Exact, false, true),
+        (1.5, PmVariant::Exact, false, true),
+        (0.0, PmVariant::Exact, false, false),
+        (0.0, PmVariant::Elek2012, false, false),
+        (0.0, PmVariant::Elek2012, true, false),
     ] {
-        check_against_cpu(noise, variant, other_readings);
+        check_against_cpu(noise, variant, other_readings, view);
     }
 }
 
 /// Detail noise of `noise` voxels (0 = off); `other_readings`: the upsampling's alternative
-/// readings of Elek §4.3 (mean attenuation, extrapolated g').
-fn check_against_cpu(noise: f32, variant: PmVariant, other_readings: bool) {
+/// readings of Elek §4.3 (mean attenuation, extrapolated g'); `view`: view-dependent words
+/// (J then holds the in-scattering towards the camera; the lobes are still computed).
+fn check_against_cpu(noise: f32, variant: PmVariant, other_readings: bool, view: bool) {
     let Some(gpu) = nimbus_gpu::testing::gpu("gpu::check_against_cpu") else {
         return;
     };
@@ -67,11 +69,14 @@ fn check_against_cpu(noise: f32, variant: PmVariant, other_readings: bool) {
             detail_noise: noise,
             upsample_mean: other_readings,
             upsample_g_extrapolate: other_readings,
+            view_dependent: Some(view),
             ..Default::default()
         },
     )
     .unwrap();
     let img = pm.render(&s.camera).unwrap();
+    // The view-dependent words are in use exactly when asked for (after a converged ring).
+    assert_eq!(pm.params.view_mode, if view { 2 } else { 0 });
     let total = pm.read_total().unwrap();
     let density = pm.read_density().unwrap();
     let j = pm.read_j().unwrap();
@@ -133,7 +138,11 @@ fn check_against_cpu(noise: f32, variant: PmVariant, other_readings: bool) {
             );
             assert!(g.truncate().length() <= 1.0 + 1e-3, "cell {i}: {g}");
         }
-        assert!(c.sun_hi <= c.sun * (1.0 + 1e-6), "cell {i}");
+        // (With the view words `sun` is the in-scattering towards the camera, not a fluence.)
+        assert!(
+            p.view_mode == 2 || c.sun_hi <= c.sun * (1.0 + 1e-6),
+            "cell {i}"
+        );
     }
     let dirs = if p.lobe_axis != 0 {
         assert_eq!(p.lobe_split, nimbus_photon::settings::DEFAULT_LOBE_SPLIT);
@@ -441,6 +450,8 @@ fn varying_budget_keeps_energy() {
                 ring: 8,
                 cache_res: Some([6, 5, 6]),
                 seed,
+                // The fluence words (the view words share their normalisation: view.rs tests).
+                view_dependent: Some(false),
                 ..Default::default()
             },
         )
@@ -479,7 +490,7 @@ fn sky_only_furnace() {
     // more than the ≈ 19 bounces after which the similarity switch applies for g = 0.857.
     let grid = s.volume.grid().clone();
     s.volume = std::sync::Arc::new(Volume::new(grid, *s.volume.aabb(), 80.0).unwrap());
-    let run = |t: f64, variant: PmVariant| {
+    let run = |t: f64, variant: PmVariant, view: bool| {
         let mut pm = PhotonMapper::new(
             &gpu,
             &s,
@@ -489,6 +500,7 @@ fn sky_only_furnace() {
                 ring: 4,
                 cache_res: Some([6, 5, 6]),
                 similarity_t: t,
+                view_dependent: Some(view),
                 ..Default::default()
             },
         )
@@ -505,17 +517,26 @@ fn sky_only_furnace() {
         );
         (worst, mean, mad)
     };
-    let (worst, mean, mad) = run(0.0, PmVariant::Exact);
+    let (worst, mean, mad) = run(0.0, PmVariant::Exact, false);
     assert!(
         (mean - 1.0).abs() < 0.01 && mad < 0.015 && worst < 0.08,
         "no similarity: {mean} {mad} {worst}"
     );
-    let (worst, mean, mad) = run(0.05, PmVariant::Exact);
+    let (worst, mean, mad) = run(0.05, PmVariant::Exact, false);
     assert!(
         (mean - 1.0).abs() < 0.01 && mad < 0.015 && worst < 0.08,
         "similarity σ(1 − g): {mean} {mad} {worst}"
     );
-    let (_, mean, _) = run(0.05, PmVariant::Elek2012);
+    // The view words (the default) estimate the same radiance with each deposit weighted by
+    // its phase value towards the camera (up to HG(1) · 4π ≈ 90 × the isotropic weight at
+    // g = 0.857): the mean is held as tightly, single pixels are noisier (seen: mean 0.993,
+    // mean deviation 0.009, worst 0.139 on this 6×5×6 cache and ring of 4 × 16 384 beams).
+    let (worst, mean, mad) = run(0.05, PmVariant::Exact, true);
+    assert!(
+        (mean - 1.0).abs() < 0.015 && mad < 0.02 && worst < 0.25,
+        "view words: {mean} {mad} {worst}"
+    );
+    let (_, mean, _) = run(0.05, PmVariant::Elek2012, false);
     eprintln!("sky furnace with Elek's similarity switch: image mean / sky = {mean:.4}");
     assert!(
         mean > 1.0 && mean < 1.2,
@@ -714,6 +735,7 @@ fn tracing_and_ring_update_match_cpu() {
             beams_per_frame: 4096,
             ring: 2,
             cache_res: Some([6, 5, 6]),
+            view_dependent: Some(true),
             ..Default::default()
         },
     )
@@ -760,10 +782,18 @@ fn tracing_and_ring_update_match_cpu() {
             worst = worst.max(diff / sum);
         }
     }
-    let identical = gpu_total.iter().zip(&total).filter(|(a, b)| a == b).count();
+    // Words 0–10 (fluences, flux, orders, counts); the view words 11 and 12 round a phase value
+    // (a power and a square root, whose last bits may differ between libraries) per deposit,
+    // so a few of them differ by a unit: they are held by the L1 bound alone.
+    let fixed = |i: &usize| i % cpu::CELL_WORDS < 11;
+    let (mut identical, mut compared) = (0, 0);
+    for i in (0..words).filter(fixed) {
+        compared += 1;
+        identical += (gpu_total[i] == total[i]) as usize;
+    }
     assert!(
-        worst <= 1e-4 && identical * 100 >= words * 99,
-        "worst relative L1 over word classes {worst:.2e}; {identical} of {words} words identical"
+        worst <= 1e-4 && identical * 100 >= compared * 99,
+        "worst relative L1 over word classes {worst:.2e}; {identical} of {compared} words identical"
     );
-    println!("trace twin: worst class L1 {worst:.2e}, {identical}/{words} words identical");
+    println!("trace twin: worst class L1 {worst:.2e}, {identical}/{compared} words 0–10 identical");
 }

@@ -6,7 +6,10 @@
 //! 1. the sun moves (if playing) and the density sequence advances (if playing);
 //! 2. while the ring is not full or holds generations traced before the last light or density
 //!    change, one generation of n_g beams replaces the oldest partial cache (§4.1) — so a change
-//!    blends in over m frames, and a static scene traces nothing once the ring is fresh;
+//!    blends in over m frames, and a static scene traces nothing once the ring is fresh; the
+//!    ring's view-dependent words (the photon map's default in-scattering) are refreshed the
+//!    same way after the camera moved beyond the impostor tolerance (5°, 20 %), the lobes
+//!    showing meanwhile (`nimbus_photon::mapper` view.rs);
 //! 3. after tracing, I is upsampled to J (§4.3);
 //! 4. the impostor criteria (§4.4) decide whether to ray march a new image or to show the last
 //!    one as a billboard re-projected to the current camera.
@@ -562,7 +565,11 @@ impl<'g> Viewer<'g> {
             // Every generation in the ring is now stale: replace them all, one per frame.
             self.stale = self.pm.settings.ring;
         }
-        let trace = self.stale > 0 || !self.pm.ring_full();
+        // View-dependent words (the default) belong to a camera position: after the camera
+        // moved beyond the impostor tolerance the ring is retraced for it (the lobes show
+        // meanwhile); a still camera with a converged ring traces nothing.
+        self.pm.set_view(self.camera.origin);
+        let trace = self.stale > 0 || !self.pm.ring_full() || self.pm.view_pending();
         self.stale = self.stale.saturating_sub(trace as u32);
         if trace {
             let t = Instant::now();

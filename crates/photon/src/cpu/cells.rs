@@ -88,9 +88,15 @@ pub fn cells(p: &VolumeParams, density: &[f32], total: &[u32], i: usize) -> Cell
     } else {
         1.0
     };
+    // View mode 2: in-scattering towards the view point instead of the fluences.
+    let (v_sun, v_sky) = if p.view_mode == 2 {
+        (total[b + 11] as f32, total[b + 12] as f32)
+    } else {
+        (w_sun, w_sky)
+    };
     CellValue {
-        sun: w_sun * p.sun_norm * scale,
-        sky: w_sky * p.sky_norm * scale,
+        sun: v_sun * p.sun_norm * scale,
+        sky: v_sky * p.sky_norm * scale,
         g,
         gamma,
         has_sun: w_sun > 0.0,

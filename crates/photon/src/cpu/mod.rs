@@ -31,8 +31,8 @@ pub use update::update;
 pub use upsample::{f_exp, f_exp_paper, upsample, upsample_dirs};
 
 /// u32 words per cache cell (`CELL_WORDS` in photon_trace.wgsl and photon_upsample.wgsl):
-/// Σw sun, Σw sky, Σw (d + 1)/2 (3), Σ order, deposit count, and Σw, Σw (d + 1)/2 (3) of the
-/// high-order sun deposits.
+/// Σw sun, Σw sky, Σw (d + 1)/2 (3), Σ order, deposit count, Σw, Σw (d + 1)/2 (3) of the
+/// high-order sun deposits, and Σw p(d · ω_view) of the sun and of the sky deposits.
 pub use crate::cache_layout::CELL_WORDS;
 
 pub(crate) fn v3(a: [f32; 3]) -> Vec3 {

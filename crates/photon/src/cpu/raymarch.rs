@@ -111,11 +111,18 @@ pub fn raymarch(
             let sigma_t = p.density_scale * dens;
             if sigma_t > 0.0 {
                 let jv = interp(p, xp, p.d_res, |i| glam::Vec4::from_array(j[i]));
-                let mut ls = p.albedo
-                    * p.density_scale
-                    * dens
-                    * (v3(p.sun_irradiance) * sun_in_scatter(p, j_dirs, xp, jv, d)
-                        + v3(p.sky_radiance) * (jv.y / (4.0 * std::f32::consts::PI)));
+                let mut ls = if p.view_mode == 2 {
+                    p.albedo
+                        * p.density_scale
+                        * dens
+                        * (v3(p.sun_irradiance) * jv.x + v3(p.sky_radiance) * jv.y)
+                } else {
+                    p.albedo
+                        * p.density_scale
+                        * dens
+                        * (v3(p.sun_irradiance) * sun_in_scatter(p, j_dirs, xp, jv, d)
+                            + v3(p.sky_radiance) * (jv.y / (4.0 * std::f32::consts::PI)))
+                };
                 if p.single_scatter != 0 {
                     let ts = interp(p, xp, p.d_res, |i| t_sun[i]);
                     ls += single_scattered(p, dens, ts, mu);

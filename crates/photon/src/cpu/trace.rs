@@ -56,6 +56,18 @@ fn cell_of(p: &VolumeParams, x: Vec3) -> usize {
     index(c.x as u32, c.y as u32, c.z as u32, p.i_res)
 }
 
+/// `view_phase`: the phase function for light travelling along `d` at `x` scattered towards
+/// `p.view_origin` (isotropic at the view point itself).
+pub fn view_phase(p: &VolumeParams, x: Vec3, d: Vec3) -> f32 {
+    let v = v3(p.view_origin) - x;
+    let l = v.length();
+    // (`!(l > ε)` in the shader: a NaN length counts as the view point too.)
+    if l.is_nan() || l <= 1e-20 {
+        return 1.0 / (4.0 * std::f32::consts::PI);
+    }
+    hg(p.g, d.dot(v / l))
+}
+
 /// Adds `v` to word `slot` of `h`; `true` when the u32 sum wraps (the shader's overflow flag).
 fn deposit(h: &mut [u32], slot: usize, v: u32) -> bool {
     if v == 0 {
@@ -148,6 +160,10 @@ pub fn trace(p: &VolumeParams, density: &[f32], index: u32, h: &mut [u32]) -> bo
             }
         } else {
             overflow |= deposit(h, cell + 1, wu);
+        }
+        if p.view_mode != 0 && !skip {
+            let vu = (w * dw * cache_scale() * view_phase(p, x, d) + rng.rand()).floor() as u32;
+            overflow |= deposit(h, cell + if is_sun { 11 } else { 12 }, vu);
         }
         if !skip {
             overflow |= deposit(h, cell + 5, order.min(1023));
