@@ -136,6 +136,10 @@ class Dist:
                 torch.cuda.set_device(device)
             torch.distributed.init_process_group(backend=backend)
 
+    def barrier(self) -> None:
+        if self.on and torch.distributed.is_initialized():
+            torch.distributed.barrier()
+
     def stop(self) -> None:
         if self.on and torch.distributed.is_initialized():
             torch.distributed.destroy_process_group()
@@ -298,7 +302,12 @@ def train(args) -> dict:
     device = pick_device(args.device, dist.local_rank)
     dist.start(device)
     try:
-        return _train(args, dist, device)
+        result = _train(args, dist, device)
+        # Every rank leaves the group together: a rank that tore gloo down while rank 0 was
+        # still writing its checkpoint, log and ONNX file could abort ("terminate called
+        # without an active exception"; seen once in CI).
+        dist.barrier()
+        return result
     finally:
         dist.stop()
 
