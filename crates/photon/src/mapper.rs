@@ -165,6 +165,17 @@ impl<'g> PhotonMapper<'g> {
             ),
         };
         let cells = i_res.iter().product::<u32>();
+        // The ring update runs one thread per cache word, in one dimension of ≤ 65 535
+        // workgroups of 64.
+        if cells as u64 * CELL_WORDS as u64 > 65_535 * 64 {
+            return Err(PmError::Setting {
+                field: "cache_res",
+                msg: format!(
+                    "{i_res:?} = {cells} cells; at most {} (the ring update's dispatch limit)",
+                    65_535 * 64 / CELL_WORDS
+                ),
+            });
+        }
         // A sparse grid's box may exceed 2^32 voxels: the binding check comes first, with the
         // true size, and the kernels' u32 voxel index is taken only below it.
         let voxels64 = d_res.iter().map(|&r| r as u64).product::<u64>();
@@ -457,6 +468,7 @@ impl<'g> PhotonMapper<'g> {
         self.slot_beams.iter_mut().for_each(|s| *s = (0, 0));
         self.frame = 0;
         self.slot_view.iter_mut().for_each(|v| *v = None);
+        self.j_view = None;
     }
 
     /// Whether any light reaches the cloud (no light → no photons are traced at all).
@@ -688,6 +700,12 @@ impl<'g> PhotonMapper<'g> {
             self.upsample();
         }
         self.update_sun_transmittance();
+        // What J holds, whatever a trace since the last upsampling left in the uniform.
+        self.params.view_mode = if self.j_view.is_some() {
+            2
+        } else {
+            self.settings.effective_view() as u32
+        };
         let (w, h) = (camera.width, camera.height);
         let (forward, right, up, tan_half) = camera.basis();
         self.params.cam_origin = f3(camera.origin);

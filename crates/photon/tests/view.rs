@@ -131,3 +131,45 @@ fn a_scene_without_light_converges() {
     assert_eq!(pm.frames(), 4);
     assert!(img.pixels.iter().flatten().all(|&v| v == 0.0));
 }
+
+/// A cache too large for the ring update's one-dimensional dispatch is a clear error, and a
+/// non-finite view point is ignored (it could never be close to any slot's).
+#[test]
+fn oversized_cache_and_non_finite_view_points_are_refused() {
+    let Some(gpu) =
+        nimbus_gpu::testing::gpu("view::oversized_cache_and_non_finite_view_points_are_refused")
+    else {
+        return;
+    };
+    let big = SceneBuilder::new(
+        build::generated(nimbus_scene::CloudKind::Cumulus, 3, [80, 80, 64], 20.0).unwrap(),
+    )
+    .sun(DVec3::new(1.0, 0.6, 0.3), DVec3::ONE)
+    .look(DVec3::new(0.3, 0.3, 3.0), DVec3::ZERO, 40.0, 8, 8)
+    .build()
+    .unwrap();
+    // 409 600 cells × 13 words > 65 535 workgroups × 64 threads.
+    let e = PhotonMapper::new(
+        &gpu,
+        &big,
+        PmSettings {
+            cache_res: Some([80, 80, 64]),
+            ring: 1,
+            ..settings()
+        },
+    )
+    .err()
+    .expect("refused")
+    .to_string();
+    assert!(
+        e.contains("cache_res") && e.contains("dispatch limit"),
+        "{e}"
+    );
+    let s = cloud(0.857, DVec3::new(0.3, 0.3, 3.0));
+    let mut pm = PhotonMapper::new(&gpu, &s, settings()).unwrap();
+    let before = pm.params.view_origin;
+    pm.set_view(DVec3::new(f64::NAN, 0.0, 1.0));
+    assert_eq!(pm.params.view_origin, before);
+    pm.render(&s.camera).unwrap();
+    assert!(pm.j_holds_view());
+}

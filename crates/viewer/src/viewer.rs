@@ -584,9 +584,14 @@ impl<'g> Viewer<'g> {
         } else {
             (0, 0)
         };
+        // J switching between the lobes and the view words (the ring has just been retraced for
+        // the camera) changes the image at once: it is ray marched whatever the impostor says.
+        let mut switched = false;
         if trace || !self.j_valid {
             let t = Instant::now();
+            let was_view = self.pm.j_holds_view();
             self.pm.upsample();
+            switched = self.pm.j_holds_view() != was_view;
             stages.push(("upsample", self.since(t)));
             self.j_valid = true;
         }
@@ -598,6 +603,10 @@ impl<'g> Viewer<'g> {
                 self.pm.settings.ring,
             ),
             None => Some(Refresh::First),
+        };
+        let refresh = match refresh {
+            None if switched => Some(Refresh::Illumination),
+            r => r,
         };
         // No image to re-project yet: ray march whatever the criteria say.
         let refresh = match &self.impostor_image {

@@ -303,3 +303,44 @@ fn sun_motion_and_density_animation_play() {
     assert!(counts[3] + counts[4] > 0, "{counts:?}");
     assert!(v.image().pixels.iter().flatten().all(|c| c.is_finite()));
 }
+
+/// After a camera jump the ring is retraced for the new camera (the view-dependent words of the
+/// photon map) with the lobes showing meanwhile; the frame whose upsampling switches J back to
+/// the words is ray marched even when the impostor criteria would reuse the last image (with
+/// m = 100 the illumination criterion fires every 5 traced frames, so the switch could fall
+/// between two refreshes and never be shown).
+#[test]
+fn the_view_words_are_shown_once_the_ring_is_retraced() {
+    let Some(gpu) =
+        nimbus_gpu::testing::gpu("headless::the_view_words_are_shown_once_the_ring_is_retraced")
+    else {
+        return;
+    };
+    let mut opts = options();
+    opts.pm.ring = 100;
+    opts.pm.view_dependent = Some(true);
+    let mut v = Viewer::new(&gpu, scene(), None, opts).unwrap();
+    frames(&mut v, 101);
+    assert_eq!(v.stats().beams, (0, 0));
+    v.apply(&Action::Orbit {
+        yaw_deg: 60.0,
+        pitch_deg: 0.0,
+    })
+    .unwrap();
+    let (mut traced, mut last_refresh) = (0, None);
+    for _ in 0..110 {
+        run_frame(&mut v, [], 1.0 / 30.0).unwrap();
+        if v.stats().beams.0 > 0 {
+            traced += 1;
+            last_refresh = v.stats().refresh;
+        }
+    }
+    assert_eq!(
+        traced, 100,
+        "one ring retraced for the new camera, then nothing"
+    );
+    assert!(
+        last_refresh.is_some(),
+        "the switch to the view words was not ray marched"
+    );
+}

@@ -29,7 +29,8 @@ impl PhotonMapper<'_> {
     /// without them. Slots traced for a point outside the tolerance are replaced over the
     /// following frames; until then the ray marcher uses the lobes.
     pub fn set_view(&mut self, origin: DVec3) {
-        if self.settings.effective_view() {
+        // A non-finite point is no view point (it would never be close to any).
+        if self.settings.effective_view() && origin.is_finite() {
             self.params.view_origin = f3(origin);
         }
     }
@@ -55,7 +56,14 @@ impl PhotonMapper<'_> {
     /// Whether frames must still be traced before the view-dependent words serve the current
     /// view point (never without light: nothing would ever be deposited).
     pub fn view_pending(&self) -> bool {
-        self.settings.effective_view() && self.has_light() && !self.view_ready()
+        // A full ring without a single beam (a budget of 0 beams) never gets ready either.
+        let empty = self.ring_full() && self.slot_beams.iter().all(|b| b.0 + b.1 == 0);
+        self.settings.effective_view() && self.has_light() && !empty && !self.view_ready()
+    }
+
+    /// Whether J, as last upsampled, holds the view-dependent in-scattering.
+    pub fn j_holds_view(&self) -> bool {
+        self.j_view.is_some()
     }
 
     /// Whether view points `a` and `b` may share view-dependent words: identical, or both
