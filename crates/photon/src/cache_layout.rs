@@ -15,6 +15,9 @@ pub const SHARED_CELLS: u32 = 256;
 pub const SHARED_CELLS_MAX: u32 = 2400;
 /// u32 words per cache cell (`CELL_WORDS` in the shaders, from `nimbus_gpu::consts`).
 pub const CELL_WORDS: usize = consts::CELL_WORDS as usize;
+/// Most cache cells: the ring update runs one thread per cache word, in one dimension of at
+/// most 65 535 workgroups of 64 (WebGPU's dispatch limit).
+pub const MAX_CACHE_CELLS: u64 = 65_535 * 64 / consts::CELL_WORDS as u64;
 /// Bytes per cache cell (13 u32).
 pub const CELL_BYTES: u32 = consts::CELL_WORDS * 4;
 

@@ -165,14 +165,12 @@ impl<'g> PhotonMapper<'g> {
             ),
         };
         let cells = i_res.iter().product::<u32>();
-        // The ring update runs one thread per cache word, in one dimension of ≤ 65 535
-        // workgroups of 64.
-        if cells as u64 * CELL_WORDS as u64 > 65_535 * 64 {
+        if cells as u64 > crate::cache_layout::MAX_CACHE_CELLS {
             return Err(PmError::Setting {
                 field: "cache_res",
                 msg: format!(
                     "{i_res:?} = {cells} cells; at most {} (the ring update's dispatch limit)",
-                    65_535 * 64 / CELL_WORDS
+                    crate::cache_layout::MAX_CACHE_CELLS
                 ),
             });
         }
@@ -646,11 +644,7 @@ impl<'g> PhotonMapper<'g> {
     pub fn upsample(&mut self) {
         self.update_norms();
         self.j_view = self.view_ready().then_some(self.params.view_origin);
-        self.params.view_mode = if self.j_view.is_some() {
-            2
-        } else {
-            self.settings.effective_view() as u32
-        };
+        self.params.view_mode = self.j_view_mode();
         self.gpu
             .queue
             .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
@@ -701,11 +695,7 @@ impl<'g> PhotonMapper<'g> {
         }
         self.update_sun_transmittance();
         // What J holds, whatever a trace since the last upsampling left in the uniform.
-        self.params.view_mode = if self.j_view.is_some() {
-            2
-        } else {
-            self.settings.effective_view() as u32
-        };
+        self.params.view_mode = self.j_view_mode();
         let (w, h) = (camera.width, camera.height);
         let (forward, right, up, tan_half) = camera.basis();
         self.params.cam_origin = f3(camera.origin);

@@ -207,14 +207,11 @@ impl PmSettings {
         let beams = ring * self.beams_per_frame as u64 / VIEW_BEAMS_PER_CELL;
         let ring_bytes = ring * crate::cache_layout::CELL_BYTES as u64;
         let budget = max_binding.min(VIEW_RING_BYTES) / ring_bytes;
-        // The ring update dispatches one thread per cache word in one dimension (≤ 65 535
-        // workgroups of 64).
-        let dispatch = 65_535 * 64 / crate::cache_layout::CELL_WORDS as u64;
         (voxels / 8)
             .min(beams)
             .max(2400)
             .min(budget)
-            .min(dispatch)
+            .min(crate::cache_layout::MAX_CACHE_CELLS)
             .clamp(1, u32::MAX as u64) as u32
     }
 

@@ -61,6 +61,15 @@ impl PhotonMapper<'_> {
         self.settings.effective_view() && self.has_light() && !empty && !self.view_ready()
     }
 
+    /// `params.view_mode` for what J holds: 2 with the view words, else whether they are traced.
+    pub(super) fn j_view_mode(&self) -> u32 {
+        if self.j_view.is_some() {
+            2
+        } else {
+            self.settings.effective_view() as u32
+        }
+    }
+
     /// Whether J, as last upsampled, holds the view-dependent in-scattering.
     pub fn j_holds_view(&self) -> bool {
         self.j_view.is_some()
