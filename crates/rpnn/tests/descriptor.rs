@@ -192,7 +192,7 @@ fn pyramid_conserves_mass() {
         5.0,
     )
     .unwrap();
-    let pyr = Pyramid::new(&vol).unwrap();
+    let pyr = Pyramid::with_every_level(&vol).unwrap();
     let raw: f64 = vol
         .grid()
         .as_dense()
@@ -232,4 +232,57 @@ fn degenerate_inputs() {
     let p = Pyramid::for_rendering(&empty).unwrap();
     assert_eq!(p.mean_sigma, 1.0);
     assert!(p.levels.iter().all(|l| l.data.iter().all(|&v| v == 0.0)));
+}
+
+/// Only the levels a stencil reads are stored, and they are the levels of the full build bit
+/// for bit, from a dense grid and from the same grid as bricks; descriptors are unchanged.
+#[test]
+fn pyramid_stores_only_what_stencils_read() {
+    // A 64×48×64 cumulus at density scale 2: a voxel is ≈ 0.01 mean free paths, so stencil
+    // level 1 (h = 0.5 mean free paths ≈ 44 voxels) reads level 4.
+    let res = [64, 48, 64];
+    let g = generate::generate(nimbus_scene::CloudKind::Cumulus, 11, res).unwrap();
+    let (lo, hi) = generate::default_aabb(res);
+    let dense = Volume::new(g.clone(), Aabb::new(lo, hi).unwrap(), 2.0).unwrap();
+    let data = g.as_dense().unwrap();
+    let bricks =
+        DensityGrid::from_bricks(nimbus_scene::brick::from_dense(res, data, [3, 0, 5]).unwrap());
+    let sparse = Volume::new(bricks, Aabb::new(lo, hi).unwrap(), 2.0).unwrap();
+    let full = Pyramid::with_every_level(&dense).unwrap();
+    let first = full.level_for(1);
+    assert!(first >= 2, "finest level read: {first}");
+    for vol in [&dense, &sparse] {
+        let p = Pyramid::new(vol).unwrap();
+        assert_eq!(p.finest_stored(), first);
+        assert_eq!(p.levels.len(), full.levels.len());
+        for (i, (a, b)) in p.levels.iter().zip(&full.levels).enumerate() {
+            assert_eq!(
+                (a.res, a.sigma_voxels),
+                (b.res, b.sigma_voxels),
+                "level {i}"
+            );
+            if i < first {
+                assert!(a.data.is_empty(), "level {i} stored");
+            } else {
+                assert_eq!(a.data, b.data, "level {i}");
+            }
+        }
+        // The finer levels held ≈ 8/7 of level 0's voxels; what is left is ≈ 1/7 of level
+        // `first`'s share.
+        assert!(
+            p.bytes() * 50 < full.bytes(),
+            "{} of {}",
+            p.bytes(),
+            full.bytes()
+        );
+        let mut r = rng(9);
+        let (mut a, mut b) = (vec![0.0; DESCRIPTOR_LEN], vec![0.0; DESCRIPTOR_LEN]);
+        for _ in 0..20 {
+            let x = lo.as_vec3() + (hi - lo).as_vec3() * Vec3::new(r(), r(), r());
+            let (v, l) = (dir(&mut r), dir(&mut r));
+            descriptor(&p, x, v, l, &mut a);
+            descriptor(&full, x, v, l, &mut b);
+            assert_eq!(a, b);
+        }
+    }
 }

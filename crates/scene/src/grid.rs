@@ -163,6 +163,29 @@ impl DensityGrid {
         }
     }
 
+    /// Copies the z-plane `z` (x fastest, `nx × ny` values) into `out`: a slice copy from a
+    /// dense grid, the bricks crossing the plane from a sparse one (absent bricks give 0).
+    /// How consumers that work plane by plane read a grid without densifying it.
+    pub fn plane(&self, z: usize, out: &mut [f32]) {
+        let [nx, ny, _] = self.res;
+        assert_eq!(out.len(), nx * ny, "plane buffer of nx × ny values");
+        match &self.storage {
+            Storage::Dense(d) => out.copy_from_slice(&d[z * nx * ny..(z + 1) * nx * ny]),
+            Storage::Sparse(b) => b.visit_range([0, 0, z], [nx - 1, ny - 1, z], |v| {
+                for y in v.lo[1]..v.hi[1] {
+                    let row = &mut out[y * nx + v.lo[0]..y * nx + v.hi[0]];
+                    match v.content {
+                        crate::brick::Content::Constant(c) => row.fill(c),
+                        crate::brick::Content::Stored(s) => {
+                            let at = v.local(v.lo[0], y, z);
+                            row.copy_from_slice(&s[at..at + row.len()]);
+                        }
+                    }
+                }
+            }),
+        }
+    }
+
     /// Bytes the grid's values occupy.
     pub fn bytes(&self) -> usize {
         match &self.storage {
@@ -432,5 +455,14 @@ mod tests {
             b.max_in([1, 2, 3], [17, 9, 20])
         );
         assert_eq!(b.dense().unwrap().as_ref(), data.as_slice());
+        // Planes from the shifted bricks (constant slabs, stored noise, absent bricks) are the
+        // dense grid's planes, value for value.
+        let (mut pd, mut pb) = (vec![0.0; 19 * 10], vec![-1.0; 19 * 10]);
+        for z in 0..res[2] {
+            d.plane(z, &mut pd);
+            b.plane(z, &mut pb);
+            assert_eq!(pd, pb, "plane {z}");
+            assert_eq!(pd.as_slice(), &data[z * 190..(z + 1) * 190]);
+        }
     }
 }

@@ -1,0 +1,431 @@
+//! The pyramid's filters, streamed plane by plane (Kallweit 2017 §4.2; see the parent module).
+//!
+//! A level is produced one z-plane at a time by a chain of [`Planes`] stages: the grid's planes
+//! ([`GridPlanes`], scaled), the σ = 1 blur of level 0 ([`Blur`]) and, per coarser level, the
+//! σ = √3 blur followed by halving ([`Down`]). Each stage keeps only the window of input planes
+//! its kernel reaches, so a level that no stencil reads is streamed through and never stored,
+//! and the peak memory is the stored levels plus a few planes. The arithmetic (operands and
+//! their order) is that of whole-grid separable blurs followed by the downsampling: the values
+//! are the same to the bit (tests in the parent module).
+
+use std::collections::BTreeMap;
+
+use nimbus_scene::DensityGrid;
+use rayon::prelude::*;
+
+pub(super) fn gauss_kernel(sigma: f64) -> Vec<f32> {
+    let r = (3.0 * sigma).ceil() as i64;
+    let w: Vec<f64> = (-r..=r)
+        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let s: f64 = w.iter().sum();
+    w.into_iter().map(|v| (v / s) as f32).collect()
+}
+
+/// Blurs `src` along one line with kernel `k` and zero padding into `dst[lo..=hi]` (the rest of
+/// `dst` is untouched). Taps in kernel order: the accumulation order of every blur in this
+/// module, so computing only where the result can be non-zero changes no value.
+#[inline]
+fn blur_line(src: &[f32], k: &[f32], dst: &mut [f32], lo: usize, hi: usize) {
+    let r = (k.len() / 2) as i64;
+    let n = src.len() as i64;
+    for (c, out) in dst.iter_mut().enumerate().take(hi + 1).skip(lo) {
+        let mut acc = 0.0f32;
+        for (j, w) in k.iter().enumerate() {
+            let o = c as i64 + j as i64 - r;
+            if o >= 0 && o < n {
+                acc += w * src[o as usize];
+            }
+        }
+        *out = acc;
+    }
+}
+
+/// Inclusive x and y bounds of a plane's non-zero values (a bound: it may hold zeros too).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct Rect {
+    x: [usize; 2],
+    y: [usize; 2],
+}
+
+impl Rect {
+    /// The exact bounds of the non-zero values of a plane `nx` wide (None: all zero).
+    fn of(data: &[f32], nx: usize) -> Option<Rect> {
+        let mut r: Option<Rect> = None;
+        for (y, row) in data.chunks(nx).enumerate() {
+            let Some(x0) = row.iter().position(|&v| v != 0.0) else {
+                continue;
+            };
+            let x1 = row
+                .iter()
+                .rposition(|&v| v != 0.0)
+                .expect("a non-zero value");
+            r = Some(match r {
+                None => Rect {
+                    x: [x0, x1],
+                    y: [y, y],
+                },
+                Some(q) => Rect {
+                    x: [q.x[0].min(x0), q.x[1].max(x1)],
+                    y: [q.y[0], y],
+                },
+            });
+        }
+        r
+    }
+
+    /// Grown by `r` cells on every side, clamped to `nx` × `ny`.
+    fn grow(self, r: usize, nx: usize, ny: usize) -> Rect {
+        Rect {
+            x: [self.x[0].saturating_sub(r), (self.x[1] + r).min(nx - 1)],
+            y: [self.y[0].saturating_sub(r), (self.y[1] + r).min(ny - 1)],
+        }
+    }
+
+    fn union(a: Option<Rect>, b: Option<Rect>) -> Option<Rect> {
+        match (a, b) {
+            (Some(a), Some(b)) => Some(Rect {
+                x: [a.x[0].min(b.x[0]), a.x[1].max(b.x[1])],
+                y: [a.y[0].min(b.y[0]), a.y[1].max(b.y[1])],
+            }),
+            (a, None) => a,
+            (None, b) => b,
+        }
+    }
+}
+
+/// One z-plane of a level (x fastest) and a bound of where it is non-zero.
+pub(super) struct Plane {
+    pub(super) data: Vec<f32>,
+    rect: Option<Rect>,
+}
+
+impl Plane {
+    pub(super) fn new(data: Vec<f32>, nx: usize) -> Self {
+        let rect = Rect::of(&data, nx);
+        Self { data, rect }
+    }
+}
+
+/// Blurs one z-plane (`nx` × `ny`) along x, then along y, in place, computing only within `r`
+/// cells of its non-zero values: elsewhere the blur is zero exactly (the densities are
+/// non-negative, so every product is +0), which keeps mostly empty boxes cheap.
+pub(super) fn blur_plane_xy(plane: &mut Plane, nx: usize, ny: usize, k: &[f32]) {
+    let Some(rc) = plane.rect else {
+        return;
+    };
+    let g = rc.grow(k.len() / 2, nx, ny);
+    plane
+        .data
+        .par_chunks_mut(nx)
+        .enumerate()
+        .skip(rc.y[0])
+        .take(rc.y[1] + 1 - rc.y[0])
+        .for_each(|(_, row)| {
+            if row.iter().any(|&v| v != 0.0) {
+                let src = row.to_vec();
+                blur_line(&src, k, row, g.x[0], g.x[1]);
+            }
+        });
+    let plane_ro: &[f32] = &plane.data;
+    let cols: Vec<Vec<f32>> = (g.x[0]..=g.x[1])
+        .into_par_iter()
+        .map(|x| {
+            let col: Vec<f32> = (0..ny).map(|y| plane_ro[y * nx + x]).collect();
+            let mut out = vec![0.0f32; ny];
+            if col.iter().any(|&v| v != 0.0) {
+                blur_line(&col, k, &mut out, g.y[0], g.y[1]);
+            }
+            out
+        })
+        .collect();
+    for (c, x) in cols.iter().zip(g.x[0]..=g.x[1]) {
+        for (y, v) in c.iter().enumerate() {
+            plane.data[y * nx + x] = *v;
+        }
+    }
+    plane.rect = Some(g);
+}
+
+/// Overlap weights resampling `n` cells onto `m` cells over the same extent: for each new cell,
+/// the old cells it overlaps and their shares.
+fn down_weights(n: usize, m: usize) -> Vec<Vec<(usize, f32)>> {
+    (0..m)
+        .map(|j| {
+            let a = j as f64 * n as f64 / m as f64;
+            let b = (j + 1) as f64 * n as f64 / m as f64;
+            let mut v = Vec::new();
+            let mut i = a.floor() as usize;
+            while (i as f64) < b && i < n {
+                let lo = (i as f64).max(a);
+                let hi = ((i + 1) as f64).min(b);
+                if hi > lo {
+                    v.push((i, ((hi - lo) / (b - a)) as f32));
+                }
+                i += 1;
+            }
+            v
+        })
+        .collect()
+}
+
+/// A level produced one z-plane at a time.
+pub(super) trait Planes {
+    /// The level's resolution.
+    fn res(&self) -> [usize; 3];
+    /// The next plane (z = 0, 1, … in order; each once).
+    fn next_plane(&mut self) -> Plane;
+}
+
+/// Every plane of `p`, concatenated: the stored level.
+pub(super) fn collect(p: &mut dyn Planes) -> Vec<f32> {
+    let [nx, ny, nz] = p.res();
+    let mut out = Vec::with_capacity(nx * ny * nz);
+    for _ in 0..nz {
+        out.extend_from_slice(&p.next_plane().data);
+    }
+    out
+}
+
+/// The planes of a density grid times `scale` (dense or bricks; nothing densified).
+pub(super) struct GridPlanes<'a> {
+    grid: &'a DensityGrid,
+    scale: f32,
+    z: usize,
+}
+
+impl<'a> GridPlanes<'a> {
+    pub(super) fn new(grid: &'a DensityGrid, scale: f32) -> Self {
+        Self { grid, scale, z: 0 }
+    }
+}
+
+impl Planes for GridPlanes<'_> {
+    fn res(&self) -> [usize; 3] {
+        self.grid.res()
+    }
+    fn next_plane(&mut self) -> Plane {
+        let [nx, ny, _] = self.grid.res();
+        let mut p = vec![0.0f32; nx * ny];
+        self.grid.plane(self.z, &mut p);
+        p.iter_mut().for_each(|v| *v *= self.scale);
+        self.z += 1;
+        Plane::new(p, nx)
+    }
+}
+
+/// The planes of a stored level.
+pub(super) struct SlicePlanes<'a> {
+    data: &'a [f32],
+    res: [usize; 3],
+    z: usize,
+}
+
+impl<'a> SlicePlanes<'a> {
+    pub(super) fn new(data: &'a [f32], res: [usize; 3]) -> Self {
+        Self { data, res, z: 0 }
+    }
+}
+
+impl Planes for SlicePlanes<'_> {
+    fn res(&self) -> [usize; 3] {
+        self.res
+    }
+    fn next_plane(&mut self) -> Plane {
+        let n = self.res[0] * self.res[1];
+        let p = self.data[self.z * n..(self.z + 1) * n].to_vec();
+        self.z += 1;
+        Plane::new(p, self.res[0])
+    }
+}
+
+/// The window of x-y-blurred input planes a z filter reads: planes are pulled from the input
+/// in order as they are needed and dropped once no later output reads them.
+struct XyWindow<'a> {
+    input: Box<dyn Planes + 'a>,
+    k: Vec<f32>,
+    planes: BTreeMap<usize, Plane>,
+    pulled: usize,
+}
+
+impl<'a> XyWindow<'a> {
+    fn new(input: Box<dyn Planes + 'a>, sigma: f64) -> Self {
+        Self {
+            input,
+            k: gauss_kernel(sigma),
+            planes: BTreeMap::new(),
+            pulled: 0,
+        }
+    }
+
+    /// Holds the x-y-blurred input planes `lo..=hi` (and none below `lo`).
+    fn hold(&mut self, lo: usize, hi: usize) {
+        self.planes.retain(|&z, _| z >= lo);
+        let [nx, ny, _] = self.input.res();
+        while self.pulled <= hi {
+            let mut p = self.input.next_plane();
+            blur_plane_xy(&mut p, nx, ny, &self.k);
+            if self.pulled >= lo {
+                self.planes.insert(self.pulled, p);
+            }
+            self.pulled += 1;
+        }
+    }
+
+    /// Σ_j k_j · plane(z + j − r) over the planes inside the box, taps in kernel order,
+    /// computed where some tap is non-zero (elsewhere every term is +0).
+    fn blur_z(&mut self, z: usize) -> Plane {
+        let [nx, ny, nz] = self.input.res();
+        let r = self.k.len() / 2;
+        self.hold(z.saturating_sub(r), (z + r).min(nz - 1));
+        let taps: Vec<(f32, &Plane)> = (0..self.k.len())
+            .filter_map(|j| {
+                let zz = z as i64 + j as i64 - r as i64;
+                (zz >= 0 && zz < nz as i64).then(|| (self.k[j], &self.planes[&(zz as usize)]))
+            })
+            .filter(|(_, p)| p.rect.is_some())
+            .collect();
+        let rect = taps.iter().fold(None, |u, (_, p)| Rect::union(u, p.rect));
+        let mut data = vec![0.0f32; nx * ny];
+        if let Some(u) = rect {
+            data.par_chunks_mut(nx)
+                .enumerate()
+                .skip(u.y[0])
+                .take(u.y[1] + 1 - u.y[0])
+                .for_each(|(y, row)| {
+                    for (x, v) in row.iter_mut().enumerate().take(u.x[1] + 1).skip(u.x[0]) {
+                        let mut acc = 0.0f32;
+                        for (w, t) in &taps {
+                            acc += w * t.data[y * nx + x];
+                        }
+                        *v = acc;
+                    }
+                });
+        }
+        Plane { data, rect }
+    }
+}
+
+/// A Gaussian blur of σ voxels (zero padding) at the input's resolution: level 0.
+pub(super) struct Blur<'a> {
+    window: XyWindow<'a>,
+    z: usize,
+}
+
+impl<'a> Blur<'a> {
+    pub(super) fn new(input: Box<dyn Planes + 'a>, sigma: f64) -> Self {
+        Self {
+            window: XyWindow::new(input, sigma),
+            z: 0,
+        }
+    }
+}
+
+impl Planes for Blur<'_> {
+    fn res(&self) -> [usize; 3] {
+        self.window.input.res()
+    }
+    fn next_plane(&mut self) -> Plane {
+        let p = self.window.blur_z(self.z);
+        self.z += 1;
+        p
+    }
+}
+
+/// The next pyramid level: the input blurred with σ voxels, then halved in resolution (ceil)
+/// by averaging the input cells overlapping each new cell (an odd last cell pairs with zero
+/// padding weighted by its share of the box).
+pub(super) struct Down<'a> {
+    window: XyWindow<'a>,
+    weights: [Vec<Vec<(usize, f32)>>; 3],
+    res: [usize; 3],
+    /// z-blurred input planes by input z.
+    blurred: BTreeMap<usize, Plane>,
+    z: usize,
+}
+
+impl<'a> Down<'a> {
+    pub(super) fn new(input: Box<dyn Planes + 'a>, sigma: f64) -> Self {
+        let res_in = input.res();
+        let res = res_in.map(|v| v.div_ceil(2));
+        Self {
+            weights: std::array::from_fn(|a| down_weights(res_in[a], res[a])),
+            window: XyWindow::new(input, sigma),
+            res,
+            blurred: BTreeMap::new(),
+            z: 0,
+        }
+    }
+}
+
+impl Planes for Down<'_> {
+    fn res(&self) -> [usize; 3] {
+        self.res
+    }
+    fn next_plane(&mut self) -> Plane {
+        let z2 = self.z;
+        self.z += 1;
+        let [wx, wy, wz] = &self.weights;
+        for &(iz, _) in &wz[z2] {
+            if !self.blurred.contains_key(&iz) {
+                let b = self.window.blur_z(iz);
+                self.blurred.retain(|&z, _| z + 2 >= iz);
+                self.blurred.insert(iz, b);
+            }
+        }
+        let nx = self.window.input.res()[0];
+        let nr = self.res;
+        let blurred = &self.blurred;
+        let mut out = vec![0.0f32; nr[0] * nr[1]];
+        let Some(u) = wz[z2]
+            .iter()
+            .fold(None, |u, (iz, _)| Rect::union(u, blurred[iz].rect))
+        else {
+            return Plane {
+                data: out,
+                rect: None,
+            };
+        };
+        // The new cells whose footprint meets the input's non-zero bound.
+        let span = |w: &[Vec<(usize, f32)>], lo: usize, hi: usize| {
+            let meets = |c: &Vec<(usize, f32)>| c.iter().any(|&(i, _)| i >= lo && i <= hi);
+            let a = w.iter().position(meets).expect("the bound lies in the box");
+            let b = w
+                .iter()
+                .rposition(meets)
+                .expect("the bound lies in the box");
+            [a, b]
+        };
+        let rect = Rect {
+            x: span(wx, u.x[0], u.x[1]),
+            y: span(wy, u.y[0], u.y[1]),
+        };
+        out.par_chunks_mut(nr[0])
+            .enumerate()
+            .skip(rect.y[0])
+            .take(rect.y[1] + 1 - rect.y[0])
+            .for_each(|(y2, row)| {
+                for (x2, v) in row
+                    .iter_mut()
+                    .enumerate()
+                    .take(rect.x[1] + 1)
+                    .skip(rect.x[0])
+                {
+                    let mut acc = 0.0f32;
+                    for &(iz, az) in &wz[z2] {
+                        let b = &blurred[&iz].data;
+                        for &(iy, ay) in &wy[y2] {
+                            for &(ix, ax) in &wx[x2] {
+                                acc += az * ay * ax * b[iy * nx + ix];
+                            }
+                        }
+                    }
+                    *v = acc;
+                }
+            });
+        Plane {
+            data: out,
+            rect: Some(rect),
+        }
+    }
+}
