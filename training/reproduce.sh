@@ -28,6 +28,13 @@ MAX_MINUTES=${MAX_MINUTES:-40}
 RESTART_EPOCHS=${RESTART_EPOCHS:-20}
 RESTART_MAX_MINUTES=${RESTART_MAX_MINUTES:-200}
 LOSS=${LOSS:-rel-l2}
+REL_EPS=${REL_EPS:-0.01}        # rel-l2's floor in the first two stages
+# Fine-tuning stage: the restart's last weights, a fresh Adam at FINETUNE_LR (cosine) for
+# FINETUNE_EPOCHS epochs with rel-l2's floor FINETUNE_EPS (0 epochs: no such stage).
+FINETUNE_EPOCHS=${FINETUNE_EPOCHS:-0}
+FINETUNE_EPS=${FINETUNE_EPS:-0.002}
+FINETUNE_LR=${FINETUNE_LR:-0.0003}
+FINETUNE_MAX_MINUTES=${FINETUNE_MAX_MINUTES:-200}
 DEVICE=${DEVICE:-cpu}          # datagen: cpu (the shipped set) or gpu (different random streams)
 DATA=${DATA:-out/rpnn-hg-data}
 RUN=${RUN:-out/train-rpnn-hg}
@@ -43,14 +50,14 @@ datagen() { # SPLIT-specific counts; the same --out and settings, so later calls
 # Validation and test sets first (small, precise), then the training records.
 datagen --records 0 --val-records "$VAL_RECORDS" --test-records "$TEST_RECORDS"
 datagen --records "$RECORDS" --val-records "$VAL_RECORDS" --test-records "$TEST_RECORDS"
-SETTINGS="CLOUDS=$CLOUDS DENSITY_RANGE=$DENSITY_RANGE RECORDS=$RECORDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS TEST_RECORDS=$TEST_RECORDS EVAL_SAMPLES=$EVAL_SAMPLES LIGHT=$LIGHT EPOCHS=$EPOCHS MAX_MINUTES=$MAX_MINUTES RESTART_EPOCHS=$RESTART_EPOCHS RESTART_MAX_MINUTES=$RESTART_MAX_MINUTES LOSS=$LOSS DEVICE=$DEVICE"
+SETTINGS="CLOUDS=$CLOUDS DENSITY_RANGE=$DENSITY_RANGE RECORDS=$RECORDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS TEST_RECORDS=$TEST_RECORDS EVAL_SAMPLES=$EVAL_SAMPLES LIGHT=$LIGHT EPOCHS=$EPOCHS MAX_MINUTES=$MAX_MINUTES RESTART_EPOCHS=$RESTART_EPOCHS RESTART_MAX_MINUTES=$RESTART_MAX_MINUTES LOSS=$LOSS REL_EPS=$REL_EPS FINETUNE_EPOCHS=$FINETUNE_EPOCHS FINETUNE_EPS=$FINETUNE_EPS FINETUNE_LR=$FINETUNE_LR FINETUNE_MAX_MINUTES=$FINETUNE_MAX_MINUTES DEVICE=$DEVICE"
 train() {
   training/.venv/bin/python training/train.py --data "$DATA" --loss "$LOSS" --schedule cosine \
     --seed 0 --device auto --resume --export "$MODEL" \
     --reproduce "$SETTINGS bash training/reproduce.sh" "$@"
 }
 if [ ! -e "$RUN/restart/last.pt" ]; then
-  train --run "$RUN" --epochs "$EPOCHS" --max-minutes "$MAX_MINUTES"
+  train --run "$RUN" --epochs "$EPOCHS" --max-minutes "$MAX_MINUTES" --rel-eps "$REL_EPS"
 fi
 if [ "$RESTART_EPOCHS" -gt "$EPOCHS" ]; then
   # A copy of the first run, so both stay inspectable; resumed from its last epoch.
@@ -60,6 +67,13 @@ if [ "$RESTART_EPOCHS" -gt "$EPOCHS" ]; then
   fi
   RUN="$RUN/restart"
   train --run "$RUN" --epochs "$RESTART_EPOCHS" --max-minutes "$RESTART_MAX_MINUTES" \
-    --select last
+    --select last --rel-eps "$REL_EPS"
+fi
+if [ "$FINETUNE_EPOCHS" -gt 0 ]; then
+  # Starts from the restart's weights (--init is ignored once finetune/last.pt exists).
+  INIT="$RUN/last.pt"
+  RUN="$RUN/finetune"
+  train --run "$RUN" --epochs "$FINETUNE_EPOCHS" --max-minutes "$FINETUNE_MAX_MINUTES" \
+    --select last --init "$INIT" --rel-eps "$FINETUNE_EPS" --lr "$FINETUNE_LR"
 fi
 cp "$RUN/curves.png" "${MODEL%.onnx}-curves.png"

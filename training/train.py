@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import json
 import os
 import sys
@@ -79,6 +80,13 @@ def parse_args(argv=None):
     p.add_argument("--lr", type=float, default=1e-3, help="Adam step size (default: Adam's own)")
     p.add_argument("--loss", default="rel-l2", choices=sorted(LOSSES),
                    help="rel-l2: unbiased under label noise (default); log: the paper's §5.2 loss")
+    p.add_argument("--rel-eps", type=float, default=0.01, metavar="EPS",
+                   help="rel-l2's floor in units of the target (0.01: Neural Radiance Caching's; "
+                        "smaller weighs thin, small-target records closer to relatively)")
+    p.add_argument("--init", type=Path, metavar="MODEL",
+                   help="start from these weights (a .pt checkpoint of this script or an ONNX "
+                        "file it exported) with a fresh optimiser and schedule: a fine-tuning "
+                        "stage; ignored when --resume finds <run>/last.pt")
     p.add_argument("--mirror", action=argparse.BooleanOptionalAction, default=True,
                    help="mirror a random half of each minibatch (ix -> 4 - ix)")
     p.add_argument("--axis-turns", type=float, default=0.0, metavar="DEG",
@@ -109,6 +117,10 @@ def parse_args(argv=None):
             p.error(f"--{name.replace('_', '-')} must be >= {0 if name == 'epochs' else 1}, got {v}")
     if not (args.lr > 0 and np.isfinite(args.lr)):
         p.error(f"--lr must be positive, got {args.lr}")
+    if not (args.rel_eps > 0 and np.isfinite(args.rel_eps)):
+        p.error(f"--rel-eps must be positive, got {args.rel_eps}")
+    if args.init is not None and not args.init.is_file():
+        p.error(f"--init {args.init}: no such file")
     return args
 
 
@@ -295,6 +307,31 @@ def build_model(args) -> RPNN:
                 outputs=args.outputs)
 
 
+def load_init(model: RPNN, path: Path) -> dict:
+    """Loads the starting weights of a fine-tuning stage; returns what the card records."""
+    import hashlib
+
+    if path.suffix == ".onnx":
+        rexport.import_onnx(model, path)
+    else:
+        ck = torch.load(path, map_location="cpu", weights_only=False)
+        if ck.get("config") != model.config():
+            raise SystemExit(f"{path}: checkpoint architecture {ck.get('config')} differs from "
+                             f"the requested {model.config()}")
+        model.load_state_dict(ck["model"])
+        st = ck.get("state") or {}
+    info = {"path": str(path), "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+    card = path.with_suffix(".json")
+    if path.suffix == ".onnx" and card.is_file():
+        # The stage before this one, as its own card describes it.
+        t = json.loads(card.read_text()).get("training", {})
+        info["before"] = {k: t.get(k) for k in ("loss", "rel_eps", "epochs", "steps", "seconds",
+                                                "lr", "schedule", "init")}
+    elif path.suffix != ".onnx" and st.get("epoch"):
+        info["before"] = {"epochs": st["epoch"], "seconds": st.get("seconds")}
+    return info
+
+
 def train(args) -> dict:
     dist = Dist()
     if args.threads:
@@ -339,6 +376,8 @@ def _train(args, dist: Dist, device) -> dict:
     val = Batches(val_source, val_idx, device, preload)
     test = Batches(test_recs, np.arange(len(test_recs)), device, preload)
     loss_fn = LOSSES[args.loss]
+    if args.loss == "rel-l2":
+        loss_fn = functools.partial(loss_fn, eps=args.rel_eps)
     mirror = mirror_columns(args.levels).to(device) if args.mirror else None
     if not 0.0 <= args.axis_turns <= 90.0:
         raise SystemExit(f"--axis-turns must lie in [0, 90] degrees, got {args.axis_turns}")
@@ -346,12 +385,17 @@ def _train(args, dist: Dist, device) -> dict:
 
     model = build_model(args)
     model.init_output_bias(float(np.mean(train_recs.gather(fit_idx[:200_000])[1])))
+    init = None
+    if args.init is not None and not (args.resume and (args.run / "last.pt").exists()):
+        init = load_init(model, args.init)
+        say(f"initialised from {args.init}")
     model = model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     if lead:
         args.run.mkdir(parents=True, exist_ok=True)
     last, best = args.run / "last.pt", args.run / "best.pt"
-    state = {"epoch": 0, "best_val": float("inf"), "best_epoch": 0, "log": [], "seconds": 0.0}
+    state = {"epoch": 0, "best_val": float("inf"), "best_epoch": 0, "log": [], "seconds": 0.0,
+             "init": init}
     if args.resume and last.exists():
         ck = torch.load(last, map_location=device, weights_only=False)
         if ck["config"] != model.config():
@@ -509,7 +553,9 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
                  "val_records": result["val"] if result["val_from_clouds"] else 0,
                  "test_records": result["test"],
                  "convergence_rate": m.get("convergence_rate")},
-        "training": {"loss": args.loss, "mirror": args.mirror,
+        "training": {"loss": args.loss,
+                     "rel_eps": args.rel_eps if args.loss == "rel-l2" else None,
+                     "init": s.get("init"), "mirror": args.mirror,
                      "axis_turns_deg": args.axis_turns, "schedule": args.schedule,
                      "steps": s["epoch"] * -(-result["fit"] // args.batch),
                      "epochs": s["epoch"], "best_epoch": s["best_epoch"],

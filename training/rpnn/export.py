@@ -108,6 +108,46 @@ def verify(model: torch.nn.Module, path: Path, x: np.ndarray) -> dict:
     return {"rows": int(len(x)), "max_relative_difference": d, "passed": bool(d < 1e-5)}
 
 
+def import_onnx(model: torch.nn.Module, path: Path) -> None:
+    """Loads the weights of an ONNX file written by :func:`export_onnx` into ``model`` (same
+    architecture): initialisers named like the state dict are copied; the bias-free W1 layers,
+    which the exporter writes as a MatMul with the transposed weight under a generated name,
+    are found through their node (``/blocks.K/W1/MatMul``). Checked against onnxruntime on
+    random rows; raises ``ValueError`` naming the file on any mismatch."""
+    import re
+
+    import onnx
+    from onnx import numpy_helper
+
+    path = Path(path)
+    try:
+        graph = onnx.load(str(path)).graph
+    except Exception as e:  # noqa: BLE001 - any parse failure is reported with the file
+        raise ValueError(f"{path}: not a readable ONNX file ({e})") from None
+    inits = {i.name: numpy_helper.to_array(i) for i in graph.initializer}
+    state = model.state_dict()
+    weights = {k: v for k, v in inits.items() if k in state}
+    for node in graph.node:
+        m = re.fullmatch(r"/blocks\.(\d+)/W1/MatMul", node.name)
+        if node.op_type == "MatMul" and m and node.input[1] in inits:
+            weights[f"blocks.{m.group(1)}.W1.weight"] = inits[node.input[1]].T
+    missing = sorted(set(state) - set(weights))
+    if missing:
+        raise ValueError(f"{path}: no weights for {', '.join(missing[:4])}"
+                         f"{' …' if len(missing) > 4 else ''} (another architecture?)")
+    for k, v in weights.items():
+        if tuple(v.shape) != tuple(state[k].shape):
+            raise ValueError(f"{path}: `{k}` has shape {tuple(v.shape)}, the model "
+                             f"{tuple(state[k].shape)}")
+    model.load_state_dict({k: torch.from_numpy(np.array(v, dtype=np.float32)) for k, v in
+                           weights.items()})
+    x = np.random.default_rng(0).random((64, model.input_len), dtype=np.float32)
+    check = verify(model, path, x)
+    if not check["passed"]:
+        raise ValueError(f"{path}: imported weights differ from onnxruntime by "
+                         f"{check['max_relative_difference']:.2e}")
+
+
 def record_error_lines(errors: dict | None) -> list[str]:
     """Markdown for the per-record errors on the precise splits (train.record_errors)."""
     if not errors:
@@ -127,6 +167,21 @@ def record_error_lines(errors: dict | None) -> list[str]:
             for b in e["by_target"]))
     out.append("")
     return out
+
+
+def init_lines(init: dict | None) -> list[str]:
+    """The card's line on a fine-tuning stage's starting weights (none without one)."""
+    if not init:
+        return []
+    b = init.get("before") or {}
+    before = ""
+    if b.get("epochs") is not None:
+        eps = f", ε {b['rel_eps']:g}" if b.get("rel_eps") is not None else ""
+        before = (f"; that model: loss {b.get('loss')}{eps}, {b['epochs']} epochs "
+                  f"({b.get('steps')} steps), {b.get('seconds') or 0:.0f} s")
+    return [f"- Fine-tuned from `{init['path']}` (sha256 {init['sha256'][:16]}…): its weights, "
+            f"a fresh Adam and step-size schedule; epochs, steps and seconds above are this "
+            f"stage's{before}."]
 
 
 def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
@@ -167,7 +222,8 @@ def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
         "",
         "## Training",
         f"- Loss {t.get('loss', 'log')} ("
-        + ("relative L2 (ŷ − y)² / (sg(|ŷ|) + 0.01)², unbiased under label noise"
+        + (f"relative L2 (ŷ − y)² / (sg(|ŷ|) + {t.get('rel_eps', 0.01):g})², unbiased under label "
+           "noise"
            if t.get("loss") == "rel-l2" else "(log(1 + ŷ) − log(1 + y))², Kallweit §5.2")
         + f"), Adam, step size {t['lr']} ({t.get('schedule', 'constant')}), minibatch "
         f"{t['batch']}, {t['epochs']} epochs ({t.get('steps', '?')} steps), mirror augmentation "
@@ -176,6 +232,7 @@ def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
            if t.get("axis_turns_deg") else "")
         + f", seed {t['seed']}, device {t['device']}, "
         f"{t['seconds']:.0f} s.",
+        *init_lines(t.get("init")),
         (f"- Exported: the last epoch (`--select last`), validation loss "
          f"{t['best_val_loss']:.4g} (epoch {t['best_epoch']}); "
          if t.get("select") == "last" else

@@ -81,3 +81,71 @@ def test_outputs_are_whole_or_absent(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.onnx"]
     replace_atomically(target, lambda t: t.write_bytes(b"new"))
     assert target.read_bytes() == b"new" and len(list(tmp_path.iterdir())) == 1
+
+
+def test_import_onnx_restores_the_weights(tmp_path):
+    torch.manual_seed(2)
+    m = RPNN(width=24)
+    path = tmp_path / "m.onnx"
+    rexport.export_onnx(m, path)
+    torch.manual_seed(3)
+    back = RPNN(width=24)
+    rexport.import_onnx(back, path)
+    # Every parameter, including the bias-free W1 layers the exporter writes transposed under
+    # generated names, comes back exactly (float32 copies, no arithmetic).
+    for k, v in m.state_dict().items():
+        assert torch.equal(v, back.state_dict()[k]), k
+    with pytest.raises(ValueError, match="m.onnx.*no weights for|m.onnx.*shape"):
+        rexport.import_onnx(RPNN(width=32), path)
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"not onnx")
+    with pytest.raises(ValueError, match="bad.onnx: not a readable ONNX file"):
+        rexport.import_onnx(RPNN(width=24), bad)
+
+
+def test_fine_tuning_stage_starts_from_the_exported_model(record_set, tmp_path):
+    onnx_path = tmp_path / "a.onnx"
+    common = ["--data", str(record_set), "--width", "16", "--batch", "200", "--device", "cpu",
+              "--quiet", "--select", "last"]
+    first = train.train(train.parse_args([*common, "--run", str(tmp_path / "a"), "--epochs", "3",
+                                          "--export", str(onnx_path)]))
+    same = train.train(train.parse_args([*common, "--run", str(tmp_path / "b"), "--epochs", "1",
+                                         "--init", str(onnx_path)]))
+    # Epoch 0 of the stage is the imported network on the same validation records with the same
+    # loss: the first run's last validation loss up to float32 summation order (seen: equal).
+    np.testing.assert_allclose(same["state"]["log"][0]["val_loss"],
+                               first["state"]["log"][-1]["val_loss"], rtol=1e-5)
+    tuned_path = tmp_path / "c.onnx"
+    train.train(train.parse_args([*common, "--run", str(tmp_path / "c"), "--epochs", "1",
+                                  "--init", str(onnx_path), "--rel-eps", "0.003",
+                                  "--export", str(tuned_path)]))
+    card = json.loads(tuned_path.with_suffix(".json").read_text())
+    assert card["training"]["rel_eps"] == 0.003 and card["training"]["epochs"] == 1
+    assert card["training"]["init"]["path"] == str(onnx_path)
+    assert card["training"]["init"]["before"]["epochs"] == 3
+    md = tuned_path.with_suffix(".md").read_text()
+    assert "Fine-tuned from" in md and "3 epochs" in md and "+ 0.003)²" in md
+
+
+def test_evaluate_reports_the_card_errors_and_the_label_noise(record_set, tmp_path):
+    import evaluate
+    onnx_path = tmp_path / "m.onnx"
+    train.train(train.parse_args([
+        "--data", str(record_set), "--run", str(tmp_path / "run"), "--width", "16",
+        "--epochs", "1", "--batch", "200", "--device", "cpu", "--quiet",
+        "--export", str(onnx_path)]))
+    # Labels with a known relative noise of 4 %: variance of the mean = (0.04 y)².
+    m = json.loads((record_set / "manifest.json").read_text())
+    for s in m["shards"]:
+        if s["split"] == "test":
+            y = np.load(record_set / s["y"])
+            meta = np.zeros((len(y), 15), np.float32)
+            meta[:, 13] = (0.04 * y) ** 2
+            np.save(record_set / s["meta"], meta)
+    res = evaluate.main(["--data", str(record_set), "--model", str(onnx_path)])
+    card = json.loads(onnx_path.with_suffix(".json").read_text())
+    assert res["test"]["median_rel_error"] == pytest.approx(
+        card["record_errors"]["test"]["median_rel_error"], rel=1e-5)
+    assert res["test"]["label_noise_median"] == pytest.approx(0.04, rel=1e-4)
+    # |N(0, 0.04)| has median 0.6745 × 0.04; 200 draws: within ±15 % (≈ 3 standard errors).
+    assert res["test"]["noise_floor_median"] == pytest.approx(0.6745 * 0.04, rel=0.15)

@@ -1,0 +1,90 @@
+#!/usr/bin/env python3
+"""Per-record error of a shipped ONNX model on a record set's precise splits (validation and
+test clouds), as the model card reports it, plus the part of it that is label noise.
+
+    python training/evaluate.py --data out/rpnn-hg-data --model models/rpnn-hg.onnx
+
+The labels of the precise splits are Monte Carlo estimates themselves (e.g. 16 384 samples):
+their own relative standard deviation sqrt(target_variance) / y (meta column
+``target_variance``: the sample variance over the sample count) is printed as the median label noise, and the "noise
+floor" is the median relative error a perfect model would show against such labels (simulated:
+|N(0, s_i)| per record). The errors themselves are never corrected for it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from rpnn import data as rdata  # noqa: E402
+from rpnn import export as rexport  # noqa: E402
+from rpnn.model import RPNN  # noqa: E402
+
+import train  # noqa: E402
+
+
+def label_noise(root: Path, split: str) -> np.ndarray:
+    """Relative standard deviation of every label of `split` (NaN where unknown)."""
+    out = []
+    for s in rdata.read_manifest(root).get("shards", []):
+        if s.get("split") != split:
+            continue
+        meta = np.load(root / s["meta"], mmap_mode="r")
+        y = np.load(root / s["y"], mmap_mode="r").astype(np.float64)
+        if meta.shape[1] <= 13:  # format 1: no label variance
+            out.append(np.full(len(y), np.nan))
+            continue
+        var = meta[:, 13].astype(np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out.append(np.where(y > 0, np.sqrt(np.maximum(var, 0)) / y, np.nan))
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--data", required=True, type=Path)
+    p.add_argument("--model", required=True, type=Path, help="an ONNX file written by train.py")
+    p.add_argument("--json", type=Path, help="also write the result here")
+    args = p.parse_args(argv)
+    meta = {m.key: m.value for m in __import__("onnx").load(str(args.model)).metadata_props}
+    config = json.loads(meta.get("nimbus.rpnn.config", "{}")) or {}
+    try:
+        model = RPNN(**config)
+        rexport.import_onnx(model, args.model)
+    except (ValueError, TypeError) as e:
+        raise SystemExit(f"error: {e}") from None
+    result = {"model": str(args.model), "data": str(args.data)}
+    rng = np.random.default_rng(0)
+    for split, name in (("val", "validation"), ("test", "test")):
+        recs = rdata.Records(rdata.load_shards(args.data, split))
+        if not len(recs):
+            continue
+        err = train.record_errors(model, train.Batches(recs, np.arange(len(recs)),
+                                                       torch.device("cpu"), False), 4000)
+        noise = label_noise(args.data, split)
+        s = noise[np.isfinite(noise)]
+        err["label_noise_median"] = float(np.median(s)) if s.size else None
+        err["noise_floor_median"] = (float(np.median(np.abs(rng.normal(0.0, s))))
+                                     if s.size else None)
+        result[name] = err
+        print(f"{name}: {err['records']} records, median relative error "
+              f"{100 * err['median_rel_error']:.1f} %, mean ratio {err['mean_ratio']:.3f}; "
+              f"label noise median {100 * (err['label_noise_median'] or 0):.1f} % "
+              f"(a perfect model: {100 * (err['noise_floor_median'] or 0):.1f} %)")
+        for line in rexport.record_error_lines({name: err})[1:]:
+            if line.strip():
+                print(line)
+    if args.json:
+        args.json.write_text(json.dumps(result, indent=1))
+    return result
+
+
+if __name__ == "__main__":
+    main()
