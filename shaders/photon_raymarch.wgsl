@@ -18,6 +18,7 @@
 // adds sub-voxel detail to a smooth density field.
 #import params
 #import grid
+#import density_dense
 #import rng
 #import hg
 

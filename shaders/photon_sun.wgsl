@@ -8,6 +8,7 @@
 // CPU twin: `nimbus_photon::cpu::sun_transmittance`.
 #import params
 #import grid
+#import density_dense
 #import constants
 
 @group(0) @binding(0) var<uniform> P: Params;

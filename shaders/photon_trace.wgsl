@@ -30,6 +30,7 @@
 // sun-transmittance volume, and the cache holds only light scattered at least once.
 #import params
 #import grid
+#import density_dense
 #import rng
 #import hg
 #import constants

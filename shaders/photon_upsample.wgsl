@@ -22,6 +22,7 @@
 // interpolated by the ray marcher.
 #import params
 #import grid
+#import density_dense
 #import constants
 
 @group(0) @binding(0) var<uniform> P: Params;

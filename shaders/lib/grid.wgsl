@@ -1,8 +1,9 @@
 #import params
 
-// Grid lookups over the volume's box. They read the importing stage's bindings:
-//   P: Params (uniform) and density: array<f32> (storage, read),
-// which every stage that imports this module declares with its own binding numbers.
+// Grid lookups over the volume's box. They read the importing stage's uniform P: Params and
+// the density through `voxel(x, y, z)`, which the stage brings in with one of the density
+// modules: `density_dense` (one storage buffer, binding `density`) or `density_bricks` (a
+// brick map over a 3D-texture atlas, for grids beyond one storage binding).
 
 // ---- Density grid: Mitsuba gridvolume convention (cell centres, clamp-to-edge, 0 outside) ---
 fn inside_box(p: vec3<f32>) -> bool {
@@ -51,15 +52,14 @@ fn box_intersect(o: vec3<f32>, d: vec3<f32>) -> vec2<f32> {
 fn density_at(p: vec3<f32>) -> f32 {
     if (!inside_box(p)) { return 0.0; }
     let t = trilinear(p, P.d_res);
-    let r = P.d_res;
-    let c000 = density[grid_index(t.i0.x, t.i0.y, t.i0.z, r)];
-    let c100 = density[grid_index(t.i1.x, t.i0.y, t.i0.z, r)];
-    let c010 = density[grid_index(t.i0.x, t.i1.y, t.i0.z, r)];
-    let c110 = density[grid_index(t.i1.x, t.i1.y, t.i0.z, r)];
-    let c001 = density[grid_index(t.i0.x, t.i0.y, t.i1.z, r)];
-    let c101 = density[grid_index(t.i1.x, t.i0.y, t.i1.z, r)];
-    let c011 = density[grid_index(t.i0.x, t.i1.y, t.i1.z, r)];
-    let c111 = density[grid_index(t.i1.x, t.i1.y, t.i1.z, r)];
+    let c000 = voxel(t.i0.x, t.i0.y, t.i0.z);
+    let c100 = voxel(t.i1.x, t.i0.y, t.i0.z);
+    let c010 = voxel(t.i0.x, t.i1.y, t.i0.z);
+    let c110 = voxel(t.i1.x, t.i1.y, t.i0.z);
+    let c001 = voxel(t.i0.x, t.i0.y, t.i1.z);
+    let c101 = voxel(t.i1.x, t.i0.y, t.i1.z);
+    let c011 = voxel(t.i0.x, t.i1.y, t.i1.z);
+    let c111 = voxel(t.i1.x, t.i1.y, t.i1.z);
     let f = t.f;
     let c00 = mix(c000, c100, f.x);
     let c10 = mix(c010, c110, f.x);

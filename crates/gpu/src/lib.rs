@@ -6,6 +6,7 @@
 
 pub mod compose;
 pub mod consts;
+pub mod density;
 pub mod params;
 pub mod shaders;
 pub mod testing;
@@ -30,6 +31,12 @@ pub enum GpuError {
         what: String,
         bytes: u64,
         limit: u64,
+        adapter: String,
+    },
+    #[error("{what} cannot be placed in a GPU texture atlas on this adapter ({adapter}): {msg}")]
+    Atlas {
+        what: String,
+        msg: String,
         adapter: String,
     },
     #[error("GPU readback failed: {0}")]
@@ -268,6 +275,31 @@ impl Gpu {
                 binding: *i,
                 resource: b.as_entire_binding(),
             })
+            .collect();
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        })
+    }
+
+    /// Like [`Gpu::bind`], with texture views as well.
+    pub fn bind_with(
+        &self,
+        pipeline: &wgpu::ComputePipeline,
+        buffers: &[(u32, &wgpu::Buffer)],
+        textures: &[(u32, &wgpu::TextureView)],
+    ) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: *i,
+                resource: b.as_entire_binding(),
+            })
+            .chain(textures.iter().map(|(i, v)| wgpu::BindGroupEntry {
+                binding: *i,
+                resource: wgpu::BindingResource::TextureView(v),
+            }))
             .collect();
         self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: None,

@@ -31,6 +31,9 @@ pub const MODULES: &[(&str, &str)] = &[
     module!("rng"),
     module!("hg"),
     module!("grid"),
+    module!("density_dense"),
+    module!("density_bricks"),
+    module!("pt_core"),
 ];
 
 /// (file name, source) of every stage in `shaders/`.
@@ -41,6 +44,7 @@ pub const SHADERS: &[(&str, &str)] = &[
     stage!("photon_raymarch.wgsl"),
     stage!("photon_sun.wgsl"),
     stage!("pt.wgsl"),
+    stage!("pt_bricks.wgsl"),
     stage!("rpnn_descriptor.wgsl"),
     stage!("rpnn_mlp.wgsl"),
     stage!("blit.wgsl"),

@@ -110,6 +110,11 @@ impl Bricks {
         self.bres
     }
 
+    /// Shift of the brick lattice: voxel (x, y, z) lies in brick ((x, y, z) + offset) / 8.
+    pub fn offset(&self) -> [usize; 3] {
+        self.offset
+    }
+
     /// (stored, constant, absent) brick counts.
     pub fn counts(&self) -> (usize, usize, usize) {
         let absent = self.index.iter().filter(|&&e| e == ABSENT).count();

@@ -1,12 +1,17 @@
-//! The path tracer on the GPU (`shaders/pt.wgsl`): whole images (`--method pt --device gpu`,
+//! The path tracer on the GPU (`shaders/pt.wgsl`, `shaders/pt_bricks.wgsl`): whole images (`--method pt --device gpu`,
 //! progressive) and batches of indirect-radiance estimates for RPNN training records. Same
 //! algorithm as [`crate::integrator`] in f32, with a global majorant instead of the majorant
 //! grid and next-event estimation alone (no MIS) for a sun disc. Supported: HG or isotropic
 //! phase, a delta or disc sun, a constant sky; other scenes get a clear error (use the CPU path
 //! tracer).
+//!
+//! The density is one storage buffer when the grid is dense and fits one binding, else a brick
+//! map over a 3D-texture atlas ([`nimbus_gpu::density`]): a sparse grid is never densified, and
+//! a dense box beyond the adapter's binding size still renders. Both read the same values.
 
 use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
+use nimbus_gpu::density::GpuDensity;
 use nimbus_gpu::params::VolumeParams;
 use nimbus_gpu::{Gpu, GpuError, shaders};
 use nimbus_scene::{Image, Phase, Scene, Sky};
@@ -60,12 +65,36 @@ pub struct GpuPathTracer<'g> {
     params: VolumeParams,
     pipeline: wgpu::ComputePipeline,
     params_buf: wgpu::Buffer,
-    density: wgpu::Buffer,
+    density: Density,
     max_depth: i32,
+}
+
+/// The density as the shader reads it.
+enum Density {
+    Dense(wgpu::Buffer),
+    Bricks(Box<GpuDensity>),
+}
+
+/// How [`GpuPathTracer::with_storage`] stores the density.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DensityStorage {
+    /// A dense grid that fits one storage binding: one buffer; anything else: a brick map.
+    Auto,
+    /// A brick map whose atlas is at most this many 8³ blocks per axis.
+    Bricks { max_blocks: u32 },
 }
 
 impl<'g> GpuPathTracer<'g> {
     pub fn new(gpu: &'g Gpu, scene: &Scene) -> Result<Self, GpuPtError> {
+        Self::with_storage(gpu, scene, DensityStorage::Auto)
+    }
+
+    /// Like [`GpuPathTracer::new`], choosing how the density is stored (tests compare both).
+    pub fn with_storage(
+        gpu: &'g Gpu,
+        scene: &Scene,
+        storage: DensityStorage,
+    ) -> Result<Self, GpuPtError> {
         let src = scene.source.display();
         let g = match &scene.medium.phase {
             Phase::HenyeyGreenstein(hg) => hg.g(),
@@ -83,7 +112,10 @@ impl<'g> GpuPathTracer<'g> {
         }
         let vol = &scene.volume;
         let r = vol.grid().res();
-        gpu.check_storage("the density grid", (r[0] * r[1] * r[2]) as u64 * 4)?;
+        let dense_fits = vol.grid().as_dense().is_some()
+            && gpu
+                .check_storage("the density grid", (r[0] * r[1] * r[2]) as u64 * 4)
+                .is_ok();
         let (forward, right, up, tan_half) = scene.camera.basis();
         let aabb = vol.aabb();
         let params = VolumeParams {
@@ -122,17 +154,33 @@ impl<'g> GpuPathTracer<'g> {
             seed: scene.render.seed as u32,
             ..Default::default()
         };
-        // A sparse grid is copied into one dense buffer here (checked against the memory
-        // budget): the GPU kernels read the box densely.
-        let dense = vol
-            .grid()
-            .dense()
-            .map_err(|e| GpuPtError::Memory(format!("{src}: {e}")))?;
+        let (density, stage) = match (storage, vol.grid().as_dense()) {
+            (DensityStorage::Auto, Some(d)) if dense_fits => {
+                (Density::Dense(gpu.storage("density", d)), "pt.wgsl")
+            }
+            (DensityStorage::Auto, _) => (
+                Density::Bricks(Box::new(GpuDensity::new(
+                    gpu,
+                    vol.grid(),
+                    "the density grid",
+                )?)),
+                "pt_bricks.wgsl",
+            ),
+            (DensityStorage::Bricks { max_blocks }, _) => (
+                Density::Bricks(Box::new(GpuDensity::with_max_blocks(
+                    gpu,
+                    vol.grid(),
+                    "the density grid",
+                    max_blocks,
+                )?)),
+                "pt_bricks.wgsl",
+            ),
+        };
         Ok(Self {
             gpu,
-            pipeline: gpu.pipeline("path tracer", &shaders::source("pt.wgsl"), "pt"),
+            pipeline: gpu.pipeline("path tracer", &shaders::source(stage), "pt"),
             params_buf: gpu.uniform("pt params", &params),
-            density: gpu.storage("density", &dense),
+            density,
             params,
             max_depth: scene
                 .render
@@ -144,16 +192,19 @@ impl<'g> GpuPathTracer<'g> {
 
     fn dispatch(&self, task: Task, tasks: &wgpu::Buffer, out: &wgpu::Buffer, invocations: u32) {
         let tbuf = self.gpu.uniform("pt task", &task);
-        let bind = self.gpu.bind(
-            &self.pipeline,
-            &[
-                (0, &self.params_buf),
-                (1, &self.density),
-                (2, &tbuf),
-                (3, tasks),
-                (4, out),
-            ],
-        );
+        let common = [(0, &self.params_buf), (2, &tbuf), (3, tasks), (4, out)];
+        let bind = match &self.density {
+            Density::Dense(d) => {
+                let mut b = common.to_vec();
+                b.push((1, d));
+                self.gpu.bind(&self.pipeline, &b)
+            }
+            Density::Bricks(k) => {
+                let mut b = common.to_vec();
+                b.extend([(1, &k.index), (5, &k.info)]);
+                self.gpu.bind_with(&self.pipeline, &b, &[(6, &k.view)])
+            }
+        };
         self.gpu.dispatch_1d(&self.pipeline, &bind, invocations);
     }
 

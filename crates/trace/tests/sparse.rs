@@ -1,6 +1,7 @@
 //! Sparse (brick) and dense storage of one grid give the same image, bit for bit, with the CPU
 //! and the GPU path tracer at equal seeds: the bricks return the same values and the majorant
-//! grid the same bounds, so every random decision is the same.
+//! grid the same bounds, so every random decision is the same. On the GPU the sparse grid is a
+//! brick map over a texture atlas (`shaders/lib/density_bricks.wgsl`), the dense one a buffer.
 
 use std::path::Path;
 use std::sync::Arc;
@@ -69,5 +70,18 @@ fn sparse_and_dense_render_the_same_image() {
             .render(8, 5)
             .unwrap();
         assert!(ga.pixels == gb.pixels, "{name}: GPU images differ");
+        // The dense grid forced into a brick map whose atlas is 16 blocks wide, so slots wrap
+        // over the atlas's rows and layers (the path of boxes beyond one storage binding).
+        let mut forced = GpuPathTracer::with_storage(
+            &gpu,
+            &dense,
+            nimbus_trace::gpu::DensityStorage::Bricks { max_blocks: 16 },
+        )
+        .unwrap();
+        let (gc, _) = forced.render(8, 5).unwrap();
+        assert!(
+            ga.pixels == gc.pixels,
+            "{name}: GPU brick-map image differs"
+        );
     }
 }
