@@ -108,8 +108,15 @@ fn parse_header(bytes: &[u8], path: &Path) -> Result<Header> {
 }
 
 /// Reads a `.vol` file, streaming its voxels straight into the grid (the file's bytes are
-/// never held beside it: a 6.9 GB file needs 6.9 GB).
+/// never held beside it: a 6.9 GB file needs at most 6.9 GB). A grid of more than
+/// [`crate::generate::SPARSE_ABOVE_VOXELS`] voxels is read as 8³ bricks, 8 planes at a time,
+/// keeping only the bricks that hold a non-zero value: its memory grows with the cloud, not
+/// with its box (the same values, see the tests).
 pub fn read(path: &Path) -> Result<GridFile> {
+    read_with(path, crate::generate::SPARSE_ABOVE_VOXELS)
+}
+
+fn read_with(path: &Path, sparse_above: usize) -> Result<GridFile> {
     use std::io::Read;
     let io = |e| Error::io(path, e);
     let mut f = std::fs::File::open(path).map_err(io)?;
@@ -119,6 +126,10 @@ pub fn read(path: &Path) -> Result<GridFile> {
     let (res, bounds) = parse_header(&head, path)?;
     check_length(res, len, path)?;
     let what = format!("a {}×{}×{} grid", res[0], res[1], res[2]);
+    if res[0] * res[1] * res[2] > sparse_above {
+        let grid = read_bricks(&mut f, res, &what, path)?;
+        return Ok(GridFile { grid, bounds });
+    }
     let mut data = crate::memory::filled(res[0] * res[1] * res[2], 0.0f32, "data", &what)
         .map_err(|e| e.at(path))?;
     f.read_exact(bytemuck::cast_slice_mut(&mut data))
@@ -129,6 +140,55 @@ pub fn read(path: &Path) -> Result<GridFile> {
     }
     let grid = DensityGrid::new(res, data).map_err(|e| e.at(path))?;
     Ok(GridFile { grid, bounds })
+}
+
+/// The voxels after the header as bricks: a slab of 8 planes at a time is read and cut into
+/// bricks; all-zero bricks stay absent. Values are checked (finite, non-negative) when the
+/// bricks are finished, the error naming the voxel.
+fn read_bricks(
+    f: &mut std::fs::File,
+    res: [usize; 3],
+    what: &str,
+    path: &Path,
+) -> Result<DensityGrid> {
+    use crate::brick::{BrickBuilder, DIM};
+    use std::io::Read;
+    let [nx, ny, nz] = res;
+    let mut b = BrickBuilder::new(res, [0; 3], 0, "data", what).map_err(|e| e.at(path))?;
+    let bres = b.brick_res();
+    let mut slab =
+        crate::memory::filled(nx * ny * DIM, 0.0f32, "data", what).map_err(|e| e.at(path))?;
+    for k in 0..bres[2] {
+        let planes = DIM.min(nz - k * DIM);
+        let buf = &mut slab[..nx * ny * planes];
+        f.read_exact(bytemuck::cast_slice_mut(buf))
+            .map_err(|e| Error::io(path, e))?;
+        for v in buf.iter_mut() {
+            *v = f32::from_bits(u32::from_le(v.to_bits()));
+        }
+        for j in 0..bres[1] {
+            for i in 0..bres[0] {
+                let (x0, x1) = (i * DIM, ((i + 1) * DIM).min(nx));
+                let (y0, y1) = (j * DIM, ((j + 1) * DIM).min(ny));
+                let row = |l: usize, y: usize| &buf[(l * ny + y) * nx + x0..(l * ny + y) * nx + x1];
+                let any =
+                    (0..planes).any(|l| (y0..y1).any(|y| row(l, y).iter().any(|&v| v != 0.0)));
+                if !any {
+                    continue;
+                }
+                let dst = b.stored_mut([i, j, k]).map_err(|e| e.at(path))?;
+                for l in 0..planes {
+                    for y in y0..y1 {
+                        let at = (l * DIM + y - y0) * DIM;
+                        dst[at..at + x1 - x0].copy_from_slice(row(l, y));
+                    }
+                }
+            }
+        }
+    }
+    Ok(DensityGrid::from_bricks(
+        b.finish().map_err(|e| e.at(path))?,
+    ))
 }
 
 /// Serialises a grid as `.vol` bytes.
@@ -229,6 +289,58 @@ mod tests {
             }
         }
         std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// Above the threshold the file is read as bricks: the same values, zero bricks absent,
+    /// and a bad value still named by its voxel and the file.
+    #[test]
+    fn large_grids_are_read_as_bricks() {
+        let dir = std::env::temp_dir().join(format!("nimbus-volb-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let res = [19, 10, 21];
+        let mut s = 3u32;
+        let data: Vec<f32> = (0..res.iter().product::<usize>())
+            .map(|i| {
+                s = s.wrapping_mul(1664525).wrapping_add(1013904223);
+                let (x, z) = (i % 19, i / 190);
+                if (4..9).contains(&x) && (3..13).contains(&z) {
+                    (s >> 8) as f32 / (1 << 24) as f32
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let dense = DensityGrid::new(res, data.clone()).unwrap();
+        let p = dir.join("big.vol");
+        write(&p, &dense, (DVec3::ZERO, DVec3::ONE)).unwrap();
+        let f = read_with(&p, 100).unwrap();
+        let b = f.grid.as_bricks().expect("read as bricks");
+        let (stored, _, absent) = b.counts();
+        assert!(stored > 0 && absent > 0, "{:?}", b.counts());
+        assert_eq!(f.grid.dense().unwrap().as_ref(), data.as_slice());
+        assert_eq!(read_with(&p, usize::MAX).unwrap().grid, dense);
+        let mut bad = data;
+        bad[(14 * 10 + 2) * 19 + 6] = f32::NAN;
+        let q = dir.join("nan.vol");
+        std::fs::write(&q, to_bytes_unchecked(res, &bad)).unwrap();
+        let e = read_with(&q, 100).unwrap_err().to_string();
+        assert!(e.contains("nan.vol") && e.contains("voxel[6,2,14]"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// `.vol` bytes of raw values (no validation: for writing damaged files).
+    fn to_bytes_unchecked(res: [usize; 3], data: &[f32]) -> Vec<u8> {
+        let mut b = b"VOL\x03".to_vec();
+        for v in [1i32, res[0] as i32, res[1] as i32, res[2] as i32, 1] {
+            b.extend(v.to_le_bytes());
+        }
+        for v in [0f32, 0.0, 0.0, 1.0, 1.0, 1.0] {
+            b.extend(v.to_le_bytes());
+        }
+        for v in data {
+            b.extend(v.to_le_bytes());
+        }
+        b
     }
 
     #[test]
