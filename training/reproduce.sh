@@ -5,7 +5,7 @@
 #
 #   bash training/reproduce.sh                          # the shipped model's settings
 #   nohup bash training/reproduce.sh > out/reproduce.log 2>&1 &    # in the background
-#   RECORDS=100000 EPOCHS=20 bash training/reproduce.sh  # smaller
+#   RECORDS=100000 EPOCHS=20 FINETUNE_EPOCHS=0 bash training/reproduce.sh  # smaller
 #
 # Data: fixed-count training labels (SAMPLES per record: unbiased and noisy, trained with the
 # relative L2 loss), precise validation and test labels (EVAL_SAMPLES per record) from held-out
@@ -30,9 +30,13 @@ RESTART_MAX_MINUTES=${RESTART_MAX_MINUTES:-200}
 LOSS=${LOSS:-rel-l2}
 REL_EPS=${REL_EPS:-0.01}        # rel-l2's floor in the first two stages
 # Fine-tuning stage: the restart's last weights, a fresh Adam at FINETUNE_LR (cosine) for
-# FINETUNE_EPOCHS epochs with rel-l2's floor FINETUNE_EPS (0 epochs: no such stage).
-FINETUNE_EPOCHS=${FINETUNE_EPOCHS:-0}
-FINETUNE_EPS=${FINETUNE_EPS:-0.002}
+# FINETUNE_EPOCHS epochs with rel-l2's floor FINETUNE_EPS (0 epochs: no such stage), on the
+# training set extended to FINETUNE_RECORDS records (records are a prefix of any longer run:
+# the first RECORDS are those the earlier stages saw). The shipped model: 4 epochs, 0.01,
+# 0.0003, 2 000 000 records.
+FINETUNE_EPOCHS=${FINETUNE_EPOCHS:-4}
+FINETUNE_RECORDS=${FINETUNE_RECORDS:-2000000}
+FINETUNE_EPS=${FINETUNE_EPS:-0.01}
 FINETUNE_LR=${FINETUNE_LR:-0.0003}
 FINETUNE_MAX_MINUTES=${FINETUNE_MAX_MINUTES:-200}
 DEVICE=${DEVICE:-cpu}          # datagen: cpu (the shipped set) or gpu (different random streams)
@@ -50,7 +54,7 @@ datagen() { # SPLIT-specific counts; the same --out and settings, so later calls
 # Validation and test sets first (small, precise), then the training records.
 datagen --records 0 --val-records "$VAL_RECORDS" --test-records "$TEST_RECORDS"
 datagen --records "$RECORDS" --val-records "$VAL_RECORDS" --test-records "$TEST_RECORDS"
-SETTINGS="CLOUDS=$CLOUDS DENSITY_RANGE=$DENSITY_RANGE RECORDS=$RECORDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS TEST_RECORDS=$TEST_RECORDS EVAL_SAMPLES=$EVAL_SAMPLES LIGHT=$LIGHT EPOCHS=$EPOCHS MAX_MINUTES=$MAX_MINUTES RESTART_EPOCHS=$RESTART_EPOCHS RESTART_MAX_MINUTES=$RESTART_MAX_MINUTES LOSS=$LOSS REL_EPS=$REL_EPS FINETUNE_EPOCHS=$FINETUNE_EPOCHS FINETUNE_EPS=$FINETUNE_EPS FINETUNE_LR=$FINETUNE_LR FINETUNE_MAX_MINUTES=$FINETUNE_MAX_MINUTES DEVICE=$DEVICE"
+SETTINGS="CLOUDS=$CLOUDS DENSITY_RANGE=$DENSITY_RANGE RECORDS=$RECORDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS TEST_RECORDS=$TEST_RECORDS EVAL_SAMPLES=$EVAL_SAMPLES LIGHT=$LIGHT EPOCHS=$EPOCHS MAX_MINUTES=$MAX_MINUTES RESTART_EPOCHS=$RESTART_EPOCHS RESTART_MAX_MINUTES=$RESTART_MAX_MINUTES LOSS=$LOSS REL_EPS=$REL_EPS FINETUNE_EPOCHS=$FINETUNE_EPOCHS FINETUNE_RECORDS=$FINETUNE_RECORDS FINETUNE_EPS=$FINETUNE_EPS FINETUNE_LR=$FINETUNE_LR FINETUNE_MAX_MINUTES=$FINETUNE_MAX_MINUTES DEVICE=$DEVICE"
 train() {
   training/.venv/bin/python training/train.py --data "$DATA" --loss "$LOSS" --schedule cosine \
     --seed 0 --device auto --resume --export "$MODEL" \
@@ -70,6 +74,7 @@ if [ "$RESTART_EPOCHS" -gt "$EPOCHS" ]; then
     --select last --rel-eps "$REL_EPS"
 fi
 if [ "$FINETUNE_EPOCHS" -gt 0 ]; then
+  datagen --records "$FINETUNE_RECORDS" --val-records "$VAL_RECORDS" --test-records "$TEST_RECORDS"
   # Starts from the restart's weights (--init is ignored once finetune/last.pt exists).
   INIT="$RUN/last.pt"
   RUN="$RUN/finetune"
