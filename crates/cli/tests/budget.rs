@@ -87,9 +87,9 @@ fn memory_budget_refuses_instead_of_aborting() {
     }
     let huge = d.join("huge.exr");
     std::fs::write(&huge, &bytes).unwrap();
-    // RPNN's density pyramid is sized before it is built: its levels (1 797 561 voxels for the
-    // demo's 128×96×128 grid) and the blur's window of 20 planes, 7.8 MiB; the grid itself
-    // (6.0 MiB) fits the budget of 7 MiB.
+    // RPNN's density pyramid is sized before it is built: its stored levels (all of them for the
+    // demo's 128×96×128 grid: 1 797 561 voxels) and a bound of 40 level-0 planes for the
+    // streaming windows, 8.7 MiB; the grid itself (6.0 MiB) fits the budget of 7 MiB.
     let o = Command::new(env!("CARGO_BIN_EXE_nimbus"))
         .current_dir(root())
         .env("XDG_RUNTIME_DIR", std::env::temp_dir())
@@ -107,7 +107,7 @@ fn memory_budget_refuses_instead_of_aborting() {
         .unwrap();
     let t = text(&o);
     assert!(
-        !o.status.success() && t.contains("RPNN density pyramid") && t.contains("7.8 MiB"),
+        !o.status.success() && t.contains("RPNN density pyramid") && t.contains("8.7 MiB"),
         "{t}"
     );
     let o = nimbus(&["compare", huge.to_str().unwrap(), small.to_str().unwrap()]);
