@@ -36,9 +36,9 @@ def label_noise(root: Path, split: str) -> np.ndarray:
     for s in rdata.read_manifest(root).get("shards", []):
         if s.get("split") != split:
             continue
-        meta = np.load(root / s["meta"], mmap_mode="r")
         y = np.load(root / s["y"], mmap_mode="r").astype(np.float64)
-        if meta.shape[1] <= 13:  # format 1: no label variance
+        meta = np.load(root / s["meta"], mmap_mode="r") if s.get("meta") else None
+        if meta is None or meta.ndim != 2 or meta.shape[1] <= 13:  # no label variance
             out.append(np.full(len(y), np.nan))
             continue
         var = meta[:, 13].astype(np.float64)

@@ -74,6 +74,8 @@ if [ "$RESTART_EPOCHS" -gt "$EPOCHS" ]; then
     --select last --rel-eps "$REL_EPS"
 fi
 if [ "$FINETUNE_EPOCHS" -gt 0 ]; then
+  # The curves of the stages before the fine-tuning, next to the model's.
+  cp "$RUN/curves.png" "${MODEL%.onnx}-curves-base.png"
   datagen --records "$FINETUNE_RECORDS" --val-records "$VAL_RECORDS" --test-records "$TEST_RECORDS"
   # Starts from the restart's weights (--init is ignored once finetune/last.pt exists).
   INIT="$RUN/last.pt"

@@ -395,15 +395,21 @@ def _train(args, dist: Dist, device) -> dict:
         args.run.mkdir(parents=True, exist_ok=True)
     last, best = args.run / "last.pt", args.run / "best.pt"
     state = {"epoch": 0, "best_val": float("inf"), "best_epoch": 0, "log": [], "seconds": 0.0,
-             "init": init}
+             "init": init, "loss": args.loss, "rel_eps": args.rel_eps}
     if args.resume and last.exists():
         ck = torch.load(last, map_location=device, weights_only=False)
         if ck["config"] != model.config():
             raise SystemExit(f"{last}: checkpoint architecture {ck['config']} differs from "
                              f"the requested {model.config()}")
+        saved = ck["state"]
+        if (saved.get("loss", args.loss), saved.get("rel_eps", args.rel_eps)) != (args.loss,
+                                                                               args.rel_eps):
+            raise SystemExit(f"{last}: trained with --loss {saved.get('loss')} --rel-eps "
+                             f"{saved.get('rel_eps')}; resuming with --loss {args.loss} "
+                             f"--rel-eps {args.rel_eps} would mix two losses")
         model.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
-        state = ck["state"]
+        state = saved
         say(f"resumed from {last} after epoch {state['epoch']}")
     # DDP after loading: it broadcasts rank 0's parameters to the others.
     net = torch.nn.parallel.DistributedDataParallel(model) if dist.on else model

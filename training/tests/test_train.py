@@ -118,3 +118,9 @@ def test_axis_turns_train_and_are_checked(record_set, tmp_path):
     assert np.isfinite(b).all() and b[-1] < b[0] and b[-1] != a[-1], (a, b)
     with pytest.raises(SystemExit):
         run(record_set, tmp_path / "c", "--epochs", "1", "--axis-turns", "91")
+
+
+def test_resume_refuses_another_loss(record_set, tmp_path):
+    run(record_set, tmp_path, "--epochs", "1")
+    with pytest.raises(SystemExit, match="rel-eps 0.01; resuming with --loss rel-l2 --rel-eps 0.002"):
+        run(record_set, tmp_path, "--epochs", "2", "--resume", "--rel-eps", "0.002")

@@ -21,8 +21,8 @@ use nimbus_scene::brick::Content;
 
 use crate::{Gpu, GpuError};
 
-/// Brick edge in voxels (`nimbus_scene::brick::DIM`).
-pub const DIM: usize = 8;
+/// Brick edge in voxels (the sparse grid's; `8u` in `density_bricks.wgsl`).
+pub use nimbus_scene::brick::DIM;
 const VOXELS: usize = DIM * DIM * DIM;
 
 /// `DensityInfo` of `shaders/lib/density_bricks.wgsl`.
@@ -216,6 +216,21 @@ impl GpuDensity {
             &format!("the brick index of {what}"),
             plan.index.len() as u64 * 4,
         )?;
+        // The atlas is checked against the memory budget before it is created (on a software
+        // adapter it is host memory; a failed allocation inside wgpu would abort).
+        nimbus_scene::memory::check(
+            plan.bytes() as u128,
+            "volume",
+            &format!(
+                "the GPU atlas of {what} ({} bricks of 8³ voxels)",
+                plan.slots()
+            ),
+        )
+        .map_err(|e| GpuError::Atlas {
+            what: what.to_string(),
+            msg: e.msg,
+            adapter: gpu.info.name.clone(),
+        })?;
         let [ex, ey, ez] = plan.extent();
         let atlas = gpu.device.create_texture(&wgpu::TextureDescriptor {
             label: Some("density atlas"),
