@@ -22,13 +22,16 @@
 use std::str::FromStr;
 
 use noise::{Fbm, MultiFractal, NoiseFn, Perlin, RidgedMulti, Worley};
+
 use rayon::prelude::*;
 
 use crate::error::FieldError;
 use crate::grid::{DensityGrid, check_resolution};
 
 mod cellular;
+mod heap;
 use cellular::{Cellular, perlin_worley};
+use heap::{Early, Heap, Measure, Octaves, Tile};
 
 /// The cloud families of the generator.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -105,40 +108,20 @@ fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
     t * t * (3.0 - 2.0 * t)
 }
 
-type Field = Box<dyn Fn([f64; 3]) -> f64>;
+/// The density at a point of a tile (see [`Tile`]).
+type Field = Box<dyn Fn([f64; 3], &Tile) -> f64>;
 
-/// The cumulus heap's shape, max over blobs of 1 − d/r (> 0 inside a blob), at `p`; with
-/// `h` > 0 an upper bound of it over the ball of radius `h` around `p` (every distance shrinks
-/// by at most `h`). `h` = 0 gives the shape itself, bit for bit.
-fn heap_shape(blobs: &[([f64; 3], f64)], p: [f64; 3], h: f64) -> f64 {
-    let mut shape = f64::NEG_INFINITY;
-    for (c, r) in blobs {
-        let d = ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt();
-        shape = shape.max(1.0 - (d - h) / r);
-    }
-    shape
-}
-/// How deep `p` lies inside the heap of spheres, max over blobs of r − d (negative outside, in
-/// the coordinates' units); with `h` > 0 an upper bound of it over the ball of radius `h`
-/// around `p`.
-fn heap_depth(blobs: &[([f64; 3], f64)], p: [f64; 3], h: f64) -> f64 {
-    let mut depth = f64::NEG_INFINITY;
-    for (c, r) in blobs {
-        let d = ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt();
-        depth = depth.max(r - d + h);
-    }
-    depth
-}
-/// `cull(c, h)`: true when the field is 0 everywhere within distance `h` of `c` (a bound from
-/// the cloud's shape alone, so empty space costs no noise evaluation).
-type Cull = Box<dyn Fn([f64; 3], f64) -> bool>;
+/// `plan(c, h, tile)`: true when the field is 0 everywhere within distance `h` of `c` (a bound
+/// from the cloud's shape alone, so empty space costs no noise evaluation); otherwise fills
+/// `tile` with what the shape says about that ball (see [`Tile`]).
+type Plan = Box<dyn Fn([f64; 3], f64, &mut Tile) -> bool>;
 
 /// Builds the density function of a cloud in normalised coordinates (x in [−1, 1], y ≥ 0, z
 /// centred; cubic voxels), and its empty-space test. `noise` types are not `Sync`, so each
 /// worker builds its own.
 /// `fast` turns on the shortcuts that skip noise where it cannot change the value (off: every
 /// voxel evaluates the whole formula; the same grid, as `generate_with`'s test checks).
-fn make_field(kind: CloudKind, seed: u64, res: [usize; 3], fast: bool) -> (Field, Option<Cull>) {
+fn make_field(kind: CloudKind, seed: u64, res: [usize; 3], fast: bool) -> (Field, Option<Plan>) {
     let s32 = (seed ^ (seed >> 32)) as u32;
     let mut rng = SplitMix(seed);
     // Normalised coordinates: x, z in [−1, 1]; y in [0, ry/rx × 2] (voxels are cubes).
@@ -159,46 +142,69 @@ fn make_field(kind: CloudKind, seed: u64, res: [usize; 3], fast: bool) -> (Field
                 let cy = base + r * rng.range(0.6, 1.0) + t * 0.35 * height;
                 blobs.push(([cx, cy, cz], r));
             }
-            let fbm = Fbm::<Perlin>::new(s32).set_octaves(5).set_frequency(2.5);
+            let octaves = Octaves::new(s32, 5, 2.5);
             let worley = Worley::new(s32.wrapping_add(7)).set_frequency(6.0);
             // v = shape + 0.35 n + 0.12 (billow − ½) with |n| ≤ 1 (Perlin is clamped to
-            // [−1, 1] and Fbm divides by the sum of its amplitudes) and billow in [0, 1]: v ≤
-            // shape + 0.41, so where shape < −0.45 the density is exactly 0. Within h of c,
-            // every blob's distance is at least its distance from c minus h.
-            let cull_blobs = blobs.clone();
-            let cull: Cull = Box::new(move |c: [f64; 3], h: f64| {
+            // [−1, 1] and fBm divides by the sum of its amplitudes) and billow in [0, 1]: v ≤
+            // shape + 0.41, so where shape < −0.45 the density is exactly 0, and where shape >
+            // ⅓ + 0.41 it is `flat` (v × 3 is clamped to [0, 1]).
+            const DEEP: f64 = 1.0 / 3.0 + 0.41 + 1e-9;
+            let bound = Heap {
+                blobs: blobs.clone(),
+                measure: Measure::Shape,
+            };
+            let plan: Plan = Box::new(move |c: [f64; 3], h: f64, tile: &mut Tile| {
                 if c[1] + h < base - 0.02 {
                     return true; // below the flat base
                 }
-                heap_shape(&cull_blobs, c, h) < -0.45
+                let (lower, upper) = bound.plan(c, h, tile);
+                tile.inside = lower > DEEP + 1e-9;
+                upper < -0.45
             });
-            let field: Field = Box::new(move |p: [f64; 3]| {
-                let shape = heap_shape(&blobs, p, 0.0);
+            let heap = Heap {
+                blobs,
+                measure: Measure::Shape,
+            };
+            let field: Field = Box::new(move |p: [f64; 3], tile: &Tile| {
                 // Flat base: fade out below the base plane.
                 let flat = smoothstep(base - 0.02, base + 0.04, p[1]);
-                // The noise only matters where it can move v across [0, ⅓] (v × 3 is clamped
-                // to [0, 1]); |0.35 n| ≤ 0.35 and |0.12 (billow − ½)| ≤ 0.06, so far outside and
-                // deep inside the heap the value is known without evaluating them (margins of
-                // 10⁻⁹ keep this exact under rounding; `generate_with` tests it).
+                if fast && tile.inside {
+                    return flat;
+                }
+                let shape = heap.at(p, tile);
+                // The noise only matters where it can move v across [0, ⅓]; |0.35 n| ≤ 0.35
+                // and |0.12 (billow − ½)| ≤ 0.06, so far outside and deep inside the heap the
+                // value is known without evaluating them, and the fBm's octaves stop once the
+                // rest cannot move u across [−0.06, ⅓ + 0.06] (margins of 10⁻⁹ keep this exact
+                // under rounding; `generate_with` tests it).
                 if fast && (flat == 0.0 || shape < -0.41 - 1e-9) {
                     return 0.0;
                 }
-                if fast && shape > 1.0 / 3.0 + 0.41 + 1e-9 {
+                if fast && shape > DEEP {
                     return flat;
                 }
-                let n = fbm.get(p);
+                let (below, above) = (-0.06 - 1e-9, 1.0 / 3.0 + 0.06 + 1e-9);
+                let n = if fast {
+                    match octaves.get_unless(p, shape, 0.35, below, above) {
+                        Early::Below => return 0.0,
+                        Early::Above => return flat,
+                        Early::Value(n) => n,
+                    }
+                } else {
+                    octaves.get(p)
+                };
                 let u = shape + 0.35 * n;
-                if fast && u < -0.06 - 1e-9 {
+                if fast && u < below {
                     return 0.0;
                 }
-                if fast && u > 1.0 / 3.0 + 0.06 + 1e-9 {
+                if fast && u > above {
                     return flat;
                 }
                 let billow = 1.0 - worley.get(p).abs().min(1.0);
                 let v = u + 0.12 * (billow - 0.5);
                 (v * 3.0).clamp(0.0, 1.0) * flat
             });
-            (field, Some(cull))
+            (field, Some(plan))
         }
         CloudKind::Congestus => {
             // A base row of wide blobs sitting on the flat base, and a tower of shrinking blobs
@@ -231,13 +237,28 @@ fn make_field(kind: CloudKind, seed: u64, res: [usize; 3], fast: bool) -> (Field
             }
             let perlin = Fbm::<Perlin>::new(s32).set_octaves(3).set_frequency(2.0);
             let cells = [1u64, 2, 3, 4].map(|k| Cellular::new(seed.wrapping_add(k)));
-            let cull_blobs = blobs.clone();
-            let cull: Cull = Box::new(move |c: [f64; 3], h: f64| {
-                c[1] + h < base - 0.01 || heap_depth(&cull_blobs, c, h) < -NOISE - 0.01
+            let bound = Heap {
+                blobs: blobs.clone(),
+                measure: Measure::Depth,
+            };
+            let plan: Plan = Box::new(move |c: [f64; 3], h: f64, tile: &mut Tile| {
+                if c[1] + h < base - 0.01 {
+                    return true;
+                }
+                let (lower, upper) = bound.plan(c, h, tile);
+                tile.inside = lower > EDGE + NOISE + 2e-9;
+                upper < -NOISE - 0.01
             });
-            let field: Field = Box::new(move |p: [f64; 3]| {
-                let depth_in = heap_depth(&blobs, p, 0.0);
+            let heap = Heap {
+                blobs,
+                measure: Measure::Depth,
+            };
+            let field: Field = Box::new(move |p: [f64; 3], tile: &Tile| {
                 let flat = smoothstep(base - 0.01, base + 0.03, p[1]);
+                if fast && tile.inside {
+                    return flat;
+                }
+                let depth_in = heap.at(p, tile);
                 // v = depth + the billows; density v / EDGE clamped to [0, 1], then eroded by
                 // `(d − e) / (1 − e)`, which leaves d = 1 at 1: where the depth alone puts v
                 // beyond EDGE whatever the noise, the value is `flat` (exact shortcut).
@@ -269,7 +290,7 @@ fn make_field(kind: CloudKind, seed: u64, res: [usize; 3], fast: bool) -> (Field
                 let e = 0.35 * ((1.0 - b) * (1.0 - hf) + b * hf);
                 ((d - e) / (1.0 - e)).clamp(0.0, 1.0) * flat
             });
-            (field, Some(cull))
+            (field, Some(plan))
         }
         CloudKind::Stratus => {
             let top = Fbm::<Perlin>::new(s32).set_octaves(4).set_frequency(1.5);
@@ -281,7 +302,7 @@ fn make_field(kind: CloudKind, seed: u64, res: [usize; 3], fast: bool) -> (Field
                 .set_frequency(4.0);
             let mid = 0.5 * height;
             let thick = 0.3 * height;
-            let field: Field = Box::new(move |p: [f64; 3]| {
+            let field: Field = Box::new(move |p: [f64; 3], _: &Tile| {
                 let t = mid + thick * (0.55 + 0.35 * top.get([p[0], 0.0, p[2]]));
                 let b = mid - thick * (0.55 + 0.25 * bottom.get([p[0], 5.0, p[2]]));
                 let edge = 0.04 * height;
@@ -305,7 +326,7 @@ fn make_field(kind: CloudKind, seed: u64, res: [usize; 3], fast: bool) -> (Field
                 .set_octaves(2)
                 .set_frequency(1.0);
             let mid = 0.5 * height;
-            let field: Field = Box::new(move |p: [f64; 3]| {
+            let field: Field = Box::new(move |p: [f64; 3], _: &Tile| {
                 // Streak frame: stretched along the wind direction (u), thin across (v) and in y.
                 let u = ca * p[0] + sa * p[2];
                 let v = -sa * p[0] + ca * p[2];
@@ -342,7 +363,7 @@ pub fn generate(kind: CloudKind, seed: u64, res: [usize; 3]) -> Result<DensityGr
 const T: usize = 8;
 
 /// Fills z slice `z` (x fastest, `slice.len()` = nx × ny, zero on entry) of a cloud.
-fn fill_slice(field: &Field, cull: &Option<Cull>, res: [usize; 3], z: usize, slice: &mut [f32]) {
+fn fill_slice(field: &Field, plan: &Option<Plan>, res: [usize; 3], z: usize, slice: &mut [f32]) {
     let [nx, ny, nz] = res;
     if z == 0 || z == nz - 1 {
         return;
@@ -351,22 +372,24 @@ fn fill_slice(field: &Field, cull: &Option<Cull>, res: [usize; 3], z: usize, sli
     let depth = nz as f64 * scale;
     let half = (2.0 * (T as f64 / 2.0).powi(2) + 0.25).sqrt() * scale;
     let pz = (z as f64 + 0.5) * scale - depth / 2.0;
+    // Without a plan, every voxel evaluates the whole formula.
+    let mut tile = Tile::everything();
     for ty in (0..ny).step_by(T) {
         for tx in (0..nx).step_by(T) {
-            if let Some(cull) = cull {
+            if let Some(plan) = plan {
                 let c = [
                     (tx as f64 + T as f64 / 2.0) * scale - 1.0,
                     (ty as f64 + T as f64 / 2.0) * scale,
                     pz,
                 ];
-                if cull(c, half) {
+                if plan(c, half, &mut tile) {
                     continue;
                 }
             }
             for y in ty.max(1)..(ty + T).min(ny - 1) {
                 for x in tx.max(1)..(tx + T).min(nx - 1) {
                     let p = [(x as f64 + 0.5) * scale - 1.0, (y as f64 + 0.5) * scale, pz];
-                    slice[y * nx + x] = field(p).max(0.0) as f32;
+                    slice[y * nx + x] = field(p, &tile).max(0.0) as f32;
                 }
             }
         }
@@ -396,8 +419,8 @@ fn generate_with(
     let [nx, ny, nz] = res;
     let what = format!("a {nx}×{ny}×{nz} grid");
     let init = || {
-        let (field, cull) = make_field(kind, seed, res, fast);
-        (field, cull.filter(|_| fast))
+        let (field, plan) = make_field(kind, seed, res, fast);
+        (field, plan.filter(|_| fast))
     };
     let empty = || {
         FieldError::new(
@@ -415,8 +438,8 @@ fn generate_with(
     // One z slice per task.
     data.par_chunks_mut(nx * ny)
         .enumerate()
-        .for_each_init(init, |(field, cull), (z, slice)| {
-            fill_slice(field, cull, res, z, slice)
+        .for_each_init(init, |(field, plan), (z, slice)| {
+            fill_slice(field, plan, res, z, slice)
         });
     let max = data.iter().cloned().fold(0.0f32, f32::max);
     if max <= 0.0 {
@@ -432,7 +455,7 @@ fn generate_with(
 fn generate_bricks(
     res: [usize; 3],
     what: &str,
-    init: impl Fn() -> (Field, Option<Cull>) + Sync + Send,
+    init: impl Fn() -> (Field, Option<Plan>) + Sync + Send,
     empty: impl Fn() -> FieldError,
 ) -> Result<DensityGrid, FieldError> {
     use crate::brick::{BrickBuilder, DIM, VOXELS};
@@ -441,28 +464,31 @@ fn generate_bricks(
     // Before any noise: the bricks the cloud can reach at most (those the shape's bound does
     // not rule out; every brick for kinds without one), held twice at the end (the slabs' copies
     // and the grid), plus the index, against the memory budget.
-    let (_, cull) = init();
     let scale = 2.0 / nx as f64;
     let depth = nz as f64 * scale;
     let half = (3.0 * (DIM as f64 / 2.0).powi(2)).sqrt() * scale;
     let reachable: usize = (0..bz)
-        .map(|k| {
-            let Some(cull) = &cull else {
-                return bx * by;
-            };
-            let mut n = 0;
-            for j in 0..by {
-                for i in 0..bx {
-                    let c = [
-                        (i as f64 + 0.5) * DIM as f64 * scale - 1.0,
-                        (j as f64 + 0.5) * DIM as f64 * scale,
-                        (k as f64 + 0.5) * DIM as f64 * scale - depth / 2.0,
-                    ];
-                    n += usize::from(!cull(c, half));
+        .into_par_iter()
+        .map_init(
+            || (init().1, Tile::default()),
+            |(plan, tile), k| {
+                let Some(plan) = plan else {
+                    return bx * by;
+                };
+                let mut n = 0;
+                for j in 0..by {
+                    for i in 0..bx {
+                        let c = [
+                            (i as f64 + 0.5) * DIM as f64 * scale - 1.0,
+                            (j as f64 + 0.5) * DIM as f64 * scale,
+                            (k as f64 + 0.5) * DIM as f64 * scale - depth / 2.0,
+                        ];
+                        n += usize::from(!plan(c, half, tile));
+                    }
                 }
-            }
-            n
-        })
+                n
+            },
+        )
         .sum();
     crate::memory::check(
         (bx * by * bz) as u128 * 4 + 2 * reachable as u128 * (VOXELS as u128 * 4),
@@ -473,59 +499,71 @@ fn generate_bricks(
         ),
     )?;
     // Each slab: the non-zero bricks (their x, y brick coordinates and values) and its maximum.
-    type Slab = (Vec<(usize, usize, Box<[f32]>)>, f32);
-    let slabs: Vec<Slab> = (0..bz)
+    // Each slab: the x, y brick coordinates of its non-zero bricks, their values (512 per
+    // brick, one allocation per slab) and its maximum.
+    type Slab = (Vec<(usize, usize)>, Vec<f32>, f32);
+    let mut slabs: Vec<Slab> = (0..bz)
         .into_par_iter()
-        .map_init(init, |(field, cull), k| {
-            let mut slab = vec![0.0f32; nx * ny * DIM];
-            for (l, slice) in slab.chunks_mut(nx * ny).enumerate() {
-                let z = k * DIM + l;
-                if z < nz {
-                    fill_slice(field, cull, res, z, slice);
+        .map_init(
+            || (init(), Vec::new()),
+            |((field, plan), slab), k| {
+                // One slab buffer per worker, zeroed here (cheaper than fresh pages per slab).
+                slab.clear();
+                slab.resize(nx * ny * DIM, 0.0f32);
+                for (l, slice) in slab.chunks_mut(nx * ny).enumerate() {
+                    let z = k * DIM + l;
+                    if z < nz {
+                        fill_slice(field, plan, res, z, slice);
+                    }
                 }
-            }
-            let mut kept = Vec::new();
-            let mut max = 0.0f32;
-            for j in 0..by {
-                for i in 0..bx {
-                    let mut v = vec![0.0f32; VOXELS].into_boxed_slice();
-                    let mut any = false;
-                    for l in 0..DIM {
-                        for y in j * DIM..((j + 1) * DIM).min(ny) {
-                            let row = (l * ny + y) * nx;
-                            let x0 = i * DIM;
-                            let x1 = ((i + 1) * DIM).min(nx);
-                            let dst = (l * DIM + (y - j * DIM)) * DIM;
-                            for (d, &s) in v[dst..dst + x1 - x0]
-                                .iter_mut()
-                                .zip(&slab[row + x0..row + x1])
-                            {
-                                *d = s;
-                                any |= s != 0.0;
-                                max = max.max(s);
+                let (mut kept, mut values) = (Vec::new(), Vec::new());
+                let mut max = 0.0f32;
+                for j in 0..by {
+                    for i in 0..bx {
+                        let start = values.len();
+                        values.resize(start + VOXELS, 0.0f32);
+                        let v = &mut values[start..];
+                        let mut any = false;
+                        for l in 0..DIM {
+                            for y in j * DIM..((j + 1) * DIM).min(ny) {
+                                let row = (l * ny + y) * nx;
+                                let x0 = i * DIM;
+                                let x1 = ((i + 1) * DIM).min(nx);
+                                let dst = (l * DIM + (y - j * DIM)) * DIM;
+                                for (d, &s) in v[dst..dst + x1 - x0]
+                                    .iter_mut()
+                                    .zip(&slab[row + x0..row + x1])
+                                {
+                                    *d = s;
+                                    any |= s != 0.0;
+                                    max = max.max(s);
+                                }
                             }
                         }
-                    }
-                    if any {
-                        kept.push((i, j, v));
+                        if any {
+                            kept.push((i, j));
+                        } else {
+                            values.truncate(start);
+                        }
                     }
                 }
-            }
-            (kept, max)
-        })
+                (kept, values, max)
+            },
+        )
         .collect();
-    let max = slabs.iter().map(|s| s.1).fold(0.0f32, f32::max);
+    let max = slabs.iter().map(|s| s.2).fold(0.0f32, f32::max);
     if max <= 0.0 {
         return Err(empty());
     }
     let kept = slabs.iter().map(|s| s.0.len()).sum();
     let mut builder = BrickBuilder::new(res, [0; 3], kept, "resolution", what)?;
-    for (k, (kept, _)) in slabs.into_iter().enumerate() {
-        for (i, j, v) in kept {
-            let dst = builder.stored_mut([i, j, k])?;
-            for (d, s) in dst.iter_mut().zip(v.iter()) {
-                *d = s / max;
-            }
+    // Normalised in parallel, then copied into the builder in brick order.
+    slabs
+        .par_iter_mut()
+        .for_each(|(_, values, _)| values.iter_mut().for_each(|x| *x /= max));
+    for (k, (kept, values, _)) in slabs.into_iter().enumerate() {
+        for (&(i, j), v) in kept.iter().zip(values.chunks_exact(VOXELS)) {
+            builder.stored_mut([i, j, k])?.copy_from_slice(v);
         }
     }
     Ok(DensityGrid::from_bricks(builder.finish()?))

@@ -194,17 +194,24 @@ fn read_bricks(
 /// Serialises a grid as `.vol` bytes.
 pub fn to_bytes(grid: &DensityGrid, bounds: (DVec3, DVec3)) -> Vec<u8> {
     let r = grid.res();
-    let mut out = Vec::with_capacity(HEADER_LEN + 4 * r[0] * r[1] * r[2]);
+    let mut out = std::io::Cursor::new(Vec::with_capacity(HEADER_LEN + 4 * r[0] * r[1] * r[2]));
     write_to(&mut out, grid, bounds).expect("writing to memory cannot fail");
-    out
+    out.into_inner()
 }
 
-/// Streams a grid as `.vol` bytes (no second copy of the grid in memory).
+/// Runs of at least this many zero values (16 KiB) are not written but skipped with a seek:
+/// in a file they become a hole (no disk blocks on file systems that support them; zeros when
+/// read), so a cloud that fills a few percent of its box costs little more than its cloud.
+const HOLE_VALUES: usize = 4096;
+
+/// Streams a grid as `.vol` bytes, z-plane by z-plane (no second copy of the grid in memory;
+/// bricks are read a plane at a time), seeking over long runs of zeros.
 pub fn write_to(
-    out: &mut impl std::io::Write,
+    out: &mut (impl std::io::Write + std::io::Seek),
     grid: &DensityGrid,
     bounds: (DVec3, DVec3),
 ) -> std::io::Result<()> {
+    use std::io::SeekFrom;
     let r = grid.res();
     let mut header = Vec::with_capacity(HEADER_LEN);
     header.extend_from_slice(b"VOL");
@@ -218,10 +225,32 @@ pub fn write_to(
         header.extend_from_slice(&(v as f32).to_le_bytes());
     }
     out.write_all(&header)?;
-    grid.try_for_each_row(|row| {
-        let bytes: Vec<u8> = row.iter().flat_map(|v| v.to_le_bytes()).collect();
-        out.write_all(&bytes)
-    })
+    let mut plane = vec![0.0f32; r[0] * r[1]];
+    let mut bytes = Vec::with_capacity(4 * HOLE_VALUES);
+    // Zero bytes not yet written (skipped by a seek before the next data, or at the end).
+    let mut pending = 0i64;
+    for z in 0..r[2] {
+        grid.plane(z, &mut plane);
+        for chunk in plane.chunks(HOLE_VALUES) {
+            if chunk.len() == HOLE_VALUES && chunk.iter().all(|&v| v.to_bits() == 0) {
+                pending += 4 * HOLE_VALUES as i64;
+                continue;
+            }
+            if pending > 0 {
+                out.seek(SeekFrom::Current(pending))?;
+                pending = 0;
+            }
+            bytes.clear();
+            bytes.extend(chunk.iter().flat_map(|v| v.to_le_bytes()));
+            out.write_all(&bytes)?;
+        }
+    }
+    if pending > 0 {
+        // The last value is written, so the file has its full length.
+        out.seek(SeekFrom::Current(pending - 4))?;
+        out.write_all(&[0; 4])?;
+    }
+    Ok(())
 }
 
 pub fn write(path: &Path, grid: &DensityGrid, bounds: (DVec3, DVec3)) -> Result<()> {
@@ -341,6 +370,43 @@ mod tests {
             b.extend(v.to_le_bytes());
         }
         b
+    }
+
+    #[test]
+    fn long_zero_runs_are_skipped_yet_read_back_as_zeros() {
+        // Planes of 96 × 64 values: zero runs longer than a hole at the start, in the middle
+        // and at the end (the file must still have its full length), a −0.0 inside one (its
+        // bits are kept), data in between; from a file and from memory, the same bytes.
+        let res = [96, 64, 5];
+        let data: Vec<f32> = (0..res.iter().product::<usize>())
+            .map(|i| match i / (96 * 64) {
+                1 if i % 97 == 0 => -0.0,
+                2 => (i % 13) as f32 * 0.25,
+                3 if (i % (96 * 64)) < 300 => 1.5,
+                _ => 0.0,
+            })
+            .collect();
+        let grid = DensityGrid::new(res, data.clone()).unwrap();
+        let bounds = (DVec3::ZERO, DVec3::ONE);
+        let mem = to_bytes(&grid, bounds);
+        assert_eq!(
+            mem[HEADER_LEN..],
+            to_bytes_unchecked(res, &data)[HEADER_LEN..]
+        );
+        let dir = std::env::temp_dir().join(format!("nimbus-volh-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("holes.vol");
+        write(&p, &grid, bounds).unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), mem);
+        let back = read_with(&p, usize::MAX).unwrap().grid;
+        assert!(
+            back.dense()
+                .unwrap()
+                .iter()
+                .zip(&data)
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+        );
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
