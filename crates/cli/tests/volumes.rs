@@ -99,13 +99,14 @@ fn openvdb_and_nanovdb_files_render_alike() {
 }
 
 /// A sparse file whose box is 4.8 G voxels (19 GB dense, more voxels than a u32 counts;
-/// `make_sparse.sh`) renders with the CPU path tracer and the GPU one, which read the bricks
-/// (the GPU through its brick-map atlas); the photon map, which needs the whole box in one
-/// array, and RPNN, whose stencils read level 0 of the pyramid at this density (so the level is
-/// stored over the whole box), refuse it with an error naming the bytes — the true count, not
-/// one wrapped at 2^32 — before any large allocation.
+/// `make_sparse.sh`) renders with the CPU path tracer, the GPU one, which reads the bricks
+/// through its brick-map atlas, and RPNN, whose stencils read level 0 of the pyramid at this
+/// density (stored as bricks: the level is zero away from the spheres), all under a 1 GB
+/// budget; the photon map, which needs the
+/// whole box in one array, refuses it with an error naming the bytes — the true count, not one
+/// wrapped at 2^32 — before any large allocation.
 #[test]
-fn a_sparse_file_renders_with_the_path_tracer_and_is_refused_cleanly_elsewhere() {
+fn a_sparse_file_renders_with_pt_gpu_and_rpnn_and_is_refused_cleanly_by_pm() {
     let dir = std::env::temp_dir().join(format!("nimbus-sparse-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let scene = dir.join("far.toml");
@@ -150,18 +151,22 @@ fn a_sparse_file_renders_with_the_path_tracer_and_is_refused_cleanly_elsewhere()
         a.extend_from_slice(&["-o", out.to_str().unwrap()]);
         let o = nimbus(&a);
         let t = text(&o);
-        if args[0] == "--device" {
+        if args[1] != "pm" {
             assert!(o.status.success(), "{args:?}: {t}");
             let mg = mean(&std::fs::read(out.with_extension("png")).unwrap());
-            assert!(mg > 5.0, "GPU: the sphere must be visible: mean level {mg}");
+            // Visible (4 spp of a tone-mapped 24×16 image are too noisy to compare means;
+            // RPNN's sparse levels equal the dense ones bit for bit: `nimbus_rpnn::pyramid`).
+            assert!(
+                mg > 5.0,
+                "{args:?}: the sphere must be visible: mean level {mg}"
+            );
             continue;
         }
         assert_eq!(o.status.code(), Some(1), "{args:?}: {t}");
-        // The budget (or the GPU's binding limit) names what the whole box would need:
-        // 1691³ × 4 bytes = 19 341 529 484 (the pyramid: its stored levels and a bound of 40
-        // level-0 planes for the streaming windows, 21.0 GiB).
+        // The GPU's binding limit names what the whole box would need: 1691³ × 4 bytes =
+        // 19 341 529 484.
         assert!(
-            t.contains("needs") && (t.contains("19341529484 bytes") || t.contains("21.0 GiB")),
+            t.contains("needs") && t.contains("19341529484 bytes"),
             "{args:?}: {t}"
         );
     }

@@ -196,20 +196,37 @@ pub fn rpnn_backend<'g>(
                 "the RPNN network on wgpu needs a GPU adapter (--backend ort runs it on the CPU)"
             );
         };
-        let b = nimbus_rpnn::gpu_mlp::GpuRpnn::new(
+        match nimbus_rpnn::gpu_mlp::GpuRpnn::new(
             g,
             pyramid,
             model,
             nimbus_rpnn::gpu_mlp::DEFAULT_BATCH,
-        )?;
-        Ok((
-            Backend::Wgpu(Box::new(b)),
-            format!("wgpu on {}", g.describe()),
-        ))
-    } else {
-        let b = nimbus_rpnn::ort_backend::OrtModel::load(model_path, 0)?;
-        Ok((Backend::Ort(b), "ort (cpu)".to_string()))
+        ) {
+            Ok(b) => {
+                return Ok((
+                    Backend::Wgpu(Box::new(b)),
+                    format!("wgpu on {}", g.describe()),
+                ));
+            }
+            // A pyramid beyond the adapter's binding limit (a sparse cloud's level in a huge
+            // box): the automatic choice reads it on the CPU instead, and says so.
+            Err(nimbus_gpu::GpuError::TooLarge { what, bytes, .. })
+                if choice == NetBackend::Auto =>
+            {
+                let b = nimbus_rpnn::ort_backend::OrtModel::load(model_path, 0)?;
+                return Ok((
+                    Backend::Ort(b),
+                    format!(
+                        "ort (cpu): {what} needs {bytes} bytes, beyond {}'s storage binding",
+                        g.describe()
+                    ),
+                ));
+            }
+            Err(e) => return Err(e.into()),
+        }
     }
+    let b = nimbus_rpnn::ort_backend::OrtModel::load(model_path, 0)?;
+    Ok((Backend::Ort(b), "ort (cpu)".to_string()))
 }
 
 impl Estimator<'_> {

@@ -5,7 +5,7 @@ use bytemuck::{Pod, Zeroable};
 use nimbus_gpu::{Gpu, GpuError, shaders};
 
 use crate::descriptor::{Config, DESCRIPTOR_LEN, LEVELS};
-use crate::pyramid::Pyramid;
+use crate::pyramid::{Cells, Pyramid};
 
 /// `struct DescParams` of the shader.
 #[repr(C)]
@@ -48,16 +48,33 @@ pub struct GpuDescriptor<'g> {
 
 impl<'g> GpuDescriptor<'g> {
     pub fn new(gpu: &'g Gpu, pyr: &Pyramid) -> Result<Self, GpuError> {
-        let mut data = Vec::new();
+        // The shader reads dense levels: a sparse level (bricks) is expanded here, once the
+        // whole buffer is known to fit the adapter's binding limit.
+        let cells = |l: &crate::pyramid::Level| {
+            if l.is_stored() {
+                l.res.iter().product::<usize>() as u64
+            } else {
+                0
+            }
+        };
+        let total: u64 = pyr.levels.iter().map(cells).sum();
+        gpu.check_storage("the density pyramid", total * 4)?;
+        let mut data = Vec::with_capacity(total as usize);
         let mut info = Vec::new();
         for l in &pyr.levels {
             info.push(LevelInfo {
                 res: l.res.map(|v| v as u32),
                 offset: data.len() as u32,
             });
-            data.extend_from_slice(&l.data);
+            match &l.cells {
+                Cells::Absent => {}
+                Cells::Dense(d) => data.extend_from_slice(d),
+                Cells::Sparse(g) => g.try_for_each_row(|row| {
+                    data.extend_from_slice(row);
+                    Ok::<(), GpuError>(())
+                })?,
+            }
         }
-        gpu.check_storage("the density pyramid", data.len() as u64 * 4)?;
         let mut level_of = [[0u32; 4]; 3];
         for k in 1..=LEVELS {
             level_of[(k - 1) / 4][(k - 1) % 4] = pyr.level_for(k as u32) as u32;

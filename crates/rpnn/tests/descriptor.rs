@@ -231,7 +231,11 @@ fn degenerate_inputs() {
     // Rendering an empty cloud needs no descriptor: a unit-normalised, all-zero pyramid.
     let p = Pyramid::for_rendering(&empty).unwrap();
     assert_eq!(p.mean_sigma, 1.0);
-    assert!(p.levels.iter().all(|l| l.data.iter().all(|&v| v == 0.0)));
+    assert!(
+        p.levels
+            .iter()
+            .all(|l| l.dense().is_none_or(|d| d.iter().all(|&v| v == 0.0)))
+    );
 }
 
 /// Only the levels a stencil reads are stored, and they are the levels of the full build bit
@@ -262,9 +266,9 @@ fn pyramid_stores_only_what_stencils_read() {
                 "level {i}"
             );
             if i < first {
-                assert!(a.data.is_empty(), "level {i} stored");
+                assert!(!a.is_stored(), "level {i} stored");
             } else {
-                assert_eq!(a.data, b.data, "level {i}");
+                assert_eq!(a.cells, b.cells, "level {i}");
             }
         }
         // The finer levels held ≈ 8/7 of level 0's voxels; what is left is ≈ 1/7 of level

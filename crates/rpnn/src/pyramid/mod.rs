@@ -14,23 +14,114 @@
 //! **Only the levels a stencil reads are stored.** The finest level any stencil level reads is
 //! [`Pyramid::level_for`]`(1)`; it depends on the voxel size in mean free paths. On a large or
 //! thin cloud it is coarse (a 1200³ cumulus: level 2, 1/64 of the voxels), and the finer levels
-//! are streamed through plane by plane ([`stream`]) without being stored (`data` empty).
+//! are streamed through plane by plane ([`stream`]) without being stored ([`Cells::Absent`]).
+//! Levels of more than [`SPARSE_LEVEL_ABOVE`] cells are stored as 8³ bricks, absent where
+//! the level is zero ([`Cells::Sparse`]): a sparse cloud in a huge box (a production VDB)
+//! costs what its cloud costs at any level a stencil reads.
 //! [`Pyramid::with_every_level`] keeps them all (for analysis and tests).
 
 mod stream;
 
 use glam::DVec3;
-use nimbus_scene::Volume;
+use nimbus_scene::brick::Content;
+use nimbus_scene::{DensityGrid, Volume};
 use stream::{Blur, Down, GridPlanes, Planes, SlicePlanes};
 
-/// One level: a dense grid over the volume's box (`data` empty for a level no stencil reads,
-/// see the module docs).
+/// How a level's cells are held.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Cells {
+    /// Not stored: no stencil reads the level (see the module docs).
+    Absent,
+    /// Every cell, x fastest.
+    Dense(Vec<f32>),
+    /// 8³ bricks, absent where the level is zero: levels of more than
+    /// [`SPARSE_LEVEL_ABOVE`] cells, so a cloud filling a few percent of a huge box costs what
+    /// its cloud costs (the values are those of the dense level, bit for bit).
+    Sparse(DensityGrid),
+}
+
+/// Levels with more cells than this (256 MiB as dense f32; the threshold at which clouds are
+/// generated and read as bricks) are stored as bricks.
+pub const SPARSE_LEVEL_ABOVE: usize = nimbus_scene::generate::SPARSE_ABOVE_VOXELS;
+
+/// One level over the volume's box.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Level {
     pub res: [usize; 3],
-    pub data: Vec<f32>,
+    pub cells: Cells,
     /// Gaussian standard deviation of this level's prefilter, in original voxels.
     pub sigma_voxels: f64,
+}
+
+impl Level {
+    /// Whether a stencil can read it (dense or sparse).
+    pub fn is_stored(&self) -> bool {
+        !matches!(self.cells, Cells::Absent)
+    }
+
+    /// The dense cells (None when absent or sparse).
+    pub fn dense(&self) -> Option<&[f32]> {
+        match &self.cells {
+            Cells::Dense(d) => Some(d),
+            _ => None,
+        }
+    }
+
+    /// Cell (x, y, z) of a stored level.
+    #[inline]
+    pub fn get(&self, x: usize, y: usize, z: usize) -> f32 {
+        match &self.cells {
+            Cells::Dense(d) => d[(z * self.res[1] + y) * self.res[0] + x],
+            Cells::Sparse(g) => g.get(x, y, z),
+            Cells::Absent => panic!("pyramid level {:?} is not stored", self.res),
+        }
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        match &self.cells {
+            Cells::Absent => 0,
+            Cells::Dense(d) => 4 * d.len(),
+            Cells::Sparse(g) => g.bytes(),
+        }
+    }
+
+    /// Σ of the cells (f64).
+    fn sum(&self) -> f64 {
+        match &self.cells {
+            Cells::Absent => 0.0,
+            Cells::Dense(d) => d.iter().map(|v| *v as f64).sum(),
+            Cells::Sparse(g) => {
+                let mut s = 0.0;
+                let b = g.as_bricks().expect("a sparse level holds bricks");
+                b.visit(|v| match v.content {
+                    Content::Constant(c) => s += c as f64 * v.count() as f64,
+                    Content::Stored(vals) => {
+                        for z in v.lo[2]..v.hi[2] {
+                            for y in v.lo[1]..v.hi[1] {
+                                let at = v.local(v.lo[0], y, z);
+                                s += vals[at..at + v.hi[0] - v.lo[0]]
+                                    .iter()
+                                    .map(|x| *x as f64)
+                                    .sum::<f64>();
+                            }
+                        }
+                    }
+                });
+                s
+            }
+        }
+    }
+
+    /// The level's cells as a plane source (for the next level).
+    fn planes(&self) -> Box<dyn Planes + '_> {
+        match &self.cells {
+            Cells::Dense(d) => Box::new(SlicePlanes::new(d, self.res)),
+            // × 1.0 is exact: the planes are the stored values.
+            Cells::Sparse(g) => Box::new(GridPlanes::new(g, 1.0)),
+            Cells::Absent => panic!("pyramid level {:?} is not stored", self.res),
+        }
+    }
 }
 
 /// The pyramid of one cloud.
@@ -112,14 +203,26 @@ impl Pyramid {
         if count == 0 || volume.density_scale() <= 0.0 {
             return Err(PyramidError::Empty);
         }
-        Self::build_levels(volume, volume.density_scale() * sum / count as f64, true)
+        Self::build_levels(
+            volume,
+            volume.density_scale() * sum / count as f64,
+            true,
+            SPARSE_LEVEL_ABOVE,
+        )
     }
 
     fn build(volume: &Volume, mean_sigma: f64) -> Result<Self, PyramidError> {
-        Self::build_levels(volume, mean_sigma, false)
+        Self::build_levels(volume, mean_sigma, false, SPARSE_LEVEL_ABOVE)
     }
 
-    fn build_levels(volume: &Volume, mean_sigma: f64, every: bool) -> Result<Self, PyramidError> {
+    /// The build: every level stored or only those a stencil reads; levels of more than
+    /// `sparse_above` cells as bricks.
+    fn build_levels(
+        volume: &Volume,
+        mean_sigma: f64,
+        every: bool,
+        sparse_above: usize,
+    ) -> Result<Self, PyramidError> {
         let g = volume.grid();
         let [x, y, z] = g.res();
         let voxel = volume.cell_size().min_element();
@@ -132,17 +235,30 @@ impl Pyramid {
         // Peak: the stored levels and the streaming windows (per stage ≈ 2r + 4 planes of its
         // input, r = 3σ: 8 planes of level 0 for its blur, then 17 for each halving, each a
         // quarter the size of the one before): no whole-grid temporaries, no dense copy of a
-        // sparse grid.
+        // sparse grid. A sparse level counts its brick index here; its bricks are checked
+        // against the budget as they are stored.
         let level_bytes: u128 = resolutions[first..]
             .iter()
-            .map(|r| (r[0] * r[1] * r[2]) as u128 * 4)
+            .map(|r| {
+                let n = (r[0] * r[1] * r[2]) as u128;
+                if n > sparse_above as u128 {
+                    n / 512 * 4
+                } else {
+                    n * 4
+                }
+            })
             .sum();
         let window_bytes = 40 * (x * y) as u128 * 4;
-        nimbus_scene::memory::check(
-            level_bytes + window_bytes,
-            "volume",
-            &format!("the RPNN density pyramid of a {x}×{y}×{z} grid"),
-        )?;
+        let what = format!("the RPNN density pyramid of a {x}×{y}×{z} grid");
+        nimbus_scene::memory::check(level_bytes + window_bytes, "volume", &what)?;
+        let store = |p: &mut dyn Planes| -> Result<Cells, PyramidError> {
+            let [a, b, c] = p.res();
+            Ok(if a * b * c > sparse_above {
+                Cells::Sparse(stream::collect_bricks(p, &what)?)
+            } else {
+                Cells::Dense(stream::collect(p))
+            })
+        };
         let scale = (volume.density_scale() / mean_sigma) as f32;
         let mut stage: Box<dyn Planes> =
             Box::new(Blur::new(Box::new(GridPlanes::new(g, scale)), 1.0));
@@ -152,25 +268,22 @@ impl Pyramid {
         let mut levels: Vec<Level> = (0..first)
             .map(|i| Level {
                 res: resolutions[i],
-                data: Vec::new(),
+                cells: Cells::Absent,
                 sigma_voxels: 2f64.powi(i as i32),
             })
             .collect();
         levels.push(Level {
             res: resolutions[first],
-            data: stream::collect(stage.as_mut()),
+            cells: store(stage.as_mut())?,
             sigma_voxels: 2f64.powi(first as i32),
         });
         drop(stage);
         for _ in first + 1..resolutions.len() {
             let prev = levels.last().expect("a stored level");
-            let mut down = Down::new(
-                Box::new(SlicePlanes::new(&prev.data, prev.res)),
-                3f64.sqrt(),
-            );
+            let mut down = Down::new(prev.planes(), 3f64.sqrt());
             let level = Level {
                 res: down.res(),
-                data: stream::collect(&mut down),
+                cells: store(&mut down)?,
                 sigma_voxels: 2.0 * prev.sigma_voxels,
             };
             drop(down);
@@ -192,7 +305,7 @@ impl Pyramid {
 
     /// Bytes of the stored levels.
     pub fn bytes(&self) -> usize {
-        self.levels.iter().map(|l| 4 * l.data.len()).sum()
+        self.levels.iter().map(Level::bytes).sum()
     }
 
     /// Pyramid level used by stencil level `k` (1-based): the stencil's point spacing is
@@ -211,7 +324,7 @@ impl Pyramid {
             return 0.0;
         }
         let l = &self.levels[i];
-        debug_assert!(!l.data.is_empty(), "level {i} is not stored");
+        debug_assert!(l.is_stored(), "level {i} is not stored");
         let resf = glam::DVec3::new(l.res[0] as f64, l.res[1] as f64, l.res[2] as f64);
         let u = (p - lo) / (hi - lo) * resf.as_vec3() - glam::Vec3::splat(0.5);
         let b = u.floor();
@@ -219,9 +332,7 @@ impl Pyramid {
         let hi = resf.as_vec3() - glam::Vec3::ONE;
         let i0 = b.clamp(glam::Vec3::ZERO, hi);
         let i1 = (b + glam::Vec3::ONE).clamp(glam::Vec3::ZERO, hi);
-        let at = |x: f32, y: f32, z: f32| {
-            l.data[((z as usize) * l.res[1] + y as usize) * l.res[0] + x as usize]
-        };
+        let at = |x: f32, y: f32, z: f32| l.get(x as usize, y as usize, z as usize);
         let mix = |a: f32, b: f32, t: f32| a * (1.0 - t) + b * t;
         let c00 = mix(at(i0.x, i0.y, i0.z), at(i1.x, i0.y, i0.z), f.x);
         let c10 = mix(at(i0.x, i1.y, i0.z), at(i1.x, i1.y, i0.z), f.x);
@@ -234,12 +345,12 @@ impl Pyramid {
     pub fn mass(&self, i: usize) -> f64 {
         let l = &self.levels[i];
         assert!(
-            !l.data.is_empty(),
+            l.is_stored(),
             "pyramid level {i} is not stored (no stencil reads it; see Pyramid::with_every_level)"
         );
         let ext = self.aabb_max - self.aabb_min;
         let cell = ext.x * ext.y * ext.z / (l.res[0] * l.res[1] * l.res[2]) as f64;
-        l.data.iter().map(|v| *v as f64).sum::<f64>() * cell
+        l.sum() * cell
     }
 }
 
@@ -390,5 +501,72 @@ mod build_tests {
         }
         assert_eq!(level_resolutions([9, 7, 11]).len(), 5);
         assert_eq!(level_resolutions([1, 1, 1]).len(), 1);
+    }
+
+    /// Levels stored as bricks hold the dense levels' values bit for bit (every cell, the
+    /// lookups, the masses to rounding), from a dense grid and from bricks, and a small cloud in
+    /// a large box stores a fraction of the dense bytes.
+    #[test]
+    fn sparse_levels_hold_the_dense_values() {
+        use nimbus_scene::{Aabb, brick};
+        // Two small blobs in a 70×45×83 box (sizes not multiples of 8: partial edge bricks).
+        let res = [70usize, 45, 83];
+        let mut data = vec![0.0f32; res.iter().product()];
+        for (c, r) in [([12.0, 10.0, 15.0], 4.0), ([55.0, 30.0, 70.0], 6.0f64)] {
+            for z in 0..res[2] {
+                for y in 0..res[1] {
+                    for x in 0..res[0] {
+                        let d = ((x as f64 - c[0]).powi(2)
+                            + (y as f64 - c[1]).powi(2)
+                            + (z as f64 - c[2]).powi(2))
+                        .sqrt();
+                        if d < r {
+                            data[(z * res[1] + y) * res[0] + x] = (1.0 - d / r) as f32 + 0.1;
+                        }
+                    }
+                }
+            }
+        }
+        let aabb = Aabb::new(DVec3::ZERO, DVec3::new(0.7, 0.45, 0.83)).unwrap();
+        let dense = DensityGrid::new(res, data.clone()).unwrap();
+        let bricks = DensityGrid::from_bricks(brick::from_dense(res, &data, [0, 0, 0]).unwrap());
+        for grid in [dense, bricks] {
+            let vol = Volume::new(grid, aabb, 30.0).unwrap();
+            let (sum, count) = Pyramid::nonzero(&vol);
+            let ms = vol.density_scale() * sum / count as f64;
+            let want = Pyramid::build_levels(&vol, ms, true, usize::MAX).unwrap();
+            // Every level with more than 1 000 cells as bricks: levels 0–2.
+            let got = Pyramid::build_levels(&vol, ms, true, 1000).unwrap();
+            let mut sparse = 0;
+            for (i, (a, b)) in got.levels.iter().zip(&want.levels).enumerate() {
+                assert_eq!(a.res, b.res);
+                sparse += usize::from(matches!(a.cells, Cells::Sparse(_)));
+                let [nx, ny, nz] = a.res;
+                for z in 0..nz {
+                    for y in 0..ny {
+                        for x in 0..nx {
+                            assert_eq!(a.get(x, y, z).to_bits(), b.get(x, y, z).to_bits());
+                        }
+                    }
+                }
+                let (ma, mb) = (got.mass(i), want.mass(i));
+                assert!((ma - mb).abs() <= 1e-9 * mb, "level {i}: {ma} vs {mb}");
+            }
+            assert_eq!(sparse, 3);
+            // Level 0 is 261 450 cells (1 MB dense); the blobs and their blur reach few bricks.
+            assert!(
+                got.levels[0].bytes() * 4 < want.levels[0].bytes(),
+                "{} vs {}",
+                got.levels[0].bytes(),
+                want.levels[0].bytes()
+            );
+            for k in 0..200 {
+                let t = k as f32 / 200.0;
+                let p = glam::Vec3::new(0.7 * t, 0.45 * (1.0 - t), 0.83 * (t * 7.0).fract());
+                for i in 0..3 {
+                    assert_eq!(got.lookup(i, p).to_bits(), want.lookup(i, p).to_bits());
+                }
+            }
+        }
     }
 }

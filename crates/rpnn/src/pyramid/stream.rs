@@ -10,7 +10,7 @@
 
 use std::collections::BTreeMap;
 
-use nimbus_scene::DensityGrid;
+use nimbus_scene::{DensityGrid, FieldError};
 use rayon::prelude::*;
 
 pub(super) fn gauss_kernel(sigma: f64) -> Vec<f32> {
@@ -185,6 +185,49 @@ pub(super) fn collect(p: &mut dyn Planes) -> Vec<f32> {
         out.extend_from_slice(&p.next_plane().data);
     }
     out
+}
+
+/// Every plane of `p` as 8³ bricks, eight planes at a time: only bricks holding a non-zero
+/// value are stored (the planes' bounds skip the rest unread), each checked against the memory
+/// budget as it is stored (`what` names the pyramid in the error).
+pub(super) fn collect_bricks(p: &mut dyn Planes, what: &str) -> Result<DensityGrid, FieldError> {
+    use nimbus_scene::brick::{BrickBuilder, DIM};
+    let res = p.res();
+    let [nx, ny, nz] = res;
+    let mut b = BrickBuilder::new(res, [0; 3], 0, "volume", what)?;
+    let [_, _, bz] = b.brick_res();
+    let mut slab: Vec<Plane> = Vec::with_capacity(DIM);
+    for k in 0..bz {
+        slab.clear();
+        for _ in k * DIM..((k + 1) * DIM).min(nz) {
+            slab.push(p.next_plane());
+        }
+        let Some(r) = slab.iter().fold(None, |acc, pl| Rect::union(acc, pl.rect)) else {
+            continue;
+        };
+        for j in r.y[0] / DIM..=r.y[1] / DIM {
+            let ys = j * DIM..((j + 1) * DIM).min(ny);
+            for i in r.x[0] / DIM..=r.x[1] / DIM {
+                let xs = i * DIM..((i + 1) * DIM).min(nx);
+                let span = |y: usize| y * nx + xs.start..y * nx + xs.end;
+                let any = slab.iter().any(|pl| {
+                    ys.clone()
+                        .any(|y| pl.data[span(y)].iter().any(|&v| v != 0.0))
+                });
+                if !any {
+                    continue;
+                }
+                let dst = b.stored_mut([i, j, k])?;
+                for (l, pl) in slab.iter().enumerate() {
+                    for y in ys.clone() {
+                        let at = (l * DIM + y - ys.start) * DIM;
+                        dst[at..at + xs.len()].copy_from_slice(&pl.data[span(y)]);
+                    }
+                }
+            }
+        }
+    }
+    Ok(DensityGrid::from_bricks(b.finish()?))
 }
 
 /// The planes of a density grid times `scale` (dense or bricks; nothing densified).
