@@ -40,28 +40,36 @@ FINETUNE_EPS=${FINETUNE_EPS:-0.01}
 FINETUNE_LR=${FINETUNE_LR:-0.0003}
 FINETUNE_MAX_MINUTES=${FINETUNE_MAX_MINUTES:-200}
 DEVICE=${DEVICE:-cpu}          # datagen: cpu (the shipped set) or gpu (different random streams)
-DATA=${DATA:-out/rpnn-hg-data}
-RUN=${RUN:-out/train-rpnn-hg}
-MODEL=${MODEL:-models/rpnn-hg.onnx}
+# Phase function of the medium: hg (Henyey–Greenstein g = 0.857, the shipped rpnn-hg model) or
+# mie (chopped Lorenz–Mie; the shipped rpnn-mie model: PHASE=mie with its card's settings).
+PHASE=${PHASE:-hg}
+# First stage's starting weights (a .pt or exported ONNX model; empty: random). The shipped
+# rpnn-mie model starts from models/rpnn-hg.onnx.
+INIT=${INIT:-}
+LR=${LR:-}                      # the first stage's Adam step (empty: train.py's default)
+DATA=${DATA:-out/rpnn-$PHASE-data}
+RUN=${RUN:-out/train-rpnn-$PHASE}
+MODEL=${MODEL:-models/rpnn-$PHASE.onnx}
 
 cargo build --release -p nimbus-cli
 bash training/setup.sh
 datagen() { # SPLIT-specific counts; the same --out and settings, so later calls resume
   ./target/release/nimbus datagen --clouds "$CLOUDS" --density-range "$DENSITY_RANGE" \
-    --phase hg --seed 0 --shard-size 10000 --light "$LIGHT" \
+    --phase "$PHASE" --seed 0 --shard-size 10000 --light "$LIGHT" \
     --samples "$SAMPLES" --eval-samples "$EVAL_SAMPLES" --device "$DEVICE" --out "$DATA" "$@"
 }
 # Validation and test sets first (small, precise), then the training records.
 datagen --records 0 --val-records "$VAL_RECORDS" --test-records "$TEST_RECORDS"
 datagen --records "$RECORDS" --val-records "$VAL_RECORDS" --test-records "$TEST_RECORDS"
-SETTINGS="CLOUDS=$CLOUDS DENSITY_RANGE=$DENSITY_RANGE RECORDS=$RECORDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS TEST_RECORDS=$TEST_RECORDS EVAL_SAMPLES=$EVAL_SAMPLES LIGHT=$LIGHT EPOCHS=$EPOCHS MAX_MINUTES=$MAX_MINUTES RESTART_EPOCHS=$RESTART_EPOCHS RESTART_MAX_MINUTES=$RESTART_MAX_MINUTES LOSS=$LOSS REL_EPS=$REL_EPS FINETUNE_EPOCHS=$FINETUNE_EPOCHS FINETUNE_RECORDS=$FINETUNE_RECORDS FINETUNE_EPS=$FINETUNE_EPS FINETUNE_LR=$FINETUNE_LR FINETUNE_MAX_MINUTES=$FINETUNE_MAX_MINUTES DEVICE=$DEVICE"
+SETTINGS="PHASE=$PHASE INIT=$INIT LR=$LR CLOUDS=$CLOUDS DENSITY_RANGE=$DENSITY_RANGE RECORDS=$RECORDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS TEST_RECORDS=$TEST_RECORDS EVAL_SAMPLES=$EVAL_SAMPLES LIGHT=$LIGHT EPOCHS=$EPOCHS MAX_MINUTES=$MAX_MINUTES RESTART_EPOCHS=$RESTART_EPOCHS RESTART_MAX_MINUTES=$RESTART_MAX_MINUTES LOSS=$LOSS REL_EPS=$REL_EPS FINETUNE_EPOCHS=$FINETUNE_EPOCHS FINETUNE_RECORDS=$FINETUNE_RECORDS FINETUNE_EPS=$FINETUNE_EPS FINETUNE_LR=$FINETUNE_LR FINETUNE_MAX_MINUTES=$FINETUNE_MAX_MINUTES DEVICE=$DEVICE"
 train() {
   training/.venv/bin/python training/train.py --data "$DATA" --loss "$LOSS" --schedule cosine \
     --seed 0 --device auto --resume --export "$MODEL" \
     --reproduce "$SETTINGS bash training/reproduce.sh" "$@"
 }
 if [ ! -e "$RUN/restart/last.pt" ]; then
-  train --run "$RUN" --epochs "$EPOCHS" --max-minutes "$MAX_MINUTES" --rel-eps "$REL_EPS"
+  train --run "$RUN" --epochs "$EPOCHS" --max-minutes "$MAX_MINUTES" --rel-eps "$REL_EPS" \
+    ${INIT:+--init "$INIT"} ${LR:+--lr "$LR"}
 fi
 if [ "$RESTART_EPOCHS" -gt "$EPOCHS" ]; then
   # A copy of the first run, so both stay inspectable; resumed from its last epoch.

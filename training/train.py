@@ -109,6 +109,10 @@ def parse_args(argv=None):
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
     p.add_argument("--export", type=Path, help="write the best model as ONNX (+ card) here")
     p.add_argument("--reproduce", default="", help="the command recorded in the model card")
+    p.add_argument("--check", action=argparse.BooleanOptionalAction, default=True,
+                   help="read every training row once at the start to refuse non-finite values "
+                        "(--no-check: trust the set, e.g. when resuming over a set larger than "
+                        "the page cache)")
     p.add_argument("--quiet", action="store_true")
     args = p.parse_args(argv)
     for name in ("epochs", "batch", "width", "levels", "head_layers", "outputs"):
@@ -353,7 +357,7 @@ def _train(args, dist: Dist, device) -> dict:
     lead = dist.rank == 0
     say = (lambda *a: None) if args.quiet or not lead else (lambda *a: print(*a, flush=True))
     manifest = rdata.read_manifest(args.data)
-    train_shards = rdata.load_shards(args.data, "train")
+    train_shards = rdata.load_shards(args.data, "train", check=args.check)
     val_shards = rdata.load_shards(args.data, "val")
     test_shards = rdata.load_shards(args.data, "test")
     train_recs = rdata.Records(train_shards)

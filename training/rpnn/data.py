@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import mmap
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -82,6 +83,16 @@ def _load(path: Path, shape_tail: tuple, dtypes=(np.float32,)) -> np.ndarray:
     return a
 
 
+def advise_random(a: np.ndarray) -> None:
+    """Tells the kernel that a memory-mapped array is read at random rows: no readahead. A
+    shuffled epoch over a set larger than the page cache otherwise reads ~30x the rows it uses
+    (each miss pulls in a readahead window that evicts rows still needed; measured on a 26 GB
+    set with 22 GB of cache: 0.7 GB/s of disk reads and the trainer at half a core)."""
+    m = getattr(a, "_mmap", None)
+    if m is not None and hasattr(m, "madvise") and hasattr(mmap, "MADV_RANDOM"):
+        m.madvise(mmap.MADV_RANDOM)
+
+
 def load_shards(root: Path, split: str, check: bool = True) -> list[Shard]:
     """The shards of ``split`` ("train", "val" or "test"), checked for shape and finite values."""
     root = Path(root)
@@ -115,6 +126,7 @@ def load_shards(root: Path, split: str, check: bool = True) -> list[Shard]:
             rows = np.flatnonzero(~np.isfinite(x).all(axis=1))
             if rows.size:
                 raise DataError(f"{root / s['x']}: row {rows[0]} has a non-finite descriptor value")
+        advise_random(x)  # after the sequential check above, which readahead helps
         shards.append(Shard(x=x, y=y, path=root / s["x"], gamma=gamma))
     return shards
 

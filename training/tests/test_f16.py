@@ -41,3 +41,15 @@ def test_f16_records_predict_like_f32(tmp_path):
     # 1/700 of the mean reaches 2.8e-3 relative (3e-7 absolute).
     rel = np.abs(p16 - p32) / np.maximum(np.abs(p32), 0.01 * np.abs(p32).mean())
     assert rel.max() < 1e-3, (rel.max(), np.median(rel))
+
+
+def test_random_access_advice_keeps_the_rows(tmp_path):
+    # Memory-mapped descriptors are advised for random access (no readahead); the rows read
+    # back unchanged, and an array that is not memory-mapped is left alone.
+    a = np.arange(4 * 2251, dtype=np.float32).reshape(4, 2251)
+    np.save(tmp_path / "x.npy", a)
+    m = np.load(tmp_path / "x.npy", mmap_mode="r")
+    assert getattr(m, "_mmap", None) is not None
+    rdata.advise_random(m)
+    assert np.array_equal(m[[3, 0, 2]], a[[3, 0, 2]])
+    rdata.advise_random(a)  # no mapping: nothing to advise

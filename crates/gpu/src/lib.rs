@@ -41,6 +41,10 @@ pub enum GpuError {
     },
     #[error("GPU readback failed: {0}")]
     Readback(String),
+    /// A host-side copy for an upload does not fit the memory budget (the message names the
+    /// bytes and the budget).
+    #[error("{0}")]
+    Memory(String),
 }
 
 /// An open device with its queue and what it offers.

@@ -133,7 +133,7 @@ pub fn prepare<'a>(
             let model_path = r
                 .model
                 .clone()
-                .unwrap_or_else(nimbus_rpnn::model::default_model_path);
+                .unwrap_or_else(|| nimbus_rpnn::model::model_path_for(&scene.phase_desc));
             let model = Rpnn::load(&model_path)?;
             let mismatches = [
                 nimbus_rpnn::render::phase_mismatch(scene, &model.phase),
@@ -210,17 +210,11 @@ pub fn rpnn_backend<'g>(
             }
             // A pyramid beyond the adapter's binding limit (a sparse cloud's level in a huge
             // box): the automatic choice reads it on the CPU instead, and says so.
-            Err(nimbus_gpu::GpuError::TooLarge { what, bytes, .. })
+            Err(e @ (nimbus_gpu::GpuError::TooLarge { .. } | nimbus_gpu::GpuError::Memory(_)))
                 if choice == NetBackend::Auto =>
             {
                 let b = nimbus_rpnn::ort_backend::OrtModel::load(model_path, 0)?;
-                return Ok((
-                    Backend::Ort(b),
-                    format!(
-                        "ort (cpu): {what} needs {bytes} bytes, beyond {}'s storage binding",
-                        g.describe()
-                    ),
-                ));
+                return Ok((Backend::Ort(b), format!("ort (cpu; not the GPU: {e})")));
             }
             Err(e) => return Err(e.into()),
         }

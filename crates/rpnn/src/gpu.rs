@@ -59,6 +59,13 @@ impl<'g> GpuDescriptor<'g> {
         };
         let total: u64 = pyr.levels.iter().map(cells).sum();
         gpu.check_storage("the density pyramid", total * 4)?;
+        // The upload's host copy (dense levels copied, sparse ones expanded).
+        nimbus_scene::memory::check(
+            total as u128 * 4,
+            "volume",
+            "the density pyramid's GPU upload",
+        )
+        .map_err(|e| GpuError::Memory(e.to_string()))?;
         let mut data = Vec::with_capacity(total as usize);
         let mut info = Vec::new();
         for l in &pyr.levels {

@@ -19,7 +19,25 @@ use protobuf::Message;
 /// then from the executable's folder and its parents; the plain relative path if not found (the
 /// error then names it).
 pub fn default_model_path() -> std::path::PathBuf {
-    let rel = Path::new("models/rpnn-hg.onnx");
+    find_model("models/rpnn-hg.onnx")
+}
+
+/// The shipped model for a scene's phase function: `models/rpnn-mie.onnx` for a Lorenz–Mie
+/// medium (`phase_desc` starting with `mie`) when it is there, else [`default_model_path`]
+/// (HG g = 0.857; RPNN warns about the mismatch).
+pub fn model_path_for(phase_desc: &str) -> std::path::PathBuf {
+    if phase_desc.starts_with("mie") {
+        let p = find_model("models/rpnn-mie.onnx");
+        if p.is_file() {
+            return p;
+        }
+    }
+    default_model_path()
+}
+
+/// `rel` in the working directory or the executable's folder, or one of their ancestors.
+fn find_model(rel: &str) -> std::path::PathBuf {
+    let rel = Path::new(rel);
     let starts = [std::env::current_dir().ok(), std::env::current_exe().ok()];
     for s in starts.into_iter().flatten() {
         for dir in s.ancestors() {

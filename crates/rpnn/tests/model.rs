@@ -287,3 +287,16 @@ fn gpu_descriptor_and_network_equal_cpu_descriptor_and_onnx_runtime() {
         assert!(want.iter().any(|v| *v > 0.0));
     }
 }
+
+/// The shipped model follows the scene's phase function: the Lorenz–Mie model for a Mie medium,
+/// the HG one otherwise; both load and say which phase function they were trained for.
+#[test]
+fn the_model_follows_the_phase_function() {
+    let hg = nimbus_rpnn::model::model_path_for("hg g=0.857");
+    let mie = nimbus_rpnn::model::model_path_for("mie r_eff=8µm v_eff=0.1 λ=550nm chop=5°");
+    assert!(hg.ends_with("models/rpnn-hg.onnx"), "{hg:?}");
+    assert!(mie.ends_with("models/rpnn-mie.onnx"), "{mie:?}");
+    assert_eq!(Rpnn::load(&hg).unwrap().phase, "hg");
+    assert_eq!(Rpnn::load(&mie).unwrap().phase, "mie");
+    assert_eq!(nimbus_rpnn::model::model_path_for("isotropic"), hg);
+}
