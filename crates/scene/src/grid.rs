@@ -186,6 +186,49 @@ impl DensityGrid {
         }
     }
 
+    /// [`DensityGrid::plane`] into a buffer that is already all zero: only non-zero bricks are
+    /// written (absent ones are skipped, so the untouched part of a large, mostly empty plane
+    /// costs nothing). Returns a bound of the cells written, inclusive x and y ranges (None:
+    /// the plane is zero); the values outside it are zero.
+    pub fn plane_into_zeroed(&self, z: usize, out: &mut [f32]) -> Option<([usize; 2], [usize; 2])> {
+        let [nx, ny, _] = self.res;
+        assert_eq!(out.len(), nx * ny, "plane buffer of nx × ny values");
+        match &self.storage {
+            Storage::Dense(_) => {
+                self.plane(z, out);
+                Some(([0, nx - 1], [0, ny - 1]))
+            }
+            Storage::Sparse(b) => {
+                let mut bound: Option<([usize; 2], [usize; 2])> = None;
+                b.visit_range([0, 0, z], [nx - 1, ny - 1, z], |v| {
+                    let content = v.content;
+                    if matches!(content, crate::brick::Content::Constant(c) if c == 0.0) {
+                        return;
+                    }
+                    for y in v.lo[1]..v.hi[1] {
+                        let row = &mut out[y * nx + v.lo[0]..y * nx + v.hi[0]];
+                        match content {
+                            crate::brick::Content::Constant(c) => row.fill(c),
+                            crate::brick::Content::Stored(s) => {
+                                let at = v.local(v.lo[0], y, z);
+                                row.copy_from_slice(&s[at..at + row.len()]);
+                            }
+                        }
+                    }
+                    let (x, y) = ([v.lo[0], v.hi[0] - 1], [v.lo[1], v.hi[1] - 1]);
+                    bound = Some(match bound {
+                        None => (x, y),
+                        Some((bx, by)) => (
+                            [bx[0].min(x[0]), bx[1].max(x[1])],
+                            [by[0].min(y[0]), by[1].max(y[1])],
+                        ),
+                    });
+                });
+                bound
+            }
+        }
+    }
+
     /// Bytes the grid's values occupy.
     pub fn bytes(&self) -> usize {
         match &self.storage {
@@ -463,6 +506,17 @@ mod tests {
             b.plane(z, &mut pb);
             assert_eq!(pd, pb, "plane {z}");
             assert_eq!(pd.as_slice(), &data[z * 190..(z + 1) * 190]);
+            // Into a zeroed buffer: the same values, every non-zero one inside the bound.
+            let mut pz = vec![0.0; 19 * 10];
+            let bound = b.plane_into_zeroed(z, &mut pz);
+            assert_eq!(pz, pd, "plane {z} into zeros");
+            for (i, &v) in pd.iter().enumerate() {
+                let (x, y) = (i % 19, i / 19);
+                if v != 0.0 {
+                    let (bx, by) = bound.expect("a bound around the non-zero values");
+                    assert!((bx[0]..=bx[1]).contains(&x) && (by[0]..=by[1]).contains(&y));
+                }
+            }
         }
     }
 }

@@ -51,8 +51,15 @@ pub(super) struct Rect {
 impl Rect {
     /// The exact bounds of the non-zero values of a plane `nx` wide (None: all zero).
     fn of(data: &[f32], nx: usize) -> Option<Rect> {
+        Self::of_within(data, nx, [0, nx - 1], [0, data.len() / nx - 1])
+    }
+
+    /// The exact bounds of the non-zero values within columns `xs` and rows `ys` (inclusive)
+    /// of a plane `nx` wide.
+    fn of_within(data: &[f32], nx: usize, xs: [usize; 2], ys: [usize; 2]) -> Option<Rect> {
         let mut r: Option<Rect> = None;
-        for (y, row) in data.chunks(nx).enumerate() {
+        for y in ys[0]..=ys[1] {
+            let row = &data[y * nx + xs[0]..=y * nx + xs[1]];
             let Some(x0) = row.iter().position(|&v| v != 0.0) else {
                 continue;
             };
@@ -60,6 +67,7 @@ impl Rect {
                 .iter()
                 .rposition(|&v| v != 0.0)
                 .expect("a non-zero value");
+            let (x0, x1) = (x0 + xs[0], x1 + xs[0]);
             r = Some(match r {
                 None => Rect {
                     x: [x0, x1],
@@ -103,6 +111,13 @@ pub(super) struct Plane {
 impl Plane {
     pub(super) fn new(data: Vec<f32>, nx: usize) -> Self {
         let rect = Rect::of(&data, nx);
+        Self { data, rect }
+    }
+
+    /// A plane whose values are zero outside `bound` (inclusive x, y ranges; None: all zero):
+    /// its exact bounds are found within `bound` only.
+    fn within(data: Vec<f32>, nx: usize, bound: Option<([usize; 2], [usize; 2])>) -> Self {
+        let rect = bound.and_then(|(bx, by)| Rect::of_within(&data, nx, bx, by));
         Self { data, rect }
     }
 }
@@ -249,11 +264,17 @@ impl Planes for GridPlanes<'_> {
     }
     fn next_plane(&mut self) -> Plane {
         let [nx, ny, _] = self.grid.res();
+        // Only the bricks crossing the plane are written and scaled (0 × scale = 0 elsewhere):
+        // a mostly empty plane of a huge sparse box costs what its cloud costs.
         let mut p = vec![0.0f32; nx * ny];
-        self.grid.plane(self.z, &mut p);
-        p.iter_mut().for_each(|v| *v *= self.scale);
+        let bound = self.grid.plane_into_zeroed(self.z, &mut p);
+        if let Some((bx, by)) = bound {
+            for row in p[by[0] * nx..(by[1] + 1) * nx].chunks_mut(nx) {
+                row[bx[0]..=bx[1]].iter_mut().for_each(|v| *v *= self.scale);
+            }
+        }
         self.z += 1;
-        Plane::new(p, nx)
+        Plane::within(p, nx, bound)
     }
 }
 
