@@ -22,7 +22,6 @@
 use std::str::FromStr;
 
 use noise::{Fbm, MultiFractal, NoiseFn, Perlin, RidgedMulti, Worley};
-
 use rayon::prelude::*;
 
 use crate::error::FieldError;

@@ -171,18 +171,10 @@ impl DensityGrid {
         assert_eq!(out.len(), nx * ny, "plane buffer of nx × ny values");
         match &self.storage {
             Storage::Dense(d) => out.copy_from_slice(&d[z * nx * ny..(z + 1) * nx * ny]),
-            Storage::Sparse(b) => b.visit_range([0, 0, z], [nx - 1, ny - 1, z], |v| {
-                for y in v.lo[1]..v.hi[1] {
-                    let row = &mut out[y * nx + v.lo[0]..y * nx + v.hi[0]];
-                    match v.content {
-                        crate::brick::Content::Constant(c) => row.fill(c),
-                        crate::brick::Content::Stored(s) => {
-                            let at = v.local(v.lo[0], y, z);
-                            row.copy_from_slice(&s[at..at + row.len()]);
-                        }
-                    }
-                }
-            }),
+            Storage::Sparse(_) => {
+                out.fill(0.0);
+                self.plane_into_zeroed(z, out);
+            }
         }
     }
 

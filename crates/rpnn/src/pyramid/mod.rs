@@ -23,7 +23,6 @@
 mod stream;
 
 use glam::DVec3;
-use nimbus_scene::brick::Content;
 use nimbus_scene::{DensityGrid, Volume};
 use stream::{Blur, Down, GridPlanes, Planes, SlicePlanes};
 
@@ -91,24 +90,9 @@ impl Level {
         match &self.cells {
             Cells::Absent => 0.0,
             Cells::Dense(d) => d.iter().map(|v| *v as f64).sum(),
+            // The grid's own sum (over its stored bricks), as its mean times the cells.
             Cells::Sparse(g) => {
-                let mut s = 0.0;
-                let b = g.as_bricks().expect("a sparse level holds bricks");
-                b.visit(|v| match v.content {
-                    Content::Constant(c) => s += c as f64 * v.count() as f64,
-                    Content::Stored(vals) => {
-                        for z in v.lo[2]..v.hi[2] {
-                            for y in v.lo[1]..v.hi[1] {
-                                let at = v.local(v.lo[0], y, z);
-                                s += vals[at..at + v.hi[0] - v.lo[0]]
-                                    .iter()
-                                    .map(|x| *x as f64)
-                                    .sum::<f64>();
-                            }
-                        }
-                    }
-                });
-                s
+                g.stats().mean * self.res.iter().map(|&r| r as f64).product::<f64>()
             }
         }
     }
