@@ -5,6 +5,10 @@
 // not from the coarse photon cache, which then holds only light scattered at least once (an
 // exact split by scattering order). Rebuilt only when the sun or the density changes, at
 // once or amortised over frames in slices.
+// Only voxels with density in their 3³ neighbourhood are marched (the rest get 0): the ray
+// marcher reads T_sun trilinearly where σ(x) > 0, and such a lookup touches only voxels next to
+// a non-zero one — at the light resolution of a coarser grid too (`mapper/light.rs`) — so the
+// empty space of a sparse box costs 27 reads per voxel instead of a march.
 // CPU twin: `nimbus_photon::cpu::sun_transmittance`.
 #import params
 #import grid
@@ -25,6 +29,10 @@ fn sun_transmittance(@builtin(global_invocation_id) gid: vec3<u32>,
     let idx = P.sun_first + local;
     if (local >= P.sun_count || idx >= r.x * r.y * r.z) { return; }
     let v = vec3<u32>(idx % r.x, (idx / r.x) % r.y, idx / (r.x * r.y));
+    if (!near_density(v)) {
+        t_sun[idx] = 0.0;
+        return;
+    }
     let ext = P.aabb_max - P.aabb_min;
     let x = P.aabb_min + (vec3<f32>(v) + vec3<f32>(0.5)) / vec3<f32>(r) * ext;
     let hit = box_intersect(x, P.sun_dir);

@@ -196,6 +196,16 @@ fn upsample(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
         }
         return;
     }
+    // J is read only where σ(x) > 0, i.e. next to density (`near_density`): elsewhere 0,
+    // so the empty space of a sparse box costs 27 reads per voxel, not a 27-cell filter.
+    if (!near_density(vec3<u32>(x, y, z))) {
+        j_out[idx] = vec4<f32>(0.0);
+        if (P.lobe_axis != 0u) {
+            j_dir[idx] = vec4<f32>(0.0);
+            j_hi[idx] = vec4<f32>(0.0);
+        }
+        return;
+    }
     let ext = P.aabb_max - P.aabb_min;
     let p = P.aabb_min + (vec3<f32>(f32(x), f32(y), f32(z)) + vec3<f32>(0.5)) / vec3<f32>(res) * ext;
     let dp = density[idx];

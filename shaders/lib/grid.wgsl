@@ -67,3 +67,18 @@ fn density_at(p: vec3<f32>) -> f32 {
     let c11 = mix(c011, c111, f.x);
     return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
 }
+
+// Whether a voxel of the 3³ block around voxel v (clamped to the grid) holds density: the
+// trilinear lookups of a light volume where σ(x) > 0 touch only such voxels (photon_sun.wgsl).
+fn near_density(v: vec3<u32>) -> bool {
+    let lo = max(vec3<i32>(v) - vec3<i32>(1), vec3<i32>(0));
+    let hi = min(vec3<i32>(v) + vec3<i32>(1), vec3<i32>(P.d_res) - vec3<i32>(1));
+    for (var z = lo.z; z <= hi.z; z++) {
+        for (var y = lo.y; y <= hi.y; y++) {
+            for (var x = lo.x; x <= hi.x; x++) {
+                if (voxel(u32(x), u32(y), u32(z)) > 0.0) { return true; }
+            }
+        }
+    }
+    return false;
+}

@@ -75,6 +75,11 @@ pub(crate) struct PmArgs {
     /// Photon mapping: cache resolution X,Y,Z (default: ≤ 2400 cells, the grid's proportions).
     #[arg(long, value_delimiter = ',')]
     cache_res: Option<Vec<u32>>,
+    /// Photon mapping: resolution X,Y,Z of the light volumes (J, T_sun) and of the block-averaged
+    /// density the photons trace (default: the grid's, or coarser by an integer factor when J
+    /// would not fit one GPU storage binding); the ray marcher reads the grid itself.
+    #[arg(long, value_delimiter = ',')]
+    light_res: Option<Vec<u32>>,
     /// Photon mapping: ray march at half resolution and upscale.
     #[arg(long)]
     pub(crate) half_res: bool,
@@ -109,6 +114,7 @@ impl PmArgs {
             beams_per_frame: self.beams,
             ring: self.ring,
             cache_res: triple(self.cache_res.clone(), "--cache-res")?,
+            light_res: triple(self.light_res.clone(), "--light-res")?,
             seed,
             detail_noise: self.detail_noise,
             similarity_t: self.similarity,

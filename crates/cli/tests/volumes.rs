@@ -99,14 +99,14 @@ fn openvdb_and_nanovdb_files_render_alike() {
 }
 
 /// A sparse file whose box is 4.8 G voxels (19 GB dense, more voxels than a u32 counts;
-/// `make_sparse.sh`) renders with the CPU path tracer, the GPU one, which reads the bricks
-/// through its brick-map atlas, and RPNN, whose stencils read level 0 of the pyramid at this
-/// density (stored as bricks: the level is zero away from the spheres), all under a 1 GB
-/// budget; the photon map, which needs the
-/// whole box in one array, refuses it with an error naming the bytes — the true count, not one
-/// wrapped at 2^32 — before any large allocation.
+/// `make_sparse.sh`) renders with every estimator under a 1 GB budget: the CPU path tracer, the
+/// GPU one, which reads the bricks through its brick-map atlas, RPNN, whose stencils read level
+/// 0 of the pyramid at this density (stored as bricks: the level is zero away from the
+/// spheres), and the photon map, whose light volumes are then coarser than the grid (its ray
+/// marcher reads the brick map) — and which says so, and that a light voxel is optically thick
+/// at the spheres' density (its image is then too dark: BENCHMARKS.md).
 #[test]
-fn a_sparse_file_renders_with_pt_gpu_and_rpnn_and_is_refused_cleanly_by_pm() {
+fn a_sparse_file_renders_with_every_estimator() {
     let dir = std::env::temp_dir().join(format!("nimbus-sparse-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let scene = dir.join("far.toml");
@@ -137,7 +137,8 @@ fn a_sparse_file_renders_with_pt_gpu_and_rpnn_and_is_refused_cleanly_by_pm() {
     assert!(m > 5.0, "the sphere must be visible: mean level {m}");
     for args in [
         &["--method", "rpnn"][..],
-        &["--method", "pm"][..],
+        // A short ring: most beams cross the empty box (BENCHMARKS.md).
+        &["--method", "pm", "--ring", "8"][..],
         &["--device", "gpu"][..],
     ] {
         if args[0] != "--method" || args[1] == "pm" {
@@ -151,23 +152,19 @@ fn a_sparse_file_renders_with_pt_gpu_and_rpnn_and_is_refused_cleanly_by_pm() {
         a.extend_from_slice(&["-o", out.to_str().unwrap()]);
         let o = nimbus(&a);
         let t = text(&o);
-        if args[1] != "pm" {
-            assert!(o.status.success(), "{args:?}: {t}");
-            let mg = mean(&std::fs::read(out.with_extension("png")).unwrap());
-            // Visible (4 spp of a tone-mapped 24×16 image are too noisy to compare means;
-            // RPNN's sparse levels equal the dense ones bit for bit: `nimbus_rpnn::pyramid`).
-            assert!(
-                mg > 5.0,
-                "{args:?}: the sphere must be visible: mean level {mg}"
-            );
-            continue;
-        }
-        assert_eq!(o.status.code(), Some(1), "{args:?}: {t}");
-        // The GPU's binding limit names what the whole box would need: 1691³ × 4 bytes =
-        // 19 341 529 484.
+        assert!(o.status.success(), "{args:?}: {t}");
+        let mg = mean(&std::fs::read(out.with_extension("png")).unwrap());
+        // Visible (4 spp of a tone-mapped 24×16 image are too noisy to compare means;
+        // RPNN's sparse levels equal the dense ones bit for bit: `nimbus_rpnn::pyramid`).
         assert!(
-            t.contains("needs") && t.contains("19341529484 bytes"),
-            "{args:?}: {t}"
+            mg > 5.0,
+            "{args:?}: the sphere must be visible: mean level {mg}"
         );
+        if args[1] == "pm" {
+            assert!(
+                t.contains("light volumes") && t.contains("mean free paths wide"),
+                "{t}"
+            );
+        }
     }
 }

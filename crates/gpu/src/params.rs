@@ -88,6 +88,12 @@ pub struct VolumeParams {
     /// 2 = as 1, and `cells`/the ray marcher use those words (every ring slot was traced for
     /// `view_origin`).
     pub view_mode: u32,
+    /// Photon mapping: resolution of the light volumes (J, its flux directions, T_sun) that
+    /// the ray marcher reads. The photon stages run on a density at this resolution; the ray
+    /// marcher reads the density at `d_res` (equal unless the grid is too large for the light
+    /// volumes at full resolution: `nimbus_photon::settings::light_res`).
+    pub light_res: [u32; 3],
+    pub _pad_light: u32,
 }
 
 #[cfg(test)]
@@ -162,6 +168,8 @@ mod tests {
             ("sun_count", offset_of!(VolumeParams, sun_count)),
             ("view_origin", offset_of!(VolumeParams, view_origin)),
             ("view_mode", offset_of!(VolumeParams, view_mode)),
+            ("light_res", offset_of!(VolumeParams, light_res)),
+            ("_pad_light", offset_of!(VolumeParams, _pad_light)),
         ];
         assert_eq!(members.len(), rust.len());
         for ((m, moff), (name, off)) in members.iter().zip(rust) {

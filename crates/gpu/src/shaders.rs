@@ -34,6 +34,7 @@ pub const MODULES: &[(&str, &str)] = &[
     module!("density_dense"),
     module!("density_bricks"),
     module!("pt_core"),
+    module!("photon_raymarch_core"),
 ];
 
 /// (file name, source) of every stage in `shaders/`.
@@ -42,6 +43,7 @@ pub const SHADERS: &[(&str, &str)] = &[
     stage!("photon_update.wgsl"),
     stage!("photon_upsample.wgsl"),
     stage!("photon_raymarch.wgsl"),
+    stage!("photon_raymarch_bricks.wgsl"),
     stage!("photon_sun.wgsl"),
     stage!("pt.wgsl"),
     stage!("pt_bricks.wgsl"),

@@ -11,6 +11,8 @@ use nimbus_scene::{Camera, Image, Phase, Scene, Sky};
 
 use nimbus_gpu::params::VolumeParams;
 
+mod changes;
+mod light;
 mod memory;
 mod readback;
 mod sun;
@@ -99,6 +101,14 @@ pub struct PhotonMapper<'g> {
     slot_view: Vec<Option<[f32; 3]>>,
     /// The view point J's in-scattering was upsampled for; `None`: J holds fluences and lobes.
     j_view: Option<[f32; 3]>,
+    /// The density grid's resolution (`params.d_res` is the light resolution the photon
+    /// stages work at: `mapper/light.rs`).
+    fine_res: [u32; 3],
+    /// The grid's largest value (the work density's is `params.d_max`).
+    grid_max: f64,
+    /// The ray marcher's uniform block (`params` with `d_res = fine_res`) and density.
+    march_buf: wgpu::Buffer,
+    march_density: light::MarchDensity,
 }
 
 fn f3(v: DVec3) -> [f32; 3] {
@@ -146,14 +156,18 @@ impl<'g> PhotonMapper<'g> {
             });
         }
         let vol = &scene.volume;
-        let d_res = vol.grid().res();
+        // The photon stages work at the light resolution (the grid's unless J would not fit
+        // one storage binding: `mapper/light.rs`); the ray marcher reads the grid itself.
+        let fine_res = vol.grid().res().map(|v| v as u32);
+        let light_res = light::light_res(gpu, vol.grid(), &settings)?;
+        let d_res = light_res.map(|v| v as usize);
         let i_res = match settings.cache_res {
             Some(r) => {
                 if r.contains(&0) || r.iter().zip(d_res).any(|(&a, b)| a as usize > b) {
                     return Err(PmError::Setting {
                         field: "cache_res",
                         msg: format!(
-                            "each axis must lie in 1..=density resolution {d_res:?}, got {r:?}"
+                            "each axis must lie in 1..=light resolution {d_res:?} (the density's unless --light-res), got {r:?}"
                         ),
                     });
                 }
@@ -174,18 +188,13 @@ impl<'g> PhotonMapper<'g> {
                 ),
             });
         }
-        // A sparse grid's box may exceed 2^32 voxels: the binding check comes first, with the
-        // true size, and the kernels' u32 voxel index is taken only below it.
-        let voxels64 = d_res.iter().map(|&r| r as u64).product::<u64>();
-        gpu.check_storage("the density grid", voxels64 * 4)?;
-        let voxels = u32::try_from(voxels64).map_err(|_| {
-            PmError::Unsupported(format!(
-                "{}: {voxels64} voxels exceed the 2^32 that the photon map's kernels can index",
-                scene.source.display()
-            ))
-        })?;
+        // At most 2^32 light voxels (`light::light_res`).
+        let voxels = light_res.iter().product::<u32>();
+        gpu.check_storage("the density grid", voxels as u64 * 4)?;
+        let march_density = light::march_density(gpu, vol.grid(), light_res)?;
+        let (work, work_max) = light::work_density(vol.grid(), light_res)?;
         let aabb = vol.aabb();
-        let d_max = vol.grid().stats().max as f64;
+        let d_max = work_max as f64;
         let sigma_max = (vol.density_scale() * d_max).max(1e-30);
         let centre = aabb.center();
         let radius = 0.5 * aabb.extent().length();
@@ -279,6 +288,8 @@ impl<'g> PhotonMapper<'g> {
             sun_count: 0,
             view_origin: f3(scene.camera.origin),
             view_mode: settings.effective_view() as u32,
+            light_res,
+            _pad_light: 0,
         };
         gpu.check_storage("the upsampled cache J", voxels as u64 * 16)?;
         gpu.check_storage(
@@ -289,10 +300,25 @@ impl<'g> PhotonMapper<'g> {
             "the image",
             scene.camera.width as u64 * scene.camera.height as u64 * 16,
         )?;
-        check_host_memory(gpu, &settings, &params, voxels, cells, &scene.camera)?;
+        check_host_memory(
+            gpu,
+            &settings,
+            &params,
+            voxels,
+            cells,
+            &scene.camera,
+            march_density.bytes(),
+        )?;
         let params_buf = gpu.uniform("pm params", &params);
-        // The kernels read the box densely: a sparse grid is copied here (memory budget).
-        let density = gpu.storage("density D", &vol.grid().dense().map_err(PmError::Memory)?);
+        let march_buf = gpu.uniform(
+            "pm ray-marcher params",
+            &VolumeParams {
+                d_res: fine_res,
+                ..params
+            },
+        );
+        let density = gpu.storage("density D", &work);
+        drop(work);
         let cell_bytes = cells as u64 * CELL_BYTES as u64;
         let h_new = gpu.zeroed("H_new", cell_bytes);
         let ring = gpu.zeroed("ring H_0..H_m-1", settings.ring as u64 * cell_bytes);
@@ -407,7 +433,7 @@ impl<'g> PhotonMapper<'g> {
         };
         let raymarch_pipeline = gpu.pipeline_with_constants(
             "photon raymarch",
-            &shaders::source("photon_raymarch.wgsl"),
+            &shaders::source(march_density.stage()),
             "raymarch",
             &[(
                 "DETAIL_NOISE",
@@ -450,6 +476,10 @@ impl<'g> PhotonMapper<'g> {
             j_dir,
             j_hi,
             overflow,
+            fine_res,
+            grid_max: vol.grid().stats().max as f64,
+            march_buf,
+            march_density,
             slot_view: vec![None; settings.ring as usize],
             j_view: None,
             settings,
@@ -490,70 +520,6 @@ impl<'g> PhotonMapper<'g> {
     /// Whether every ring slot holds a traced generation.
     pub fn ring_full(&self) -> bool {
         self.frame >= self.settings.ring
-    }
-
-    /// Replaces the density field (same resolution) for the following frames.
-    pub fn set_density(&mut self, data: &[f32]) -> Result<(), PmError> {
-        if data.len() != self.voxels as usize {
-            return Err(PmError::Setting {
-                field: "density",
-                msg: format!("expected {} voxels, got {}", self.voxels, data.len()),
-            });
-        }
-        if let Some(i) = data.iter().position(|v| !v.is_finite() || *v < 0.0) {
-            return Err(PmError::Setting {
-                field: "density",
-                msg: format!("voxel {i} is {}; densities must be finite and ≥ 0", data[i]),
-            });
-        }
-        self.gpu
-            .queue
-            .write_buffer(&self.density, 0, bytemuck::cast_slice(data));
-        self.sun.dirty = true;
-        Ok(())
-    }
-
-    /// Sets the grid value the majorant is computed from (σ̄ = density_scale × value); used by
-    /// density sequences, which need one majorant for all frames.
-    /// Changing it invalidates the cached generations, so the ring is emptied if it held any.
-    pub fn set_majorant_value(&mut self, max_value: f32) {
-        if self.frame > 0 {
-            self.reset();
-        }
-        self.params.d_max = max_value.max(1e-30);
-        self.params.sigma_max = (self.params.density_scale * max_value).max(1e-30);
-    }
-
-    /// Changes the sun irradiance and the constant sky radiance (e.g. an atmosphere recolouring
-    /// a moving sun). J stores flux per unit irradiance, so the cached generations stay valid;
-    /// the split of the beam budget between sun and sky follows the new powers.
-    pub fn set_lighting(&mut self, sun_irradiance: DVec3, sky_radiance: DVec3) {
-        let lum = |v: DVec3| (v.x + v.y + v.z) / 3.0;
-        let r = self.params.bound_radius as f64;
-        let had_sun =
-            self.sun_fraction > 0.0 || self.params.sun_irradiance.iter().any(|&v| v > 0.0);
-        let p_sun = if had_sun {
-            lum(sun_irradiance) * PI * r * r
-        } else {
-            0.0
-        };
-        let p_sky = lum(sky_radiance) * 4.0 * PI * PI * r * r;
-        self.sun_fraction = if p_sun + p_sky > 0.0 {
-            p_sun / (p_sun + p_sky)
-        } else {
-            0.0
-        };
-        self.params.sun_irradiance = f3(sun_irradiance);
-        self.params.sky_radiance = f3(sky_radiance);
-    }
-
-    /// Changes the sun direction (unit vector towards the sun) for the following frames.
-    pub fn set_sun_dir(&mut self, dir: DVec3) {
-        let d = f3(dir.normalize());
-        if d != self.params.sun_dir {
-            self.sun.dirty = true;
-        }
-        self.params.sun_dir = d;
     }
 
     /// One frame of illumination: traces `beams` (default n_g) beams into H_new and replaces the
@@ -709,22 +675,36 @@ impl<'g> PhotonMapper<'g> {
         self.gpu
             .queue
             .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
+        self.gpu
+            .queue
+            .write_buffer(&self.march_buf, 0, bytemuck::bytes_of(&self.march_params()));
         if !matches!(&self.raymarch, Some((_, rw, rh)) if *rw == w && *rh == h) {
             self.gpu
                 .check_storage("the image", w as u64 * h as u64 * 16)?;
             let img = self.gpu.zeroed("image", w as u64 * h as u64 * 16);
-            let bind = self.gpu.bind(
-                &self.raymarch_pipeline,
-                &[
-                    (0, &self.params_buf),
-                    (1, &self.density),
-                    (2, &self.j),
-                    (3, &img),
-                    (4, &self.t_sun),
-                    (5, &self.j_dir),
-                    (6, &self.j_hi),
-                ],
-            );
+            let mut buffers = vec![
+                (0, &self.march_buf),
+                (2, &self.j),
+                (3, &img),
+                (4, &self.t_sun),
+                (5, &self.j_dir),
+                (6, &self.j_hi),
+            ];
+            let bind = match &self.march_density {
+                light::MarchDensity::Work => {
+                    buffers.push((1, &self.density));
+                    self.gpu.bind(&self.raymarch_pipeline, &buffers)
+                }
+                light::MarchDensity::Dense(d) => {
+                    buffers.push((1, d));
+                    self.gpu.bind(&self.raymarch_pipeline, &buffers)
+                }
+                light::MarchDensity::Bricks(k) => {
+                    buffers.extend([(1, &k.index), (7, &k.info)]);
+                    self.gpu
+                        .bind_with(&self.raymarch_pipeline, &buffers, &[(8, &k.view)])
+                }
+            };
             self.raymarch = Some((
                 Stage {
                     pipeline: self.raymarch_pipeline.clone(),

@@ -60,7 +60,7 @@ impl LobeAxis {
 /// Settings of the photon mapper (defaults follow Elek 2012 §5).
 #[derive(Debug, Clone)]
 pub struct PmSettings {
-    /// The method (default: the paper's; `Exact` adds exact single scattering).
+    /// The method (default: `Exact`; `Elek2012` is the paper's).
     pub variant: PmVariant,
     /// Beams traced per frame, n_g (the paper: 819 k / 100 = 8 192).
     pub beams_per_frame: u32,
@@ -70,6 +70,11 @@ pub struct PmSettings {
     /// proportions and at most [`PmSettings::default_max_cells`] cells (the paper's 2 400 with
     /// lobes; half the density resolution per axis with the view-dependent words).
     pub cache_res: Option<[u32; 3]>,
+    /// Resolution of the light volumes (J, its flux directions, T_sun) and of the density the
+    /// photon stages trace (block means of the grid); the ray marcher reads the grid itself.
+    /// Default: [`default_light_res`] (the density's resolution when J fits one storage
+    /// binding).
+    pub light_res: Option<[u32; 3]>,
     /// A beam stops when its weight (albedo^scatterings) falls below this.
     pub beam_threshold: f32,
     /// A beam stops after this many scatterings.
@@ -128,6 +133,7 @@ impl Default for PmSettings {
             beams_per_frame: 8192,
             ring: 100,
             cache_res: None,
+            light_res: None,
             beam_threshold: 0.01,
             max_order: 1024,
             similarity_t: 0.05,
@@ -221,6 +227,30 @@ impl PmSettings {
             PmVariant::Exact => LobeAxis::Flux,
             PmVariant::Elek2012 => LobeAxis::Sun,
         })
+    }
+}
+
+/// Default resolution of the light volumes: the density's own, or — when J at 16 bytes per
+/// voxel would not fit one storage binding of `max_binding` bytes (lavapipe: 128 MiB, 8.4 M
+/// voxels; a 1200³ grid's J would be 27.6 GB) or its voxels would not fit the kernels' u32
+/// index — each axis divided by the smallest integer k that makes it fit, ⌈N/k⌉. The photon
+/// stages then trace block means of the grid (`nimbus_scene::downsample`) and the ray marcher
+/// reads J and T_sun trilinearly at this resolution, the density at the grid's (Elek 2012
+/// §4.3 already upsamples from a cache far coarser than either). Measured on the demo cumulus at
+/// half resolution: BENCHMARKS.md "Volumes at scale".
+pub fn default_light_res(d_res: [usize; 3], max_binding: u64) -> [u32; 3] {
+    let fits = |r: [u64; 3]| {
+        let v = r[0] * r[1] * r[2];
+        v * 16 <= max_binding && v <= u32::MAX as u64
+    };
+    let d = d_res.map(|v| v.max(1) as u64);
+    let mut k = 1u64;
+    loop {
+        let r = d.map(|v| v.div_ceil(k));
+        if fits(r) || r == [1, 1, 1] {
+            return r.map(|v| v as u32);
+        }
+        k += 1;
     }
 }
 

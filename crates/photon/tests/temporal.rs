@@ -317,9 +317,11 @@ fn amortised_sun_transmittance_matches_the_rebuild_at_once() {
     at_once.set_sun_dir(b);
     let after = at_once.read_sun_transmittance().unwrap();
     let differ = before.iter().zip(&after).filter(|(x, y)| x != y).count();
+    // Voxels with no density nearby are not marched (0 for either sun).
+    let marched = before.iter().filter(|&&x| x > 0.0).count();
     assert!(
-        differ > before.len() / 4,
-        "the sun change must matter: {differ}"
+        marched > 1000 && differ > marched / 4,
+        "the sun change must matter: {differ} of {marched}"
     );
 
     let chunks = 5;

@@ -330,7 +330,7 @@ impl Estimator<'_> {
                     setup_s,
                     gpu_ms: gpu.has_timestamps().then_some(gpu_ms).filter(|&v| v > 0.0),
                     summary: format!(
-                        "photon mapping on {} — {} frames × {} beams, cache {:?} ({}), {}x{} in {:.2} s",
+                        "photon mapping on {} — {} frames × {} beams, cache {:?} ({}){}, {}x{} in {:.2} s",
                         self.device,
                         pm.frames(),
                         beams,
@@ -340,6 +340,7 @@ impl Estimator<'_> {
                         } else {
                             "global atomics"
                         },
+                        pm.light_note().map_or(String::new(), |n| format!(", {n}")),
                         cam.width,
                         cam.height,
                         setup_s + seconds

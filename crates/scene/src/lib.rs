@@ -23,6 +23,7 @@ pub mod atmosphere;
 pub mod brick;
 pub mod build;
 pub mod camera;
+pub mod downsample;
 pub mod error;
 pub mod frame;
 pub mod generate;

@@ -129,6 +129,15 @@ pub fn density_at(p: &VolumeParams, density: &[f32], x: Vec3) -> f32 {
     interp(p, x, p.d_res, |i| density[i])
 }
 
+/// Whether a voxel of the 3³ block around voxel `idx` (clamped to the grid) holds density
+/// (`near_density` in grid.wgsl): the sun pass and the upsampling skip the others.
+pub fn near_density(p: &VolumeParams, density: &[f32], idx: usize) -> bool {
+    let r = p.d_res;
+    let v = coords(idx, r);
+    let near = |a: usize| v[a].saturating_sub(1)..=(v[a] + 1).min(r[a] - 1);
+    near(2).any(|z| near(1).any(|y| near(0).any(|x| density[index(x, y, z, r)] > 0.0)))
+}
+
 pub(crate) fn pcg_hash(v: u32) -> u32 {
     let state = v.wrapping_mul(747796405).wrapping_add(2891336453);
     let word = ((state >> ((state >> 28) + 4)) ^ state).wrapping_mul(277803737);

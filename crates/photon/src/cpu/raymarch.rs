@@ -5,7 +5,7 @@ use super::*;
 
 /// `interp` over the per-voxel flux entries (`interp_dir` in photon_raymarch.wgsl).
 fn interp_dir(p: &VolumeParams, j_dirs: &[[Vec4; 2]], pos: Vec3, hi: bool) -> Vec4 {
-    interp(p, pos, p.d_res, |i| j_dirs[i][hi as usize])
+    interp(p, pos, p.light_res, |i| j_dirs[i][hi as usize])
 }
 
 /// HG(· | g·|v|) for the lobe v (axis × g') towards the camera (−d) (`lobe_phase`).
@@ -110,7 +110,7 @@ pub fn raymarch(
             let dens = density_at(p, density, xp);
             let sigma_t = p.density_scale * dens;
             if sigma_t > 0.0 {
-                let jv = interp(p, xp, p.d_res, |i| glam::Vec4::from_array(j[i]));
+                let jv = interp(p, xp, p.light_res, |i| glam::Vec4::from_array(j[i]));
                 let mut ls = if p.view_mode == 2 {
                     p.albedo
                         * p.density_scale
@@ -124,7 +124,7 @@ pub fn raymarch(
                             + v3(p.sky_radiance) * (jv.y / (4.0 * std::f32::consts::PI)))
                 };
                 if p.single_scatter != 0 {
-                    let ts = interp(p, xp, p.d_res, |i| t_sun[i]);
+                    let ts = interp(p, xp, p.light_res, |i| t_sun[i]);
                     ls += single_scattered(p, dens, ts, mu);
                 }
                 let ts = (-sigma_t * dt).exp();

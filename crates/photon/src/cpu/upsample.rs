@@ -54,6 +54,9 @@ pub fn upsample(p: &VolumeParams, density: &[f32], total: &[u32], idx: usize) ->
         let cv = cells(p, density, total, idx);
         return [cv.sun, cv.sky, cv.g, cv.gamma];
     }
+    if !near_density(p, density, idx) {
+        return [0.0; 4];
+    }
     let pos = voxel_centre(p, idx);
     let gp = interp(p, pos, p.i_res, |i| cells(p, density, total, i).gamma);
     let lng = p.g.abs().max(1e-30).ln();
@@ -101,6 +104,9 @@ pub fn upsample_dirs(p: &VolumeParams, density: &[f32], total: &[u32], idx: usiz
     if p.filtered == 0 {
         let cv = cells(p, density, total, idx);
         return [cv.dir.extend(cv.sun_hi), cv.dir_hi.extend(0.0)];
+    }
+    if !near_density(p, density, idx) {
+        return [Vec4::ZERO; 2];
     }
     let (mut s_lo, mut sw_lo, mut s_hi, mut sw_hi) = (Vec3::ZERO, 0.0f32, Vec3::ZERO, 0.0f32);
     let (mut sw, mut s_fhi) = (0.0f32, 0.0f32);

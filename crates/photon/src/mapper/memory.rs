@@ -3,15 +3,17 @@
 
 use super::*;
 
-/// All of the photon map's buffers, in bytes: density, J and its flux directions, the
-/// sun-transmittance volume, the ring of partial caches with H_new and I, the per-cell
-/// read-outs and the image.
+/// All of the photon map's buffers, in bytes: the density at the light resolution (`voxels`),
+/// J and its flux directions, the sun-transmittance volume, the ring of partial caches with
+/// H_new and I, the per-cell read-outs, the image, and `march_bytes` of the ray marcher's own
+/// density (0 when it reads the work density).
 pub fn buffer_bytes(
     settings: &PmSettings,
     params: &VolumeParams,
     voxels: u32,
     cells: u32,
     camera: &Camera,
+    march_bytes: u64,
 ) -> u64 {
     let v = voxels as u64;
     let per_voxel = 4
@@ -26,6 +28,7 @@ pub fn buffer_bytes(
     v * per_voxel
         + cells as u64 * (CELL_BYTES as u64 * (settings.ring as u64 + 2) + 64)
         + camera.width as u64 * camera.height as u64 * 16
+        + march_bytes
 }
 
 /// On a software adapter (lavapipe) GPU buffers live in host memory: their total is checked
@@ -38,11 +41,12 @@ pub(super) fn check_host_memory(
     voxels: u32,
     cells: u32,
     camera: &Camera,
+    march_bytes: u64,
 ) -> Result<(), PmError> {
     if !gpu.is_software() {
         return Ok(());
     }
-    let bytes = buffer_bytes(settings, params, voxels, cells, camera);
+    let bytes = buffer_bytes(settings, params, voxels, cells, camera, march_bytes);
     nimbus_scene::memory::check(
         bytes as u128,
         "ring",

@@ -1,0 +1,187 @@
+// Ray marching of D and J (Elek 2012 §4.4, Appendix C): the body of the stages
+// `photon_raymarch.wgsl` (dense density) and `photon_raymarch_bricks.wgsl` (brick map), which
+// bind the density. CPU twin: `nimbus_photon::cpu::raymarch`.
+// J, its flux directions and T_sun are read at `P.light_res`, the density at `P.d_res`: equal
+// unless the grid is too large for light volumes at full resolution (the photon stages then
+// run on a block-averaged density at `light_res`; `nimbus_photon::settings::light_res`).
+// Front to back with step `P.step` (default: box diagonal / 300), a per-pixel hashed start
+// offset against banding, exact per-step attenuation, early exit below `P.early_exit`
+// transmittance (2 %). In-scattered radiance at x for view direction ω (propagation):
+//   L_s = σ_s(x) [ E_sun J_sun(x) p_HG(ω·ω_sun | g g'(x)) + L_sky J_sky(x) / 4π ],
+// i.e. the incident HG lobe of anisotropy g' convolved with the medium's HG(g) (self-convolution
+// property). Behind the cloud: the sky radiance and, for a sun disc, the sun.
+// The lobe's axis ω_sun is the sun's propagation direction (the paper) or, with `P.lobe_axis`,
+// the local mean sun-flux direction (`j_dir`, upsampled like J; Elek Appendix C: "storing the
+// direction separately for each cell"). At the shadowed and the
+// camera-facing sides of a cloud the scattered light flows outwards, not along the sun: with
+// the sun axis a side view loses ≈ 1/3 of the multiply scattered light (BENCHMARKS.md).
+// View mode (`P.view_mode` = 2, beyond the paper): J holds the radiance scattered towards the
+// camera, deposited by the trace with the exact phase function (photon_trace.wgsl words 11,
+// 12), and replaces both lobe reconstructions: L_s = σ_s(x) [E_sun J_x + L_sky J_y].
+// Detail (Elek §4.4): when `noise_amplitude` > 0, the lookup positions of D and J are displaced
+// by three octaves of vector value noise (amplitudes 1, ½, ¼; frequencies f, 2f, 4f), which
+// adds sub-voxel detail to a smooth density field.
+#import params
+#import grid
+#import rng
+#import hg
+
+@group(0) @binding(0) var<uniform> P: Params;
+@group(0) @binding(2) var<storage, read> j_in: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read_write> image: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> t_sun: array<f32>;
+// Per density voxel (flux axes only): the upsampled mean propagation vector of the low-order
+// (or, without a split, all) sun light with the high-order fluence, and that of the high-order
+// sun light (photon_upsample.wgsl).
+@group(0) @binding(5) var<storage, read> j_dir: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read> j_hi: array<vec4<f32>>;
+
+fn interp_dir(p: vec3<f32>, hi: bool) -> vec4<f32> {
+    let t = trilinear(p, P.light_res);
+    let r = P.light_res;
+    let f = t.f;
+    let i000 = grid_index(t.i0.x, t.i0.y, t.i0.z, r);
+    let i100 = grid_index(t.i1.x, t.i0.y, t.i0.z, r);
+    let i010 = grid_index(t.i0.x, t.i1.y, t.i0.z, r);
+    let i110 = grid_index(t.i1.x, t.i1.y, t.i0.z, r);
+    let i001 = grid_index(t.i0.x, t.i0.y, t.i1.z, r);
+    let i101 = grid_index(t.i1.x, t.i0.y, t.i1.z, r);
+    let i011 = grid_index(t.i0.x, t.i1.y, t.i1.z, r);
+    let i111 = grid_index(t.i1.x, t.i1.y, t.i1.z, r);
+    if (hi) {
+        let c00 = mix(j_hi[i000], j_hi[i100], f.x);
+        let c10 = mix(j_hi[i010], j_hi[i110], f.x);
+        let c01 = mix(j_hi[i001], j_hi[i101], f.x);
+        let c11 = mix(j_hi[i011], j_hi[i111], f.x);
+        return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
+    }
+    let c00 = mix(j_dir[i000], j_dir[i100], f.x);
+    let c10 = mix(j_dir[i010], j_dir[i110], f.x);
+    let c01 = mix(j_dir[i001], j_dir[i101], f.x);
+    let c11 = mix(j_dir[i011], j_dir[i111], f.x);
+    return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
+}
+
+// HG(ω | g·|v|) for a lobe v (axis × g') seen along the camera ray d: light along v scattered
+// towards the camera (−d).
+fn lobe_phase(v: vec3<f32>, d: vec3<f32>) -> f32 {
+    let gl = length(v);
+    var mu = 0.0;
+    if (gl > 1.0e-6) { mu = dot(-d, v / gl); }
+    return hg_eval(P.g * min(gl, 0.999), mu);
+}
+
+// Sun fluence per unit irradiance times the phase of its lobes towards the camera: one lobe
+// along the sun with J's g' (the paper), or per-cell flux lobes — one for all orders, or one
+// for the low and one for the high orders (`P.lobe_split`).
+fn sun_in_scatter(x: vec3<f32>, jv: vec4<f32>, d: vec3<f32>) -> f32 {
+    if (P.lobe_axis == 0u) { return jv.x * lobe_phase(-P.sun_dir * jv.z, d); }
+    let lo = interp_dir(x, false);
+    if (P.lobe_split == 0u) { return jv.x * lobe_phase(lo.xyz, d); }
+    let hi = interp_dir(x, true);
+    let f_hi = clamp(lo.w, 0.0, jv.x);
+    return (jv.x - f_hi) * lobe_phase(lo.xyz, d) + f_hi * lobe_phase(hi.xyz, d);
+}
+
+fn t_sun_at(p: vec3<f32>) -> f32 {
+    let t = trilinear(p, P.light_res);
+    let r = P.light_res;
+    let f = t.f;
+    let c00 = mix(t_sun[grid_index(t.i0.x, t.i0.y, t.i0.z, r)], t_sun[grid_index(t.i1.x, t.i0.y, t.i0.z, r)], f.x);
+    let c10 = mix(t_sun[grid_index(t.i0.x, t.i1.y, t.i0.z, r)], t_sun[grid_index(t.i1.x, t.i1.y, t.i0.z, r)], f.x);
+    let c01 = mix(t_sun[grid_index(t.i0.x, t.i0.y, t.i1.z, r)], t_sun[grid_index(t.i1.x, t.i0.y, t.i1.z, r)], f.x);
+    let c11 = mix(t_sun[grid_index(t.i0.x, t.i1.y, t.i1.z, r)], t_sun[grid_index(t.i1.x, t.i1.y, t.i1.z, r)], f.x);
+    return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
+}
+
+fn j_at(p: vec3<f32>) -> vec4<f32> {
+    let t = trilinear(p, P.light_res);
+    let r = P.light_res;
+    let f = t.f;
+    let c00 = mix(j_in[grid_index(t.i0.x, t.i0.y, t.i0.z, r)], j_in[grid_index(t.i1.x, t.i0.y, t.i0.z, r)], f.x);
+    let c10 = mix(j_in[grid_index(t.i0.x, t.i1.y, t.i0.z, r)], j_in[grid_index(t.i1.x, t.i1.y, t.i0.z, r)], f.x);
+    let c01 = mix(j_in[grid_index(t.i0.x, t.i0.y, t.i1.z, r)], j_in[grid_index(t.i1.x, t.i0.y, t.i1.z, r)], f.x);
+    let c11 = mix(j_in[grid_index(t.i0.x, t.i1.y, t.i1.z, r)], j_in[grid_index(t.i1.x, t.i1.y, t.i1.z, r)], f.x);
+    return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
+}
+
+// Vector value noise in [−1, 1]³ on the integer lattice, smoothly interpolated.
+fn lattice(c: vec3<i32>) -> vec3<f32> {
+    let h = pcg_hash(bitcast<u32>(c.x) ^ pcg_hash(bitcast<u32>(c.y) ^ pcg_hash(bitcast<u32>(c.z))));
+    let h2 = pcg_hash(h);
+    let h3 = pcg_hash(h2);
+    return vec3<f32>(f32(h >> 8u), f32(h2 >> 8u), f32(h3 >> 8u)) * (2.0 / 16777216.0) - vec3<f32>(1.0);
+}
+
+fn value_noise(q: vec3<f32>) -> vec3<f32> {
+    let b = floor(q);
+    let f = q - b;
+    let s = f * f * (vec3<f32>(3.0) - 2.0 * f);
+    let c = vec3<i32>(b);
+    let x00 = mix(lattice(c), lattice(c + vec3<i32>(1, 0, 0)), s.x);
+    let x10 = mix(lattice(c + vec3<i32>(0, 1, 0)), lattice(c + vec3<i32>(1, 1, 0)), s.x);
+    let x01 = mix(lattice(c + vec3<i32>(0, 0, 1)), lattice(c + vec3<i32>(1, 0, 1)), s.x);
+    let x11 = mix(lattice(c + vec3<i32>(0, 1, 1)), lattice(c + vec3<i32>(1, 1, 1)), s.x);
+    return mix(mix(x00, x10, s.y), mix(x01, x11, s.y), s.z);
+}
+
+// Pipeline constant: the noise code is compiled in only when detail noise is on.
+override DETAIL_NOISE: bool = false;
+
+fn perturb(x: vec3<f32>) -> vec3<f32> {
+    if (!DETAIL_NOISE || P.noise_amplitude <= 0.0) { return x; }
+    let q = x * P.noise_frequency;
+    let n = value_noise(q) + 0.5 * value_noise(2.0 * q) + 0.25 * value_noise(4.0 * q);
+    return x + P.noise_amplitude * n;
+}
+
+@compute @workgroup_size(8, 8)
+fn raymarch(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if (gid.x >= P.width || gid.y >= P.height) { return; }
+    let px = (f32(gid.x) + 0.5) / f32(P.width) * 2.0 - 1.0;
+    let py = 1.0 - (f32(gid.y) + 0.5) / f32(P.height) * 2.0;
+    let d = normalize(P.cam_forward + P.cam_right * (px * P.tan_half * P.aspect) + P.cam_up * (py * P.tan_half));
+    var l = vec3<f32>(0.0);
+    var tr = 1.0;
+    let hit = box_intersect(P.cam_origin, d);
+    if (hit.x <= hit.y) {
+        let offset = f32(pcg_hash(gid.y * P.width + gid.x) >> 8u) * (1.0 / 16777216.0);
+        var t = hit.x + offset * P.step;
+        let mu = dot(d, P.sun_dir);
+        let sigma_s_scale = P.albedo * P.density_scale;
+        loop {
+            if (t >= hit.y || tr < P.early_exit) { break; }
+            let dt = min(P.step, hit.y - t);
+            let x = perturb(P.cam_origin + d * (t + 0.5 * dt));
+            let dens = density_at(x);
+            let sigma_t = P.density_scale * dens;
+            if (sigma_t > 0.0) {
+                let jv = j_at(x);
+                // Light along the axis a scattered towards the camera (−d): cos = a·(−d).
+                var ls: vec3<f32>;
+                if (P.view_mode == 2u) {
+                    // J holds the in-scattering towards the camera itself (view mode).
+                    ls = sigma_s_scale * dens * (P.sun_irradiance * jv.x + P.sky_radiance * jv.y);
+                } else {
+                    ls = sigma_s_scale * dens * (P.sun_irradiance * sun_in_scatter(x, jv, d)
+                        + P.sky_radiance * (jv.y / (4.0 * PI)));
+                }
+                if (P.single_scatter != 0u) {
+                    ls += sigma_s_scale * dens * P.sun_irradiance * (t_sun_at(x) * hg_eval(P.g, mu));
+                }
+                let ts = exp(-sigma_t * dt);
+                l += tr * ls * (1.0 - ts) / sigma_t;
+                tr *= ts;
+            }
+            t += dt;
+        }
+    }
+    if (tr >= P.early_exit) {
+        var bg = P.sky_radiance;
+        if (P.sun_disc_radiance > 0.0 && dot(d, P.sun_dir) >= P.sun_cos_max) {
+            bg += P.sun_irradiance * P.sun_disc_radiance;
+        }
+        l += tr * bg;
+    }
+    image[gid.y * P.width + gid.x] = vec4<f32>(l, 1.0);
+}
