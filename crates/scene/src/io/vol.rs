@@ -199,20 +199,14 @@ pub fn to_bytes(grid: &DensityGrid, bounds: (DVec3, DVec3)) -> Vec<u8> {
     out.into_inner()
 }
 
-/// Runs of at least this many zero values (16 KiB) are not written but skipped with a seek:
-/// in a file they become a hole (no disk blocks on file systems that support them; zeros when
-/// read), so a cloud that fills a few percent of its box costs little more than its cloud.
-const HOLE_VALUES: usize = 4096;
+/// Zero values filling one 4 KiB page of the file are not written but skipped with a seek: in
+/// a file they become a hole (no disk blocks or page-cache copies on file systems that support
+/// them; zeros when read), so a cloud that fills a few percent of its box costs little more
+/// than its cloud. Pages are counted from the file's start (after the 48-byte header).
+const HOLE_VALUES: usize = 1024;
 
-/// Streams a grid as `.vol` bytes, z-plane by z-plane (no second copy of the grid in memory;
-/// bricks are read a plane at a time), seeking over long runs of zeros.
-pub fn write_to(
-    out: &mut (impl std::io::Write + std::io::Seek),
-    grid: &DensityGrid,
-    bounds: (DVec3, DVec3),
-) -> std::io::Result<()> {
-    use std::io::SeekFrom;
-    let r = grid.res();
+/// The 48-byte header of a grid of resolution `r` over `bounds`.
+fn header(r: [usize; 3], bounds: (DVec3, DVec3)) -> Vec<u8> {
     let mut header = Vec::with_capacity(HEADER_LEN);
     header.extend_from_slice(b"VOL");
     header.push(3);
@@ -224,41 +218,132 @@ pub fn write_to(
     ] {
         header.extend_from_slice(&(v as f32).to_le_bytes());
     }
-    out.write_all(&header)?;
-    let mut plane = vec![0.0f32; r[0] * r[1]];
-    let mut bytes = Vec::with_capacity(4 * HOLE_VALUES);
-    // Zero bytes not yet written (skipped by a seek before the next data, or at the end).
-    let mut pending = 0i64;
+    header
+}
+
+/// Calls `f` with the runs of plane `z` that hold data, as value ranges of the plane, in
+/// order: the plane cut at the file's page boundaries, pages of zeros left out (they become
+/// holes), consecutive data pages merged into one run.
+fn data_runs(
+    plane: &[f32],
+    z: usize,
+    mut f: impl FnMut(std::ops::Range<usize>) -> std::io::Result<()>,
+) -> std::io::Result<()> {
+    let g0 = z * plane.len();
+    let first = (HOLE_VALUES - (g0 + HEADER_LEN / 4) % HOLE_VALUES) % HOLE_VALUES;
+    let mut run: Option<usize> = None;
+    let mut at = 0;
+    while at < plane.len() {
+        let end = if at == 0 && first > 0 {
+            first
+        } else {
+            at + HOLE_VALUES
+        }
+        .min(plane.len());
+        let chunk = &plane[at..end];
+        if chunk.len() == HOLE_VALUES && chunk.iter().all(|&v| v.to_bits() == 0) {
+            if let Some(a) = run.take() {
+                f(a..at)?;
+            }
+        } else {
+            run.get_or_insert(at);
+        }
+        at = end;
+    }
+    match run {
+        Some(a) => f(a..plane.len()),
+        None => Ok(()),
+    }
+}
+
+/// `values` as little-endian f32 bytes (on a little-endian machine the values' own memory;
+/// elsewhere converted into `bytes`).
+fn le_bytes<'a>(values: &'a [f32], bytes: &'a mut Vec<u8>) -> &'a [u8] {
+    if cfg!(target_endian = "little") {
+        bytemuck::cast_slice(values)
+    } else {
+        bytes.clear();
+        bytes.extend(values.iter().flat_map(|v| v.to_le_bytes()));
+        bytes
+    }
+}
+
+/// Streams a grid as `.vol` bytes, z-plane by z-plane (no second copy of the grid in memory;
+/// bricks are read a plane at a time), seeking over the pages of zeros.
+pub fn write_to(
+    out: &mut (impl std::io::Write + std::io::Seek),
+    grid: &DensityGrid,
+    bounds: (DVec3, DVec3),
+) -> std::io::Result<()> {
+    use std::io::SeekFrom;
+    let r = grid.res();
+    out.write_all(&header(r, bounds))?;
+    let n = r[0] * r[1];
+    let mut plane = vec![0.0f32; n];
+    let mut bytes = Vec::new();
+    // The value the cursor is at.
+    let mut pos = 0usize;
     for z in 0..r[2] {
         grid.plane(z, &mut plane);
-        for chunk in plane.chunks(HOLE_VALUES) {
-            if chunk.len() == HOLE_VALUES && chunk.iter().all(|&v| v.to_bits() == 0) {
-                pending += 4 * HOLE_VALUES as i64;
-                continue;
+        data_runs(&plane, z, |run| {
+            let g = z * n + run.start;
+            if g > pos {
+                out.seek(SeekFrom::Current(4 * (g - pos) as i64))?;
             }
-            if pending > 0 {
-                out.seek(SeekFrom::Current(pending))?;
-                pending = 0;
-            }
-            bytes.clear();
-            bytes.extend(chunk.iter().flat_map(|v| v.to_le_bytes()));
-            out.write_all(&bytes)?;
-        }
+            out.write_all(le_bytes(&plane[run.clone()], &mut bytes))?;
+            pos = z * n + run.end;
+            Ok(())
+        })?;
     }
-    if pending > 0 {
+    let total = n * r[2];
+    if pos < total {
         // The last value is written, so the file has its full length.
-        out.seek(SeekFrom::Current(pending - 4))?;
+        out.seek(SeekFrom::Current(4 * (total - pos) as i64 - 4))?;
         out.write_all(&[0; 4])?;
     }
     Ok(())
 }
 
+/// [`write_to`] for a file, planes in parallel: the file is sized first (all holes) and each
+/// plane's data runs are written at their offsets — copying gigabytes into the page cache is
+/// itself slow enough to be worth both cores (a 1200³ cumulus: 2.6 GB of data pages).
+#[cfg(unix)]
+fn write_file(
+    f: &std::fs::File,
+    grid: &DensityGrid,
+    bounds: (DVec3, DVec3),
+) -> std::io::Result<()> {
+    use rayon::prelude::*;
+    use std::os::unix::fs::FileExt;
+    let r = grid.res();
+    let n = r[0] * r[1];
+    f.set_len((HEADER_LEN + 4 * n * r[2]) as u64)?;
+    f.write_all_at(&header(r, bounds), 0)?;
+    (0..r[2]).into_par_iter().try_for_each_init(
+        || (vec![0.0f32; n], Vec::new()),
+        |(plane, bytes), z| {
+            grid.plane(z, plane);
+            data_runs(plane, z, |run| {
+                let at = HEADER_LEN + 4 * (z * n + run.start);
+                f.write_all_at(le_bytes(&plane[run], bytes), at as u64)
+            })
+        },
+    )
+}
+
 pub fn write(path: &Path, grid: &DensityGrid, bounds: (DVec3, DVec3)) -> Result<()> {
     let f = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
-    let mut w = std::io::BufWriter::new(f);
-    write_to(&mut w, grid, bounds)
-        .and_then(|()| std::io::Write::flush(&mut w))
-        .map_err(|e| Error::io(path, e))
+    #[cfg(unix)]
+    {
+        write_file(&f, grid, bounds).map_err(|e| Error::io(path, e))
+    }
+    #[cfg(not(unix))]
+    {
+        let mut w = std::io::BufWriter::new(f);
+        write_to(&mut w, grid, bounds)
+            .and_then(|()| std::io::Write::flush(&mut w))
+            .map_err(|e| Error::io(path, e))
+    }
 }
 
 #[cfg(test)]
@@ -374,15 +459,17 @@ mod tests {
 
     #[test]
     fn long_zero_runs_are_skipped_yet_read_back_as_zeros() {
-        // Planes of 96 × 64 values: zero runs longer than a hole at the start, in the middle
-        // and at the end (the file must still have its full length), a −0.0 inside one (its
-        // bits are kept), data in between; from a file and from memory, the same bytes.
-        let res = [96, 64, 5];
+        // Planes of 97 × 64 values (the file's pages fall at a different place in each):
+        // zero runs longer than a page at the start, in the middle and at the end (the file
+        // must still have its full length), a −0.0 inside one (its bits are kept), data in
+        // between; from a file (planes in parallel) and from memory, the same bytes.
+        let res = [97, 64, 5];
+        let n = 97 * 64;
         let data: Vec<f32> = (0..res.iter().product::<usize>())
-            .map(|i| match i / (96 * 64) {
+            .map(|i| match i / n {
                 1 if i % 97 == 0 => -0.0,
                 2 => (i % 13) as f32 * 0.25,
-                3 if (i % (96 * 64)) < 300 => 1.5,
+                3 if (i % n) < 300 || (i % n) % 1500 == 7 => 1.5,
                 _ => 0.0,
             })
             .collect();
