@@ -4,7 +4,10 @@
 #      every frame traces, updates, upsamples and ray marches; mean over frames 2..N);
 #   2. RPNN milliseconds per sample at 1280×720 for both network backends (wgpu, ort);
 #   3. GPU path tracer camera paths/s against the CPU path tracer on scenes/refs/cumulus_side;
-#   4. `datagen --device gpu` records per hour (fixed-count labels, --samples 1024).
+#   4. `datagen --device gpu` records per hour (fixed-count labels, --samples 1024);
+#   5. memory at scale: a generated 1200³ cumulus (Kallweit 2017 §5's largest) written as
+#      `.vol` and rendered by the GPU path tracer and the photon map, wall time and peak RSS
+#      (GNU time), as bench/volumes.sh measures them on lavapipe.
 #
 #   bash bench/device.sh [--small] [--out DIR]
 #
@@ -35,10 +38,10 @@ row() { echo "$1,$2,$3,$4,$5" >> "$csv"; }
 
 if [ "$small" = 1 ]; then
   W=240; H=150; FRAMES=3; BEAMS=1024; RW=160; RH=90; RSPP=1; PTSPP=4; GPTSPP=16
-  DG_RECORDS=16; DG_SAMPLES=256
+  DG_RECORDS=16; DG_SAMPLES=256; VOLRES=96
 else
   W=1920; H=1200; FRAMES=12; BEAMS=8192; RW=1280; RH=720; RSPP=2; PTSPP=16; GPTSPP=256
-  DG_RECORDS=2000; DG_SAMPLES=1024
+  DG_RECORDS=2000; DG_SAMPLES=1024; VOLRES=1200
 fi
 # A copy of a scene with another image size (relative volume paths stay valid: generators).
 sized() { # SRC W H -> path
@@ -87,6 +90,28 @@ line=$("$nimbus" datagen --clouds gen:5 --records "$DG_RECORDS" --val-records 0 
 rps=$(echo "$line" | sed -E 's/.*, ([0-9.]+) records\/s.*/\1/')
 row datagen_records_per_hour gen:5 "device=gpu samples=$DG_SAMPLES records=$DG_RECORDS" \
   "$(awk -v r="$rps" 'BEGIN { printf "%.0f", r * 3600 }')" records/h
+
+# 5. Memory and time at scale (the photon map's light volumes are coarser than the grid when J
+# would not fit one storage binding; the render line says which).
+"$nimbus" generate cumulus --seed 7 --res "$VOLRES,$VOLRES,$VOLRES" -o "$out/scale.vol" > /dev/null
+sed -e "s|^file = .*|file = \"$(realpath "$out/scale.vol")\"|" scenes/bench/scale.toml > "$out/scenes/scale.toml"
+for m in "--device gpu" "--method pm"; do
+  t0=$(date +%s.%N)
+  rss=-
+  if [ -x /usr/bin/time ]; then
+    # shellcheck disable=SC2086
+    /usr/bin/time -f "%M" -o "$out/rss" "$nimbus" render "$out/scenes/scale.toml" $m -q \
+      -o "$out/scale_img" > /dev/null
+    rss=$(( $(tail -1 "$out/rss") / 1024 ))
+  else
+    # shellcheck disable=SC2086
+    "$nimbus" render "$out/scenes/scale.toml" $m -q -o "$out/scale_img" > /dev/null
+  fi
+  t1=$(date +%s.%N)
+  row scale_wall_s "cumulus ${VOLRES}³ .vol" "$m" "$(awk -v a="$t0" -v b="$t1" 'BEGIN { printf "%.1f", b - a }')" s
+  row scale_peak_rss "cumulus ${VOLRES}³ .vol" "$m" "$rss" MB
+done
+rm -f "$out/scale.vol"
 
 # The Markdown table.
 {

@@ -69,6 +69,8 @@ check_all() {
   # The Blosc codec of the OpenVDB reader and ONNX/protobuf build scripts are C/C++.
   need gcc "C compiler for build scripts" command -v cc
   need g++ "C++ compiler for build scripts" command -v c++
+  # Peak memory in bench/device.sh and bench/volumes.sh (the device script's test checks it).
+  need time "GNU time for peak RSS" test -x /usr/bin/time
   # training/setup.sh makes a virtual environment.
   need python3-venv "python3 -m venv for training/.venv" python_venv
 }

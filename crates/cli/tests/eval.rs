@@ -379,7 +379,8 @@ fn device_benchmark_script_small() {
         assert!(v.is_finite() && v > 0.0, "{line}");
         *measures.entry(f[0].to_string()).or_insert(0) += 1;
     }
-    // 3 scenes × 6 photon-mapping figures, 2 RPNN backends, 2 path tracers, 1 datagen.
+    // 3 scenes × 6 photon-mapping figures, 2 RPNN backends, 2 path tracers, 1 datagen, wall
+    // time and peak RSS of 2 estimators at scale (every value finite and > 0: GNU time ran).
     assert_eq!(measures.get("pm_frame_ms"), Some(&3), "{csv}");
     // The default (exact) variant rebuilds its sun-transmittance volume as the sun turns.
     assert_eq!(measures.get("pm_sun_transmittance_ms"), Some(&3), "{csv}");
@@ -387,6 +388,8 @@ fn device_benchmark_script_small() {
     assert_eq!(measures.get("rpnn_ms_per_spp"), Some(&2), "{csv}");
     assert_eq!(measures.get("pt_paths_per_s"), Some(&2), "{csv}");
     assert_eq!(measures.get("datagen_records_per_hour"), Some(&1), "{csv}");
+    assert_eq!(measures.get("scale_wall_s"), Some(&2), "{csv}");
+    assert_eq!(measures.get("scale_peak_rss"), Some(&2), "{csv}");
     assert!(
         std::fs::read_to_string(d.join("device.md"))
             .unwrap()
