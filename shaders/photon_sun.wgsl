@@ -5,10 +5,11 @@
 // not from the coarse photon cache, which then holds only light scattered at least once (an
 // exact split by scattering order). Rebuilt only when the sun or the density changes, at
 // once or amortised over frames in slices.
-// Only voxels with density in their 3³ neighbourhood are marched (the rest get 0): the ray
-// marcher reads T_sun trilinearly where σ(x) > 0, and such a lookup touches only voxels next to
-// a non-zero one — at the light resolution of a coarser grid too (`mapper/light.rs`) — so the
-// empty space of a sparse box costs 27 reads per voxel instead of a march.
+// Only voxels with density nearby (`near_density`, lib/grid.wgsl) are marched (the rest get
+// 0): the ray marcher reads T_sun trilinearly where σ(x) > 0, and such a lookup touches only
+// voxels near a non-zero one — at the light resolution of a coarser grid too
+// (`mapper/light.rs`) — so the empty space of a sparse box costs 27 reads per voxel instead of
+// a march.
 // CPU twin: `nimbus_photon::cpu::sun_transmittance`.
 #import params
 #import grid

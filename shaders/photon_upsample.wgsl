@@ -1,4 +1,5 @@
-// Physically based upsampling of the cache I to J at the density resolution (Elek 2012 §4.3).
+// Physically based upsampling of the cache I to J at the light resolution (the density's, or
+// coarser for large grids: `mapper/light.rs`) (Elek 2012 §4.3).
 // CPU twins: `nimbus_photon::cpu::{cells, upsample, upsample_dirs}` (GPU = CPU tests).
 //
 // For each fine voxel p and each of the 3×3×3 coarse cells q around p's coarse cell:

@@ -68,11 +68,16 @@ fn density_at(p: vec3<f32>) -> f32 {
     return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
 }
 
-// Whether a voxel of the 3³ block around voxel v (clamped to the grid) holds density: the
-// trilinear lookups of a light volume where σ(x) > 0 touch only such voxels (photon_sun.wgsl).
+// Whether a voxel within `P.near_radius` (at least 1) of voxel v (the block clamped to the
+// grid) holds density: the trilinear lookups of a light volume where σ(x) > 0 touch only such
+// voxels. With the grid's own resolution, or one coarser by a factor ≥ 2 per axis, radius 1
+// suffices: the fine voxel that makes σ(x) > 0 lies within one fine voxel of x, so within half
+// a light voxel, and its light voxel is a trilinear neighbour of x or next to one; a factor
+// between 1 and 2 needs radius 2 (`nimbus_photon::mapper::light::near_radius`).
 fn near_density(v: vec3<u32>) -> bool {
-    let lo = max(vec3<i32>(v) - vec3<i32>(1), vec3<i32>(0));
-    let hi = min(vec3<i32>(v) + vec3<i32>(1), vec3<i32>(P.d_res) - vec3<i32>(1));
+    let r = vec3<i32>(i32(max(P.near_radius, 1u)));
+    let lo = max(vec3<i32>(v) - r, vec3<i32>(0));
+    let hi = min(vec3<i32>(v) + r, vec3<i32>(P.d_res) - vec3<i32>(1));
     for (var z = lo.z; z <= hi.z; z++) {
         for (var y = lo.y; y <= hi.y; y++) {
             for (var x = lo.x; x <= hi.x; x++) {

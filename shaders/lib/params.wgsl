@@ -23,5 +23,5 @@ struct Params {
     single_scatter: u32, density_weighted: u32, lobe_axis: u32, lobe_split: u32,
     upsample_mean: u32, upsample_g_extrapolate: u32, sun_first: u32, sun_count: u32,
     view_origin: vec3<f32>, view_mode: u32,
-    light_res: vec3<u32>, _pad_light: u32,
+    light_res: vec3<u32>, near_radius: u32,
 };

@@ -93,7 +93,10 @@ pub struct VolumeParams {
     /// marcher reads the density at `d_res` (equal unless the grid is too large for the light
     /// volumes at full resolution: `nimbus_photon::settings::light_res`).
     pub light_res: [u32; 3],
-    pub _pad_light: u32,
+    /// Photon mapping: the sun pass and the upsampling skip light voxels with no density within
+    /// this many voxels (0 counts as 1): 1, or 2 where an axis of the light volumes is coarser
+    /// than the density's by a factor below 2 (`nimbus_photon::mapper::light`).
+    pub near_radius: u32,
 }
 
 #[cfg(test)]
@@ -169,7 +172,7 @@ mod tests {
             ("view_origin", offset_of!(VolumeParams, view_origin)),
             ("view_mode", offset_of!(VolumeParams, view_mode)),
             ("light_res", offset_of!(VolumeParams, light_res)),
-            ("_pad_light", offset_of!(VolumeParams, _pad_light)),
+            ("near_radius", offset_of!(VolumeParams, near_radius)),
         ];
         assert_eq!(members.len(), rust.len());
         for ((m, moff), (name, off)) in members.iter().zip(rust) {

@@ -188,10 +188,12 @@ impl<'g> PhotonMapper<'g> {
                 ),
             });
         }
-        // At most 2^32 light voxels (`light::light_res`).
+        // At most 2^32 light voxels (`light::light_res`); J (16 bytes each) is checked first,
+        // which bounds the work density computed next (4 bytes each).
         let voxels = light_res.iter().product::<u32>();
-        gpu.check_storage("the density grid", voxels as u64 * 4)?;
-        let march_density = light::march_density(gpu, vol.grid(), light_res)?;
+        gpu.check_storage("the upsampled cache J", voxels as u64 * 16)?;
+        gpu.check_storage("the photon stages' density", voxels as u64 * 4)?;
+        let (march_plan, march_bytes) = light::march_plan(gpu, vol.grid(), light_res);
         let (work, work_max) = light::work_density(vol.grid(), light_res)?;
         let aabb = vol.aabb();
         let d_max = work_max as f64;
@@ -289,9 +291,8 @@ impl<'g> PhotonMapper<'g> {
             view_origin: f3(scene.camera.origin),
             view_mode: settings.effective_view() as u32,
             light_res,
-            _pad_light: 0,
+            near_radius: light::near_radius(fine_res, light_res),
         };
-        gpu.check_storage("the upsampled cache J", voxels as u64 * 16)?;
         gpu.check_storage(
             "the photon-cache ring",
             settings.ring as u64 * cells as u64 * CELL_BYTES as u64,
@@ -307,8 +308,9 @@ impl<'g> PhotonMapper<'g> {
             voxels,
             cells,
             &scene.camera,
-            march_density.bytes(),
+            march_bytes,
         )?;
+        let march_density = light::march_density(gpu, vol.grid(), march_plan)?;
         let params_buf = gpu.uniform("pm params", &params);
         let march_buf = gpu.uniform(
             "pm ray-marcher params",

@@ -57,28 +57,34 @@ fn coarse_light_volumes_match_cpu() {
         return;
     };
     let s = cloud([24, 18, 24], true);
-    let light = [12u32, 9, 12];
-    for view in [false, true] {
+    // Half resolution, with lobes and view words; a factor of 1.5 (skip radius 2).
+    for (light, view) in [
+        ([12u32, 9, 12], false),
+        ([12, 9, 12], true),
+        ([16, 12, 16], false),
+    ] {
         let mut pm = PhotonMapper::new(&gpu, &s, settings(Some(light), view)).unwrap();
         assert!(pm.light_is_coarse());
         assert_eq!(pm.light_res(), light);
+        assert_eq!(pm.params.near_radius, if light[0] == 16 { 2 } else { 1 });
+        let [x, y, z] = light;
         assert!(
             pm.light_note()
                 .unwrap()
-                .starts_with("light volumes 12×9×12")
+                .starts_with(&format!("light volumes {x}×{y}×{z}"))
         );
         let img = pm.render(&s.camera).unwrap();
         let work = pm.read_density().unwrap();
         assert_eq!(
             work,
-            nimbus_scene::downsample::block_means(s.volume.grid(), [12, 9, 12])
+            nimbus_scene::downsample::block_means(s.volume.grid(), light.map(|v| v as usize))
         );
         let p = pm.params;
         let t_sun = pm.read_sun_transmittance().unwrap();
         assert_eq!(t_sun.len(), work.len());
         for (i, &g) in t_sun.iter().enumerate() {
             let c = cpu::sun_transmittance(&p, &work, i);
-            assert!((g - c).abs() <= 1e-5, "voxel {i}: {g} vs {c}");
+            assert!((g - c).abs() <= 1e-5, "{light:?} voxel {i}: {g} vs {c}");
         }
         let j = pm.read_j().unwrap();
         let dirs = pm.read_j_dirs().unwrap();

@@ -129,12 +129,14 @@ pub fn density_at(p: &VolumeParams, density: &[f32], x: Vec3) -> f32 {
     interp(p, x, p.d_res, |i| density[i])
 }
 
-/// Whether a voxel of the 3³ block around voxel `idx` (clamped to the grid) holds density
-/// (`near_density` in grid.wgsl): the sun pass and the upsampling skip the others.
+/// Whether a voxel within `p.near_radius` (at least 1) of voxel `idx` (the block clamped to
+/// the grid) holds density (`near_density` in grid.wgsl): the sun pass and the upsampling skip
+/// the others.
 pub fn near_density(p: &VolumeParams, density: &[f32], idx: usize) -> bool {
     let r = p.d_res;
     let v = coords(idx, r);
-    let near = |a: usize| v[a].saturating_sub(1)..=(v[a] + 1).min(r[a] - 1);
+    let k = p.near_radius.max(1);
+    let near = |a: usize| v[a].saturating_sub(k)..=(v[a] + k).min(r[a] - 1);
     near(2).any(|z| near(1).any(|y| near(0).any(|x| density[index(x, y, z, r)] > 0.0)))
 }
 

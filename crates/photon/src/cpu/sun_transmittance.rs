@@ -4,15 +4,12 @@ use super::*;
 
 /// Sun transmittance at density voxel `idx` (the pass of `photon_sun.wgsl`): midpoint rule
 /// with half the smallest voxel as step from the voxel centre to the box boundary; 0 where no
-/// voxel of the 3³ block around it holds density (never read there).
+/// density is near ([`near_density`]: never read there).
 pub fn sun_transmittance(p: &VolumeParams, density: &[f32], idx: usize) -> f32 {
-    let r = p.d_res;
-    let v = coords(idx, r);
-    let near = |a: usize| v[a].saturating_sub(1)..=(v[a] + 1).min(r[a] - 1);
-    let any = near(2).any(|z| near(1).any(|y| near(0).any(|x| density[index(x, y, z, r)] > 0.0)));
-    if !any {
+    if !near_density(p, density, idx) {
         return 0.0;
     }
+    let r = p.d_res;
     let ext = v3(p.aabb_max) - v3(p.aabb_min);
     let resf = Vec3::new(r[0] as f32, r[1] as f32, r[2] as f32);
     let x = voxel_centre(p, idx);

@@ -7,6 +7,9 @@ impl PhotonMapper<'_> {
     /// Sets the grid value the majorant is computed from (σ̄ = density_scale × value); used by
     /// density sequences, which need one majorant for all frames.
     /// Changing it invalidates the cached generations, so the ring is emptied if it held any.
+    /// With coarse light volumes the value is the grid's, at least the block means' largest:
+    /// still a majorant of the work density, and the upsampling's range filter is normalised
+    /// by it.
     pub fn set_majorant_value(&mut self, max_value: f32) {
         if self.frame > 0 {
             self.reset();

@@ -36,15 +36,6 @@ impl MarchDensity {
             _ => "photon_raymarch.wgsl",
         }
     }
-
-    /// Bytes it adds to the photon map's buffers.
-    pub fn bytes(&self) -> u64 {
-        match self {
-            MarchDensity::Work => 0,
-            MarchDensity::Dense(b) => b.size(),
-            MarchDensity::Bricks(k) => k.bytes,
-        }
-    }
 }
 
 /// The light resolution for `grid`: the setting (each axis in 1..= the grid's), else the
@@ -89,38 +80,64 @@ pub(super) fn light_res(
 pub(super) fn work_density(
     grid: &DensityGrid,
     l_res: [u32; 3],
-) -> Result<(Vec<f32>, f32), PmError> {
+) -> Result<(std::borrow::Cow<'_, [f32]>, f32), PmError> {
     let l = l_res.map(|v| v as usize);
     let data = if l == grid.res() {
-        grid.dense().map_err(PmError::Memory)?.into_owned()
+        grid.dense().map_err(PmError::Memory)?
     } else {
-        nimbus_scene::downsample::block_means(grid, l)
+        nimbus_scene::downsample::block_means(grid, l).into()
     };
     let max = data.iter().fold(0.0f32, |m, &v| m.max(v));
     Ok((data, max))
 }
 
-/// The ray marcher's density for `grid` when the light resolution is `l_res`.
+/// Which density the ray marcher will read, decided before anything is allocated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum MarchPlan {
+    Work,
+    Dense,
+    Bricks,
+}
+
+/// The ray marcher's density for `grid` at light resolution `l_res`, and the bytes it adds
+/// (for a brick map, the grid's own bytes: an upper bound of its atlas, which shares constant
+/// bricks).
+pub(super) fn march_plan(gpu: &Gpu, grid: &DensityGrid, l_res: [u32; 3]) -> (MarchPlan, u64) {
+    let res = grid.res();
+    if l_res.map(|v| v as usize) == res {
+        return (MarchPlan::Work, 0);
+    }
+    let bytes = res.iter().map(|&v| v as u64).product::<u64>() * 4;
+    if grid.as_dense().is_some() && gpu.check_storage("the density grid", bytes).is_ok() {
+        (MarchPlan::Dense, bytes)
+    } else {
+        (MarchPlan::Bricks, grid.bytes() as u64)
+    }
+}
+
+/// Uploads the ray marcher's density as planned.
 pub(super) fn march_density(
     gpu: &Gpu,
     grid: &DensityGrid,
-    l_res: [u32; 3],
+    plan: MarchPlan,
 ) -> Result<MarchDensity, PmError> {
-    let res = grid.res();
-    if l_res.map(|v| v as usize) == res {
-        return Ok(MarchDensity::Work);
+    Ok(match (plan, grid.as_dense()) {
+        (MarchPlan::Work, _) => MarchDensity::Work,
+        (MarchPlan::Dense, Some(d)) => MarchDensity::Dense(gpu.storage("density (ray marcher)", d)),
+        _ => MarchDensity::Bricks(Box::new(GpuDensity::new(gpu, grid, "the density grid")?)),
+    })
+}
+
+/// Radius of the neighbourhood the sun pass and the upsampling look for density in
+/// (`near_density` in shaders/lib/grid.wgsl): 1, or 2 where an axis of the light volumes is
+/// coarser than the grid's by a factor between 1 and 2 — there the fine voxel that makes
+/// σ(x) > 0 can lie in the light voxel two away from a trilinear neighbour of x.
+pub fn near_radius(d_res: [u32; 3], l_res: [u32; 3]) -> u32 {
+    if (0..3).any(|a| l_res[a] != d_res[a] && 2 * l_res[a] > d_res[a]) {
+        2
+    } else {
+        1
     }
-    let bytes = res.iter().map(|&v| v as u64).product::<u64>() * 4;
-    if let Some(d) = grid.as_dense()
-        && gpu.check_storage("the density grid", bytes).is_ok()
-    {
-        return Ok(MarchDensity::Dense(gpu.storage("density (ray marcher)", d)));
-    }
-    Ok(MarchDensity::Bricks(Box::new(GpuDensity::new(
-        gpu,
-        grid,
-        "the density grid",
-    )?)))
 }
 
 impl PhotonMapper<'_> {
@@ -152,8 +169,11 @@ impl PhotonMapper<'_> {
             return None;
         }
         let [x, y, z] = self.params.light_res;
-        let k = self.fine_res[0].div_ceil(x);
-        let mut note = format!("light volumes {x}×{y}×{z} (≈ {k}³ voxels each)");
+        let k = (0..3)
+            .map(|a| self.fine_res[a] as f64 / self.params.light_res[a] as f64)
+            .fold(0.0, f64::max);
+        let mut note =
+            format!("light volumes {x}×{y}×{z} (up to {k:.1} voxels along an axis each)");
         let tau = self.light_voxel_depth();
         if tau > THICK_LIGHT_VOXEL {
             note += &format!(
@@ -214,5 +234,47 @@ impl PhotonMapper<'_> {
         }
         self.sun.dirty = true;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::near_radius;
+
+    /// The claim behind the skip, checked along one axis for every pair of resolutions up to
+    /// 40: wherever a lone non-zero fine voxel i makes the fine trilinear lookup at x non-zero
+    /// (x sampled every 1/64 voxel, clamped lookups at the box's ends), the light volume's
+    /// trilinear lookup at x reads only light voxels within `near_radius` of i's light voxel
+    /// (the one holding its centre, as the block means assign it).
+    #[test]
+    fn skipped_voxels_are_never_read_where_there_is_density() {
+        let corners = |u: f64, n: usize| {
+            let b = (u - 0.5).floor();
+            let c = |v: f64| v.clamp(0.0, n as f64 - 1.0) as usize;
+            [c(b), c(b + 1.0)]
+        };
+        for fine in 1..=40usize {
+            for coarse in 1..=fine {
+                let r = near_radius([fine as u32, 1, 1], [coarse as u32, 1, 1]) as i64;
+                for i in 0..fine {
+                    let home = ((2 * i + 1) * coarse / (2 * fine)) as i64;
+                    for s in 0..=(fine * 64) {
+                        let x = s as f64 / 64.0;
+                        if !corners(x, fine).contains(&i) {
+                            continue;
+                        }
+                        for c in corners(x * coarse as f64 / fine as f64, coarse) {
+                            assert!(
+                                (c as i64 - home).abs() <= r,
+                                "{fine} → {coarse}: voxel {i} at x = {x} reads light voxel {c}, {home} ± {r}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+        // Radius 1 is not enough for a factor between 1 and 2 (so 2 is needed there).
+        assert_eq!(near_radius([3, 8, 8], [2, 8, 8]), 2);
+        assert_eq!(near_radius([4, 8, 8], [2, 8, 8]), 1);
     }
 }

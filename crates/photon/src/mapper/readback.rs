@@ -21,7 +21,7 @@ impl PhotonMapper<'_> {
             .collect())
     }
 
-    /// Reads the upsampled flux lobes back (flux axes; one per density voxel): (low-order mean
+    /// Reads the upsampled flux lobes back (flux axes; one per light voxel): (low-order mean
     /// propagation vector, high-order fluence) and (high-order mean propagation vector, 0).
     pub fn read_j_dirs(&self) -> Result<Vec<[glam::Vec4; 2]>, PmError> {
         let a: Vec<[f32; 4]> = self.gpu.read(&self.j_dir)?;
@@ -46,7 +46,8 @@ impl PhotonMapper<'_> {
         Ok(self.gpu.read(&self.j)?)
     }
 
-    /// Density values as uploaded.
+    /// The density the photon stages read (the grid's values, or its block means at the light
+    /// resolution).
     pub fn read_density(&self) -> Result<Vec<f32>, PmError> {
         Ok(self.gpu.read(&self.density)?)
     }

@@ -317,6 +317,13 @@ fn write_file(
     use std::os::unix::fs::FileExt;
     let r = grid.res();
     let n = r[0] * r[1];
+    // One plane buffer per worker, within the memory budget.
+    crate::memory::check(
+        (rayon::current_num_threads() * n * 4) as u128,
+        "volume",
+        "the plane buffers of a .vol being written",
+    )
+    .map_err(|e| std::io::Error::other(e.msg))?;
     f.set_len((HEADER_LEN + 4 * n * r[2]) as u64)?;
     f.write_all_at(&header(r, bounds), 0)?;
     (0..r[2]).into_par_iter().try_for_each_init(
