@@ -173,7 +173,7 @@ impl PhotonMapper<'_> {
             .map(|a| self.fine_res[a] as f64 / self.params.light_res[a] as f64)
             .fold(0.0, f64::max);
         let mut note =
-            format!("light volumes {x}×{y}×{z} (up to {k:.1} voxels along an axis each)");
+            format!("light volumes {x}×{y}×{z} (each ≤ {k:.1} grid voxels along an axis)");
         let tau = self.light_voxel_depth();
         if tau > THICK_LIGHT_VOXEL {
             note += &format!(
