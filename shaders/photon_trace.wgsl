@@ -41,6 +41,9 @@
 // Set to 1 when a u32 sum wraps (too many deposits in one cell for 32 bits): the mapper reports
 // it instead of rendering a silently wrong cache.
 @group(0) @binding(3) var<storage, read_write> overflow: array<atomic<u32>>;
+// 1 for each cache cell that no later stage reads (no density within a cell and three light
+// voxels of it: `nimbus_photon::mapper::light::skippable_cells`); read when `P.skip_empty`.
+@group(0) @binding(4) var<storage, read> cell_skip: array<u32>;
 
 // Cells accumulated in workgroup memory: set per pipeline by the mapper (`cache_layout.rs`).
 override SHARED_CELLS: u32 = 256u;
@@ -64,6 +67,29 @@ fn view_phase(x: vec3<f32>, d: vec3<f32>) -> f32 {
     let l = length(v);
     if (!(l > 1.0e-20)) { return 1.0 / (4.0 * PI); }
     return hg_eval(P.g, dot(d, v / l));
+}
+
+// Empty-space skipping (`P.skip_empty`): the distance that takes a beam at x along d out of its
+// cell when no stage reads the cell, else −1. Free flights are memoryless, so the walk
+// restarts where the beam leaves the cell: nothing changes but the deposits in a cell no stage
+// reads, and the sliver of 10⁻³ of a cell by which the beam is pushed past the face (so the next
+// lookup lands in the next cell). CPU twin: `skip_distance` in `cpu/trace.rs`.
+fn skip_distance(x: vec3<f32>, d: vec3<f32>) -> f32 {
+    let ext = P.aabb_max - P.aabb_min;
+    let size = ext / vec3<f32>(P.i_res);
+    let u = (x - P.aabb_min) / ext * vec3<f32>(P.i_res);
+    let c = vec3<u32>(clamp(floor(u), vec3<f32>(0.0), vec3<f32>(P.i_res) - vec3<f32>(1.0)));
+    if (cell_skip[grid_index(c.x, c.y, c.z, P.i_res)] == 0u) { return -1.0; }
+    let lo = P.aabb_min + vec3<f32>(c) * size;
+    var t = 3.0e38;
+    for (var a = 0; a < 3; a++) {
+        if (d[a] > 0.0) {
+            t = min(t, (lo[a] + size[a] - x[a]) / d[a]);
+        } else if (d[a] < 0.0) {
+            t = min(t, (lo[a] - x[a]) / d[a]);
+        }
+    }
+    return max(t, 0.0) + 1.0e-3 * min(size.x, min(size.y, size.z));
 }
 
 fn cell_of(p: vec3<f32>) -> u32 {
@@ -106,6 +132,14 @@ fn trace_beam(index: u32) {
     loop {
         steps++;
         if (steps > 1000000u) { break; }
+        if (P.skip_empty != 0u) {
+            let s = skip_distance(x, d);
+            if (s >= 0.0) {
+                x = x + d * s;
+                if (!inside_box(x)) { break; }
+                continue;
+            }
+        }
         let exit = box_intersect(x, d);
         let t = -log(1.0 - rand(&rng)) / P.sigma_max;
         if (exit.x > exit.y || t >= exit.y) { break; }
@@ -122,6 +156,9 @@ fn trace_beam(index: u32) {
             stalled = 0u;
         }
         x = x_next;
+        // A flight that ends in a skipped cell deposits nothing there (the next pass of the
+        // loop moves the beam out of the cell).
+        if (P.skip_empty != 0u && skip_distance(x, d) >= 0.0) { continue; }
         let skip = is_sun && order == 0u && P.single_scatter != 0u;
         let cell = cell_of(x) * CELL_WORDS;
         // Density-weighted deposits (a collision estimator): weight σ(x)/σ̄, so a cell sums

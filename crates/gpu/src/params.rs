@@ -97,6 +97,12 @@ pub struct VolumeParams {
     /// this many voxels (0 counts as 1): 1, or 2 where an axis of the light volumes is coarser
     /// than the density's by a factor below 2 (`nimbus_photon::mapper::light`).
     pub near_radius: u32,
+    /// Photon mapping: 1 = beams cross the cache cells no later stage reads in one step
+    /// (`cell_skip` in photon_trace.wgsl), 0 = Woodcock tracking everywhere.
+    pub skip_empty: u32,
+    pub _pad_skip0: u32,
+    pub _pad_skip1: u32,
+    pub _pad_skip2: u32,
 }
 
 #[cfg(test)]
@@ -173,6 +179,10 @@ mod tests {
             ("view_mode", offset_of!(VolumeParams, view_mode)),
             ("light_res", offset_of!(VolumeParams, light_res)),
             ("near_radius", offset_of!(VolumeParams, near_radius)),
+            ("skip_empty", offset_of!(VolumeParams, skip_empty)),
+            ("_pad_skip0", offset_of!(VolumeParams, _pad_skip0)),
+            ("_pad_skip1", offset_of!(VolumeParams, _pad_skip1)),
+            ("_pad_skip2", offset_of!(VolumeParams, _pad_skip2)),
         ];
         assert_eq!(members.len(), rust.len());
         for ((m, moff), (name, off)) in members.iter().zip(rust) {

@@ -12,7 +12,7 @@ use nimbus_scene::{Camera, Image, Phase, Scene, Sky};
 use nimbus_gpu::params::VolumeParams;
 
 mod changes;
-mod light;
+pub mod light;
 mod memory;
 mod readback;
 mod sun;
@@ -104,6 +104,8 @@ pub struct PhotonMapper<'g> {
     /// The density grid's resolution (`params.d_res` is the light resolution the photon
     /// stages work at: `mapper/light.rs`).
     fine_res: [u32; 3],
+    /// Per cache cell, 1 where beams skip ahead (`params.skip_empty`; `light::skippable_cells`).
+    cell_skip: wgpu::Buffer,
     /// The grid's largest value (the work density's is `params.d_max`).
     grid_max: f64,
     /// The ray marcher's uniform block (`params` with `d_res = fine_res`) and density.
@@ -292,6 +294,10 @@ impl<'g> PhotonMapper<'g> {
             view_mode: settings.effective_view() as u32,
             light_res,
             near_radius: light::near_radius(fine_res, light_res),
+            skip_empty: settings.skip_empty.unwrap_or(light_res != fine_res) as u32,
+            _pad_skip0: 0,
+            _pad_skip1: 0,
+            _pad_skip2: 0,
         };
         gpu.check_storage(
             "the photon-cache ring",
@@ -320,6 +326,14 @@ impl<'g> PhotonMapper<'g> {
             },
         );
         let density = gpu.storage("density D", &work);
+        let cell_skip = if params.skip_empty != 0 {
+            gpu.storage(
+                "skippable cache cells",
+                &light::skippable_cells(&work, light_res, i_res),
+            )
+        } else {
+            gpu.zeroed("skippable cache cells (unused)", 4)
+        };
         drop(work);
         let cell_bytes = cells as u64 * CELL_BYTES as u64;
         let h_new = gpu.zeroed("H_new", cell_bytes);
@@ -358,7 +372,13 @@ impl<'g> PhotonMapper<'g> {
         let trace = Stage {
             bind: gpu.bind(
                 &trace_p,
-                &[(0, &params_buf), (1, &density), (2, &h_new), (3, &overflow)],
+                &[
+                    (0, &params_buf),
+                    (1, &density),
+                    (2, &h_new),
+                    (3, &overflow),
+                    (4, &cell_skip),
+                ],
             ),
             pipeline: trace_p,
         };
@@ -479,6 +499,7 @@ impl<'g> PhotonMapper<'g> {
             j_hi,
             overflow,
             fine_res,
+            cell_skip,
             grid_max: vol.grid().stats().max as f64,
             march_buf,
             march_density,

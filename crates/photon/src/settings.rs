@@ -75,6 +75,10 @@ pub struct PmSettings {
     /// Default: [`default_light_res`] (the density's resolution when J fits one storage
     /// binding).
     pub light_res: Option<[u32; 3]>,
+    /// Beams cross the cache cells no stage reads (no density within a cell and three light
+    /// voxels) in one step instead of by Woodcock tracking (`photon_trace.wgsl`); `None`: on
+    /// when the light volumes are coarser than the grid (a large box, often mostly empty).
+    pub skip_empty: Option<bool>,
     /// A beam stops when its weight (albedo^scatterings) falls below this.
     pub beam_threshold: f32,
     /// A beam stops after this many scatterings.
@@ -134,6 +138,7 @@ impl Default for PmSettings {
             ring: 100,
             cache_res: None,
             light_res: None,
+            skip_empty: None,
             beam_threshold: 0.01,
             max_order: 1024,
             similarity_t: 0.05,

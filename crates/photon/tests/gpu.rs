@@ -717,7 +717,7 @@ fn tracing_and_ring_update_match_cpu() {
         let p = nimbus_gpu::params::VolumeParams { frame, ..pm.params };
         let mut h = vec![0u32; words];
         for beam in 0..p.n_sun + p.n_sky {
-            assert!(!cpu::trace(&p, &density, beam, &mut h));
+            assert!(!cpu::trace(&p, &density, &[], beam, &mut h));
         }
         let slot = (frame as usize % 2) * words;
         for i in 0..words {

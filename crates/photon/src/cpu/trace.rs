@@ -56,6 +56,29 @@ fn cell_of(p: &VolumeParams, x: Vec3) -> usize {
     index(c.x as u32, c.y as u32, c.z as u32, p.i_res)
 }
 
+/// `skip_distance`: the distance that takes a beam at `x` along `d` out of its cell when the
+/// cell is skippable (`skip[cell] != 0`), else −1.
+fn skip_distance(p: &VolumeParams, skip: &[u32], x: Vec3, d: Vec3) -> f32 {
+    let ext = v3(p.aabb_max) - v3(p.aabb_min);
+    let res = v3(p.i_res.map(|r| r as f32));
+    let size = ext / res;
+    let u = (x - v3(p.aabb_min)) / ext * res;
+    let c = u.floor().clamp(Vec3::ZERO, res - Vec3::ONE);
+    if skip[index(c.x as u32, c.y as u32, c.z as u32, p.i_res)] == 0 {
+        return -1.0;
+    }
+    let lo = v3(p.aabb_min) + c * size;
+    let mut t = 3.0e38f32;
+    for a in 0..3 {
+        if d[a] > 0.0 {
+            t = t.min((lo[a] + size[a] - x[a]) / d[a]);
+        } else if d[a] < 0.0 {
+            t = t.min((lo[a] - x[a]) / d[a]);
+        }
+    }
+    t.max(0.0) + 1.0e-3 * size.x.min(size.y.min(size.z))
+}
+
 /// `view_phase`: the phase function for light travelling along `d` at `x` scattered towards
 /// `p.view_origin` (isotropic at the view point itself).
 pub fn view_phase(p: &VolumeParams, x: Vec3, d: Vec3) -> f32 {
@@ -79,9 +102,10 @@ fn deposit(h: &mut [u32], slot: usize, v: u32) -> bool {
 }
 
 /// Traces beam `index` of frame `p.frame` (sun beams are `0 .. p.n_sun`, sky beams follow)
-/// into the cache words `h` (`CELL_WORDS` per coarse cell, as `h_new`). Returns whether a word
+/// into the cache words `h` (`CELL_WORDS` per coarse cell, as `h_new`); with `p.skip_empty`,
+/// `skip` holds a flag per cell (`mapper::light::skippable_cells`). Returns whether a word
 /// wrapped.
-pub fn trace(p: &VolumeParams, density: &[f32], index: u32, h: &mut [u32]) -> bool {
+pub fn trace(p: &VolumeParams, density: &[f32], skip: &[u32], index: u32, h: &mut [u32]) -> bool {
     let mut rng = Rng::new(p.seed, p.frame, index);
     let pi = std::f32::consts::PI;
     let is_sun = index < p.n_sun;
@@ -118,6 +142,16 @@ pub fn trace(p: &VolumeParams, density: &[f32], index: u32, h: &mut [u32]) -> bo
         if steps > 1_000_000 {
             break;
         }
+        if p.skip_empty != 0 {
+            let s = skip_distance(p, skip, x, d);
+            if s >= 0.0 {
+                x += d * s;
+                if !inside(p, x) {
+                    break;
+                }
+                continue;
+            }
+        }
         let exit = box_intersect(p, x, d);
         let t = -(1.0 - rng.rand()).ln() / p.sigma_max;
         if exit.0 > exit.1 || t >= exit.1 {
@@ -133,6 +167,9 @@ pub fn trace(p: &VolumeParams, density: &[f32], index: u32, h: &mut [u32]) -> bo
             stalled = 0;
         }
         x = x_next;
+        if p.skip_empty != 0 && skip_distance(p, skip, x, d) >= 0.0 {
+            continue;
+        }
         let skip = is_sun && order == 0 && p.single_scatter != 0;
         let cell = cell_of(p, x) * words;
         let sigma_here = p.density_scale * density_at(p, density, x);
@@ -237,7 +274,7 @@ mod tests {
         };
         let mut h = vec![0u32; CELL_WORDS];
         for i in 0..4 {
-            assert!(!trace(&p, &[1.0; 8], i, &mut h));
+            assert!(!trace(&p, &[1.0; 8], &[], i, &mut h));
         }
         assert!(h.iter().all(|&v| v == 0));
     }

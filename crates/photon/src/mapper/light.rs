@@ -140,6 +140,52 @@ pub fn near_radius(d_res: [u32; 3], l_res: [u32; 3]) -> u32 {
     }
 }
 
+/// 1 for each cache cell (of `i_res` over the box) that no stage after the trace reads, given
+/// the work density at `l_res`: no non-zero light voxel within the cell's extent grown by one
+/// cell and three light voxels. The upsampling of a voxel reads the 3³ cells around its own,
+/// and only voxels within `near_radius` ≤ 2 light voxels of density are upsampled; the trilinear
+/// density a beam scatters on is non-zero only within one light voxel of a non-zero one.
+pub fn skippable_cells(work: &[f32], l_res: [u32; 3], i_res: [u32; 3]) -> Vec<u32> {
+    let l = l_res.map(|v| v as usize);
+    let i = i_res.map(|v| v as usize);
+    // Light voxels with density within 3 voxels (separable dilation, axis by axis).
+    let mut mask: Vec<bool> = work.iter().map(|&v| v > 0.0).collect();
+    for a in 0..3 {
+        let stride = [1, l[0], l[0] * l[1]][a];
+        let mut out = vec![false; mask.len()];
+        for (idx, o) in out.iter_mut().enumerate() {
+            let c = (idx / stride) % l[a];
+            let lo = c.saturating_sub(3);
+            let hi = (c + 3).min(l[a] - 1);
+            *o = (lo..=hi).any(|k| mask[idx - c * stride + k * stride]);
+        }
+        mask = out;
+    }
+    // Cells overlapped by such a voxel, then grown by one cell.
+    let mut used = vec![false; i.iter().product()];
+    let span = |v: usize, a: usize| (v * i[a] / l[a])..=(((v + 1) * i[a]).div_ceil(l[a]) - 1);
+    for (idx, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+        let v = [idx % l[0], (idx / l[0]) % l[1], idx / (l[0] * l[1])];
+        for z in span(v[2], 2) {
+            for y in span(v[1], 1) {
+                for x in span(v[0], 0) {
+                    used[(z * i[1] + y) * i[0] + x] = true;
+                }
+            }
+        }
+    }
+    let near = |c: usize, a: usize| c.saturating_sub(1)..=(c + 1).min(i[a] - 1);
+    (0..used.len())
+        .map(|idx| {
+            let c = [idx % i[0], (idx / i[0]) % i[1], idx / (i[0] * i[1])];
+            let any = near(c[2], 2).any(|z| {
+                near(c[1], 1).any(|y| near(c[0], 0).any(|x| used[(z * i[1] + y) * i[0] + x]))
+            });
+            u32::from(!any)
+        })
+        .collect()
+}
+
 impl PhotonMapper<'_> {
     /// The uniform block of the ray marcher: the work parameters with the grid's resolution.
     pub fn march_params(&self) -> VolumeParams {
@@ -208,30 +254,33 @@ impl PhotonMapper<'_> {
                 msg: format!("voxel {i} is {}; densities must be finite and ≥ 0", data[i]),
             });
         }
-        match &self.march_density {
-            MarchDensity::Work => {
-                self.gpu
-                    .queue
-                    .write_buffer(&self.density, 0, bytemuck::cast_slice(data));
-            }
+        let work: Vec<f32> = match &self.march_density {
+            MarchDensity::Work => data.to_vec(),
             MarchDensity::Dense(b) => {
                 self.gpu
                     .queue
                     .write_buffer(b, 0, bytemuck::cast_slice(data));
                 let grid = DensityGrid::new(self.fine_res.map(|v| v as usize), data.to_vec())
                     .map_err(PmError::Memory)?;
-                let (work, _) = work_density(&grid, self.params.light_res)?;
-                self.gpu
-                    .queue
-                    .write_buffer(&self.density, 0, bytemuck::cast_slice(&work));
+                work_density(&grid, self.params.light_res)?.0.into_owned()
             }
             MarchDensity::Bricks(_) => {
                 return Err(PmError::Unsupported(
-                    "a density sequence needs a grid whose density fits one GPU storage binding"
+                    "a density sequence needs the grid in one dense GPU buffer; this scene's grid (sparse, or beyond one storage binding) is read through a brick map"
                         .into(),
                 ));
             }
+        };
+        self.gpu
+            .queue
+            .write_buffer(&self.density, 0, bytemuck::cast_slice(&work));
+        if self.params.skip_empty != 0 {
+            let skip = skippable_cells(&work, self.params.light_res, self.params.i_res);
+            self.gpu
+                .queue
+                .write_buffer(&self.cell_skip, 0, bytemuck::cast_slice(&skip));
         }
+        self.grid_max = data.iter().fold(0.0f32, |m, &v| m.max(v)) as f64;
         self.sun.dirty = true;
         Ok(())
     }
@@ -239,7 +288,46 @@ impl PhotonMapper<'_> {
 
 #[cfg(test)]
 mod tests {
-    use super::near_radius;
+    use super::{near_radius, skippable_cells};
+
+    /// One non-zero light voxel in a 40³ grid under a 10³ cache (4 voxels per cell): the cells
+    /// within the reach of the voxel (3 voxels, then one cell) are kept, every other is skipped;
+    /// an empty grid skips everything, a full one nothing.
+    #[test]
+    fn skippable_cells_keep_the_reach_of_density() {
+        let (l, i) = ([40u32; 3], [10u32; 3]);
+        let mut work = vec![0.0f32; 40 * 40 * 40];
+        work[(20 * 40 + 20) * 40 + 20] = 0.5;
+        let skip = skippable_cells(&work, l, i);
+        // The voxel grown by 3 covers voxels 17..=23: cells 4..=5; grown by one cell: 3..=6.
+        for z in 0..10usize {
+            for y in 0..10usize {
+                for x in 0..10usize {
+                    let kept = [x, y, z].iter().all(|c| (3..=6).contains(c));
+                    assert_eq!(
+                        skip[(z * 10 + y) * 10 + x],
+                        u32::from(!kept),
+                        "cell {x},{y},{z}"
+                    );
+                }
+            }
+        }
+        assert!(
+            skippable_cells(&vec![0.0; work.len()], l, i)
+                .iter()
+                .all(|&s| s == 1)
+        );
+        assert!(
+            skippable_cells(&vec![1.0; work.len()], l, i)
+                .iter()
+                .all(|&s| s == 0)
+        );
+        // Cells coarser than voxels and not dividing them: a voxel's cells are those it overlaps.
+        let mut w = vec![0.0f32; 7 * 7 * 7];
+        w[0] = 1.0;
+        let s = skippable_cells(&w, [7; 3], [3; 3]);
+        assert_eq!(s.iter().filter(|&&v| v == 0).count(), 27);
+    }
 
     /// The claim behind the skip, checked along one axis for every pair of resolutions up to
     /// 40: wherever a lone non-zero fine voxel i makes the fine trilinear lookup at x non-zero
