@@ -223,7 +223,7 @@ impl PhotonMapper<'_> {
         let tau = self.light_voxel_depth();
         if tau > THICK_LIGHT_VOXEL {
             note += &format!(
-                "; at the densest a light voxel is {tau:.1} mean free paths wide: shadows and multiply scattered light inside it are smoothed and small dense features come out too dark (a finer --light-res or the path tracer)"
+                "; at the densest a light voxel is {tau:.1} mean free paths wide: shadows and multiply scattered light inside it are smoothed and small dense features come out too dark (the path tracer, or a finer --light-res where the adapter allows a larger J)"
             );
         }
         Some(note)
