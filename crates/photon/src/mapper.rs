@@ -117,6 +117,22 @@ fn f3(v: DVec3) -> [f32; 3] {
     v.as_vec3().to_array()
 }
 
+/// `r` (a resolution setting named `field`) with every axis in 1..=`limit`'s, or the error.
+fn check_axes(
+    field: &'static str,
+    r: [u32; 3],
+    limit: [usize; 3],
+    what: &str,
+) -> Result<[u32; 3], PmError> {
+    if r.contains(&0) || r.iter().zip(limit).any(|(&a, b)| a as usize > b) {
+        return Err(PmError::Setting {
+            field,
+            msg: format!("each axis must lie in 1..={what} {limit:?}, got {r:?}"),
+        });
+    }
+    Ok(r)
+}
+
 impl<'g> PhotonMapper<'g> {
     pub fn new(gpu: &'g Gpu, scene: &Scene, settings: PmSettings) -> Result<Self, PmError> {
         let g = match &scene.medium.phase {
@@ -164,17 +180,12 @@ impl<'g> PhotonMapper<'g> {
         let light_res = light::light_res(gpu, vol.grid(), &settings)?;
         let d_res = light_res.map(|v| v as usize);
         let i_res = match settings.cache_res {
-            Some(r) => {
-                if r.contains(&0) || r.iter().zip(d_res).any(|(&a, b)| a as usize > b) {
-                    return Err(PmError::Setting {
-                        field: "cache_res",
-                        msg: format!(
-                            "each axis must lie in 1..=light resolution {d_res:?} (the density's unless --light-res), got {r:?}"
-                        ),
-                    });
-                }
-                r
-            }
+            Some(r) => check_axes(
+                "cache_res",
+                r,
+                d_res,
+                "light resolution (the density's unless --light-res)",
+            )?,
             None => default_cache_res(
                 d_res,
                 settings.default_max_cells(d_res, gpu.limits.max_storage_buffer_binding_size),

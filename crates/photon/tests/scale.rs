@@ -138,6 +138,16 @@ fn sparse_and_dense_storage_give_the_same_image() {
     }
 }
 
+/// 1 M beams with lobes: photon noise below the effects the image tests bound.
+fn low_noise() -> PmSettings {
+    PmSettings {
+        beams_per_frame: 65536,
+        ring: 16,
+        view_dependent: Some(false),
+        ..Default::default()
+    }
+}
+
 /// Mean luminance over the pixels where the cloud is (above 1 % of the image's mean; no sky,
 /// so the background is exactly 0) and the relative RMSE of `b` against `a` there.
 fn cloud_mean_and_rmse(a: &Image, b: &Image) -> (f64, f64, f64) {
@@ -174,12 +184,9 @@ fn half_light_resolution_changes_the_image_little() {
             &gpu,
             &s,
             PmSettings {
-                beams_per_frame: 65536,
-                ring: 16,
-                view_dependent: Some(false),
                 light_res: light,
                 seed,
-                ..Default::default()
+                ..low_noise()
             },
         )
         .unwrap();
@@ -349,12 +356,9 @@ fn skipping_empty_cells_changes_only_the_noise() {
             &gpu,
             &s,
             PmSettings {
-                beams_per_frame: 65536,
-                ring: 16,
-                view_dependent: Some(false),
                 light_res: Some([24, 18, 24]),
                 skip_empty: Some(skip),
-                ..Default::default()
+                ..low_noise()
             },
         )
         .unwrap();

@@ -47,17 +47,7 @@ pub(super) fn light_res(
 ) -> Result<[u32; 3], PmError> {
     let d_res = grid.res();
     let r = match settings.light_res {
-        Some(r) => {
-            if r.contains(&0) || r.iter().zip(d_res).any(|(&a, b)| a as usize > b) {
-                return Err(PmError::Setting {
-                    field: "light_res",
-                    msg: format!(
-                        "each axis must lie in 1..=density resolution {d_res:?}, got {r:?}"
-                    ),
-                });
-            }
-            r
-        }
+        Some(r) => check_axes("light_res", r, d_res, "density resolution")?,
         None => crate::settings::default_light_res(
             d_res,
             gpu.limits
