@@ -374,9 +374,21 @@ fn run(cli: Cli) -> Result<()> {
                     .map_err(|e| anyhow::anyhow!("{e}"))?,
                 None => kind.default_resolution(128),
             };
-            let grid = generate::generate(kind, seed, res).map_err(|e| anyhow::anyhow!("{e}"))?;
-            io::write_grid(&out, &grid, generate::default_aabb(res))?;
-            let st = grid.stats();
+            let bounds = generate::default_aabb(res);
+            let st = if out.extension().is_some_and(|e| e == "vol") {
+                // Streamed into the file while it is generated (no grid in memory).
+                let mut st = None;
+                io::write_atomically(&out, |t| {
+                    st = Some(generate::generate_vol(kind, seed, res, t, bounds)?);
+                    Ok(())
+                })?;
+                st.expect("written")
+            } else {
+                let grid =
+                    generate::generate(kind, seed, res).map_err(|e| anyhow::anyhow!("{e}"))?;
+                io::write_grid(&out, &grid, bounds)?;
+                grid.stats()
+            };
             say!(
                 "{} seed {seed}: {}x{}x{}, mean {:.4}, non-zero {:.1} % -> {}",
                 kind.name(),

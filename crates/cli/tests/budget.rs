@@ -54,18 +54,34 @@ fn memory_budget_refuses_instead_of_aborting() {
     // Within a budget of 64 MiB it reads: 16 MiB of index, not 8 GiB of dense grid.
     let o = nimbus(&["info", vdb.to_str().unwrap(), "--max-memory", "64M"]);
     assert!(o.status.success(), "{}", text(&o));
-    let vol = d.join("big.vol");
+    // A grid written as .npy is generated in memory first, as 8³ bricks: refused from the
+    // shape's bound before any noise is evaluated — 1 724 038 reachable bricks of 2 KiB, held
+    // twice, + the index = 6.6 GiB (dense: 8.0 GiB).
+    let npy = d.join("big.npy");
     let o = Command::new(env!("CARGO_BIN_EXE_nimbus"))
         .env("NIMBUS_MAX_MEMORY", "4G")
+        .args(["generate", "cumulus", "--res", "1290,1290,1290", "-o"])
+        .arg(&npy)
+        .output()
+        .unwrap();
+    let t = text(&o);
+    assert!(
+        !o.status.success() && t.contains("resolution") && t.contains("6.6 GiB"),
+        "{t}"
+    );
+    assert!(!npy.exists());
+    // A .vol is streamed: only the slab buffers count (one per worker, two queued, one being
+    // written: ≥ 4 × 1290² × 8 × 4 B = 213 MB), checked before the file is created.
+    let vol = d.join("big.vol");
+    let o = Command::new(env!("CARGO_BIN_EXE_nimbus"))
+        .env("NIMBUS_MAX_MEMORY", "64M")
         .args(["generate", "cumulus", "--res", "1290,1290,1290", "-o"])
         .arg(&vol)
         .output()
         .unwrap();
-    // Generated as 8³ bricks: refused from the shape's bound before any noise is evaluated —
-    // 1 724 038 reachable bricks of 2 KiB, held twice, + the index = 6.6 GiB (dense: 8.0 GiB).
     let t = text(&o);
     assert!(
-        !o.status.success() && t.contains("resolution") && t.contains("6.6 GiB"),
+        !o.status.success() && t.contains("resolution") && t.contains("slab buffers"),
         "{t}"
     );
     assert!(!vol.exists());

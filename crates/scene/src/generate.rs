@@ -29,6 +29,24 @@ use crate::grid::{DensityGrid, check_resolution};
 
 mod cellular;
 mod heap;
+#[cfg(unix)]
+mod stream;
+#[cfg(unix)]
+pub use stream::generate_vol;
+
+/// [`generate`] written to a `.vol` file (streamed on unix, see `generate::stream`).
+#[cfg(not(unix))]
+pub fn generate_vol(
+    kind: CloudKind,
+    seed: u64,
+    res: [usize; 3],
+    path: &std::path::Path,
+    bounds: (glam::DVec3, glam::DVec3),
+) -> crate::error::Result<crate::grid::GridStats> {
+    let grid = generate(kind, seed, res).map_err(|e| e.at(path))?;
+    crate::io::vol::write(path, &grid, bounds)?;
+    Ok(grid.stats())
+}
 use cellular::{Cellular, perlin_worley};
 use heap::{Early, Heap, Measure, Octaves, Tile};
 

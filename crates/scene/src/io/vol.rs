@@ -338,6 +338,75 @@ fn write_file(
     )
 }
 
+/// A `.vol` file written in parts, from several threads: created at its full length (all
+/// holes) with its header; [`SlabFile::write_planes`] writes consecutive z planes at their
+/// offsets, pages of zeros left out (see [`HOLE_VALUES`]).
+#[cfg(unix)]
+pub struct SlabFile {
+    file: std::fs::File,
+    res: [usize; 3],
+}
+
+#[cfg(unix)]
+impl SlabFile {
+    pub fn create(path: &Path, res: [usize; 3], bounds: (DVec3, DVec3)) -> std::io::Result<Self> {
+        use std::os::unix::fs::FileExt;
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(path)?;
+        file.set_len((HEADER_LEN + 4 * res[0] * res[1] * res[2]) as u64)?;
+        file.write_all_at(&header(res, bounds), 0)?;
+        Ok(Self { file, res })
+    }
+
+    /// Writes planes `z0`, `z0 + 1`, … (`values`: whole planes, x fastest); returns the bytes
+    /// written (data pages only).
+    pub fn write_planes(&self, z0: usize, values: &[f32]) -> std::io::Result<usize> {
+        use std::os::unix::fs::FileExt;
+        let n = self.res[0] * self.res[1];
+        assert!(values.len().is_multiple_of(n) && z0 + values.len() / n <= self.res[2]);
+        let mut bytes = Vec::new();
+        let mut written = 0;
+        for (l, plane) in values.chunks_exact(n).enumerate() {
+            let z = z0 + l;
+            data_runs(plane, z, |run| {
+                let at = HEADER_LEN + 4 * (z * n + run.start);
+                written += 4 * run.len();
+                self.file
+                    .write_all_at(le_bytes(&plane[run], &mut bytes), at as u64)
+            })?;
+        }
+        Ok(written)
+    }
+
+    /// Asks the kernel to write what is cached to disk (and waits for it).
+    pub fn sync(&self) -> std::io::Result<()> {
+        self.file.sync_data()
+    }
+
+    /// Divides every value by `by` (the f32 division of a grid's normalisation), plane by
+    /// plane, in parallel; holes read as zeros and stay holes.
+    pub fn divide(&self, by: f32) -> std::io::Result<()> {
+        use rayon::prelude::*;
+        use std::os::unix::fs::FileExt;
+        let n = self.res[0] * self.res[1];
+        (0..self.res[2]).into_par_iter().try_for_each_init(
+            || (vec![0.0f32; n], vec![0u8; 4 * n]),
+            |(plane, bytes), z| {
+                self.file
+                    .read_exact_at(bytes, (HEADER_LEN + 4 * z * n) as u64)?;
+                for (v, b) in plane.iter_mut().zip(bytes.chunks_exact(4)) {
+                    *v = f32::from_le_bytes(b.try_into().expect("4 bytes")) / by;
+                }
+                self.write_planes(z, plane).map(|_| ())
+            },
+        )
+    }
+}
+
 pub fn write(path: &Path, grid: &DensityGrid, bounds: (DVec3, DVec3)) -> Result<()> {
     let f = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
     #[cfg(unix)]
