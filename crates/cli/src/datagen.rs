@@ -36,6 +36,11 @@ pub struct DatagenArgs {
     /// Validation and test labels with exactly N samples each (default: converged).
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1 << 24))]
     eval_samples: Option<u64>,
+    /// Precise validation and test labels in two stages: a pilot of --eval-samples samples
+    /// sets how many fresh samples reach this relative standard error (capped at
+    /// --max-samples); the label is their mean alone, so it stays unbiased (e.g. 0.025).
+    #[arg(long)]
+    eval_noise: Option<f64>,
     /// Light directions: `sphere` (uniform, Kallweit §5.1) or `uniform-gamma` (the angle
     /// to the view direction uniform in [0, π]).
     #[arg(long, default_value = "sphere")]
@@ -139,12 +144,22 @@ pub fn datagen(a: DatagenArgs) -> Result<()> {
         other => bail!("--light {other}: expected sphere or uniform-gamma"),
     };
     let test_records = a.test_records.unwrap_or(records / 4);
+    let eval_noise = a.eval_noise.unwrap_or(0.0);
+    if !(eval_noise.is_finite() && (0.0..1.0).contains(&eval_noise)) {
+        bail!(
+            "--eval-noise {eval_noise}: expected a relative error in [0, 1), e.g. 0.025 (0: off)"
+        );
+    }
+    if eval_noise > 0.0 && a.eval_samples.is_none() {
+        bail!("--eval-noise needs --eval-samples N (the pilot's sample count)");
+    }
     let opts = dataset::DatagenOptions {
         records,
         test_records,
         val_records: a.val_records.unwrap_or(test_records),
         samples: a.samples.unwrap_or(0),
         eval_samples: a.eval_samples.unwrap_or(0),
+        eval_noise,
         light,
         shard_size: a.shard_size,
         seed: a.seed,

@@ -97,7 +97,8 @@ pub fn estimate_gpu(
 pub struct Estimate {
     pub mean: f64,
     pub samples: u64,
-    /// Met the ±2 % / 95 % rule (always false for fixed-count estimates).
+    /// Met the ±2 % / 95 % rule; for a two-stage estimate ([`precise_count`]) the target
+    /// relative noise; always false for fixed-count estimates.
     pub converged: bool,
     /// Half-width of the 95 % interval relative to the mean (∞ for a zero mean).
     pub rel_ci: f64,
@@ -105,7 +106,38 @@ pub struct Estimate {
     pub var_mean: f64,
 }
 
+/// Sample count of the second stage of a precise label: enough fresh samples for a relative
+/// standard error of `rel_noise`, judged by the per-sample relative variance of the `pilot`
+/// estimate, rounded up to a multiple of the pilot's count and capped at `max_samples`.
+///
+/// The label is the mean of the fresh samples alone: their count depends on the pilot only,
+/// so the label stays unbiased (a sequential rule that stops on the samples it averages is
+/// biased low for heavy-tailed samples, see [`CloudData::estimate_to`]). A pilot with a zero
+/// mean gives no relative scale: one pilot's count.
+pub fn precise_count(pilot: &Estimate, rel_noise: f64, max_samples: u64) -> u64 {
+    let per = pilot.samples.max(1);
+    let mut n = per;
+    if pilot.mean > 0.0 && rel_noise > 0.0 {
+        let rel_var = pilot.var_mean * per as f64 / (pilot.mean * pilot.mean);
+        let need = (rel_var / (rel_noise * rel_noise)).ceil();
+        if need.is_finite() {
+            n = ((need / per as f64).ceil().max(1.0) * per as f64).min(u64::MAX as f64 / 2.0)
+                as u64;
+        }
+    }
+    n.min(max_samples.max(1))
+}
+
 impl Estimate {
+    /// Relative standard error of the mean (∞ for a zero mean).
+    pub fn rel_noise(&self) -> f64 {
+        if self.mean > 0.0 {
+            self.var_mean.sqrt() / self.mean
+        } else {
+            f64::INFINITY
+        }
+    }
+
     fn from_sums(s: f64, s2: f64, n: u64, converged_if_within: f64) -> Self {
         let nf = n as f64;
         let mean = s / nf;
@@ -310,6 +342,27 @@ impl CloudData {
         }
     }
 
+    /// A precise, unbiased label in two stages: a pilot of `pilot` samples sets the count
+    /// ([`precise_count`]) of a fresh estimate, which is the label; `converged` says whether
+    /// its relative standard error met `rel_noise`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn estimate_precise(
+        &self,
+        x: DVec3,
+        view: DVec3,
+        to_light: DVec3,
+        pilot: u64,
+        rel_noise: f64,
+        max_samples: u64,
+        rng: &mut Pcg32,
+    ) -> Estimate {
+        let p = self.estimate_to(x, view, to_light, pilot, 0.0, rng);
+        let n = precise_count(&p, rel_noise, max_samples);
+        let mut e = self.estimate_to(x, view, to_light, n, 0.0, rng);
+        e.converged = e.rel_noise() <= rel_noise;
+        e
+    }
+
     /// A shading configuration (x, ω, ω_l) from `rng` (§5.1), ω_l uniform on the sphere.
     pub fn sample_config(&self, rng: &mut Pcg32) -> Result<(DVec3, DVec3, DVec3), DatagenError> {
         self.sample_config_with(LightSampling::Sphere, rng)
@@ -337,6 +390,20 @@ impl CloudData {
         let (x, view, to_light) = self.sample_config_with(light, rng)?;
         let target = if fixed { 0.0 } else { 0.02 };
         let e = self.estimate_to(x, view, to_light, max_samples, target, rng);
+        self.finish(x, view, to_light, e, light)
+    }
+
+    /// One record with a two-stage precise label ([`CloudData::estimate_precise`]).
+    pub fn record_precise(
+        &self,
+        light: LightSampling,
+        pilot: u64,
+        rel_noise: f64,
+        max_samples: u64,
+        rng: &mut Pcg32,
+    ) -> Result<Record, DatagenError> {
+        let (x, view, to_light) = self.sample_config_with(light, rng)?;
+        let e = self.estimate_precise(x, view, to_light, pilot, rel_noise, max_samples, rng);
         self.finish(x, view, to_light, e, light)
     }
 

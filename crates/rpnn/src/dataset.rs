@@ -133,6 +133,11 @@ pub struct DatagenOptions {
     pub samples: u64,
     /// Validation and test labels: 0 = converged, N = exactly N samples.
     pub eval_samples: u64,
+    /// Validation and test labels in two stages when > 0: a pilot of `eval_samples` samples
+    /// sets how many fresh samples give this relative standard error (capped at
+    /// `max_samples`); the label is their mean ([`crate::datagen::precise_count`]).
+    #[serde(skip_serializing_if = "is_zero", default)]
+    pub eval_noise: f64,
     /// How the light direction of a record is drawn.
     pub light: LightSampling,
     pub albedo: f64,
@@ -152,6 +157,10 @@ pub struct DatagenOptions {
     /// Write only part K of N of the set (see the module docs); `None`: all of it.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub part: Option<Part>,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 /// Part `index` (1-based) of `count` of a data set: the shards whose global index g satisfies
@@ -386,6 +395,37 @@ fn check_settings(
     write_text(&path, &want_text)
 }
 
+/// The second stage of precise labels on the GPU: configurations grouped by their fresh
+/// sample count ([`crate::datagen::precise_count`] of their pilot), each group estimated with
+/// its own random streams (independent of the pilot's).
+fn precise_gpu(
+    gpt: &mut nimbus_trace::gpu::GpuPathTracer,
+    cfgs: &[(glam::DVec3, glam::DVec3, glam::DVec3)],
+    pilots: &[crate::datagen::Estimate],
+    rel: f64,
+    max_samples: u64,
+    seed: u64,
+) -> Result<Vec<crate::datagen::Estimate>, nimbus_trace::gpu::GpuPtError> {
+    let counts: Vec<u64> = pilots
+        .iter()
+        .map(|p| crate::datagen::precise_count(p, rel, max_samples))
+        .collect();
+    let mut out = pilots.to_vec();
+    let mut distinct = counts.clone();
+    distinct.sort_unstable();
+    distinct.dedup();
+    for n in distinct {
+        let idx: Vec<usize> = (0..cfgs.len()).filter(|&i| counts[i] == n).collect();
+        let group: Vec<_> = idx.iter().map(|&i| cfgs[i]).collect();
+        let est = crate::datagen::estimate_gpu(gpt, &group, n, 0.0, mix64(seed ^ mix64(n)))?;
+        for (&i, mut e) in idx.iter().zip(est) {
+            e.converged = e.rel_noise() <= rel;
+            out[i] = e;
+        }
+    }
+    Ok(out)
+}
+
 /// Whether `datagen` estimates labels on the GPU: `choice` when given (`--device`), else the
 /// GPU when the phase function is HG (the WGSL tracer's) and the adapter is real hardware
 /// (on lavapipe the CPU path tracer is faster).
@@ -449,6 +489,13 @@ pub fn run(
         } else {
             (opts.max_samples, false)
         };
+        // Two-stage precise labels (validation and test only): pilot `cap`, then fresh samples.
+        let precise = (split != "train" && opts.eval_noise > 0.0).then_some(opts.eval_noise);
+        if precise.is_some() && n_samples == 0 {
+            return Err(err(
+                "precise labels (eval_noise) need a pilot count (eval_samples > 0)".into(),
+            ));
+        }
         let members: Vec<usize> = (0..clouds.len())
             .filter(|&i| clouds[i].split == split)
             .collect();
@@ -535,7 +582,17 @@ pub fn run(
                     .into_par_iter()
                     .map(|r| {
                         let ci = r % data.len();
-                        let rec = data[ci].record(opts.light, cap, fixed, &mut rng_of(r))?;
+                        let rng = &mut rng_of(r);
+                        let rec = match precise {
+                            Some(rel) => data[ci].record_precise(
+                                opts.light,
+                                cap,
+                                rel,
+                                opts.max_samples,
+                                rng,
+                            )?,
+                            None => data[ci].record(opts.light, cap, fixed, rng)?,
+                        };
                         bar.inc(1);
                         Ok((members[ci], rec))
                     })
@@ -553,14 +610,19 @@ pub fn run(
                             .collect::<Result<_, _>>()?;
                         let mut gpt = nimbus_trace::gpu::GpuPathTracer::new(gpu, &cloud.scene)
                             .map_err(|e| err(e.to_string()))?;
-                        let est = crate::datagen::estimate_gpu(
+                        let seed = mix64(opts.seed ^ (k as u64) ^ ((ci as u64) << 32));
+                        let mut est = crate::datagen::estimate_gpu(
                             &mut gpt,
                             &cfgs,
                             cap,
                             if fixed { 0.0 } else { 0.02 },
-                            mix64(opts.seed ^ (k as u64) ^ ((ci as u64) << 32)),
+                            seed,
                         )
                         .map_err(|e| err(e.to_string()))?;
+                        if let Some(rel) = precise {
+                            est = precise_gpu(&mut gpt, &cfgs, &est, rel, opts.max_samples, seed)
+                                .map_err(|e| err(e.to_string()))?;
+                        }
                         for ((&r, c), e) in rs.iter().zip(&cfgs).zip(est) {
                             out[r - lo] =
                                 Some((members[ci], cloud.finish(c.0, c.1, c.2, e, opts.light)?));

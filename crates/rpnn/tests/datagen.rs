@@ -90,6 +90,7 @@ fn opts(seed: u64) -> DatagenOptions {
         max_samples: 2048,
         samples: 0,
         eval_samples: 0,
+        eval_noise: 0.0,
         light: LightSampling::Sphere,
         albedo: 1.0,
         phase: "hg".into(),
@@ -631,4 +632,124 @@ fn generated_set_with_chosen_kinds() {
             .to_string();
         assert!(e.contains("--clouds"), "{e}");
     }
+}
+
+/// The second stage's count: per-sample relative variance over the target's square, rounded up
+/// to whole pilots, capped; a zero pilot mean gives one pilot's count.
+#[test]
+fn precise_count_from_the_pilot() {
+    use nimbus_rpnn::datagen::{Estimate, precise_count};
+    // 1 000 samples, mean 1, variance of the mean 0.01: per-sample relative variance 10; for a
+    // relative error of 0.05 that is 10 / 0.0025 = 4 000 samples (four pilots).
+    let p = |mean: f64, var_mean: f64| Estimate {
+        mean,
+        samples: 1000,
+        converged: false,
+        rel_ci: 0.0,
+        var_mean,
+    };
+    assert_eq!(precise_count(&p(1.0, 0.01), 0.05, 1 << 20), 4000);
+    // 4 001 needed rounds up to 5 pilots.
+    assert_eq!(precise_count(&p(1.0, 0.010_002_5), 0.05, 1 << 20), 5000);
+    // Already precise: one pilot's count of fresh samples (never fewer).
+    assert_eq!(precise_count(&p(1.0, 1e-6), 0.05, 1 << 20), 1000);
+    assert_eq!(precise_count(&p(1.0, 0.01), 0.05, 3000), 3000);
+    assert_eq!(precise_count(&p(0.0, 0.0), 0.05, 1 << 20), 1000);
+}
+
+/// Two-stage labels are unbiased (their mean over 100 independent labels agrees with a 2²⁰
+/// sample run to 4.5 standard errors) and meet their noise target: the spread between them is
+/// within 30 % of the target (100 labels: the spread's own relative error is ≈ 7 %, the
+/// pilot's variance estimate adds its own), and each reports its count and whether it met it.
+#[test]
+fn precise_labels_are_unbiased_and_meet_their_noise() {
+    let c = sphere();
+    let long = c.estimate_to(X, VIEW, light(), 1 << 20, 0.0, &mut Pcg32::new(2, 2));
+    let rel = 0.03;
+    let runs = 100;
+    let est: Vec<_> = (0..runs)
+        .map(|s| {
+            let rng = &mut Pcg32::new(500 + s, 9);
+            c.estimate_precise(X, VIEW, light(), 256, rel, 1 << 20, rng)
+        })
+        .collect();
+    // The sphere's per-sample relative σ is ≈ 1: (1 / 0.03)² ≈ 1 100 samples, 5 pilots.
+    assert!(
+        est.iter().all(|e| e.samples % 256 == 0 && e.samples >= 512),
+        "{est:?}"
+    );
+    assert!(est.iter().all(|e| e.converged == (e.rel_noise() <= rel)));
+    assert!(est.iter().filter(|e| e.converged).count() >= runs as usize / 2);
+    let mean = est.iter().map(|e| e.mean).sum::<f64>() / runs as f64;
+    let spread = est.iter().map(|e| (e.mean - mean).powi(2)).sum::<f64>() / (runs - 1) as f64;
+    let se = (spread / runs as f64 + long.var_mean).sqrt();
+    assert!(
+        (mean - long.mean).abs() < 4.5 * se,
+        "mean of precise labels {mean} vs long run {} (se {se})",
+        long.mean
+    );
+    let observed = spread.sqrt() / long.mean;
+    assert!(
+        observed < 1.3 * rel,
+        "relative spread {observed} vs target {rel}"
+    );
+}
+
+/// `eval_noise` applies to the validation and test splits only, on the CPU and the GPU alike:
+/// each label's count is a multiple of the pilot's, the meta records it and whether the target
+/// was met; training labels keep their fixed count; without a pilot count it is refused.
+#[test]
+fn precise_validation_and_test_labels_in_a_set() {
+    let set = small_set();
+    let mut o = opts(4);
+    o.records = 2;
+    o.val_records = 2;
+    o.test_records = 2;
+    o.samples = 32;
+    o.eval_samples = 128;
+    o.eval_noise = 0.05;
+    o.max_samples = 1 << 16;
+    let mut runs = vec![(tmp("precise_cpu"), false)];
+    if nimbus_gpu::testing::gpu("datagen::precise_validation_and_test_labels_in_a_set").is_some() {
+        runs.push((tmp("precise_gpu"), true));
+    }
+    for (d, gpu) in runs {
+        let mut o = o.clone();
+        o.gpu = gpu;
+        dataset::run(&set, &o, &d).unwrap();
+        let meta = |name: &str| -> Vec<f32> {
+            npyz::NpyFile::new(&std::fs::read(d.join(name)).unwrap()[..])
+                .unwrap()
+                .into_vec()
+                .unwrap()
+        };
+        for m in meta("train_00000_meta.npy").chunks(dataset::META_COLUMNS) {
+            assert_eq!((m[10], m[11]), (32.0, 0.0), "gpu {gpu}");
+        }
+        for split in ["val", "test"] {
+            let y = npyz::NpyFile::new(
+                &std::fs::read(d.join(format!("{split}_00000_y.npy"))).unwrap()[..],
+            )
+            .unwrap()
+            .into_vec::<f32>()
+            .unwrap();
+            let m = meta(&format!("{split}_00000_meta.npy"));
+            for (m, y) in m.chunks(dataset::META_COLUMNS).zip(&y) {
+                let (n, met, var) = (m[10] as u64, m[11], m[13] as f64);
+                assert!(n >= 128 && n % 128 == 0 && n <= 1 << 16, "gpu {gpu}: {n}");
+                // The stored variance is the fresh stage's: it decides the flag (f32 columns).
+                let noise = var.sqrt() / *y as f64;
+                assert!(*y > 0.0, "gpu {gpu}");
+                if (noise - 0.05).abs() > 1e-4 {
+                    assert_eq!(met == 1.0, noise <= 0.05, "gpu {gpu}: {n} samples, {noise}");
+                }
+            }
+        }
+    }
+    let mut no_pilot = o.clone();
+    no_pilot.eval_samples = 0;
+    let e = dataset::run(&set, &no_pilot, &tmp("precise_no_pilot"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("pilot"), "{e}");
 }
