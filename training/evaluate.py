@@ -30,23 +30,6 @@ from rpnn.model import RPNN  # noqa: E402
 import train  # noqa: E402
 
 
-def label_noise(root: Path, split: str) -> np.ndarray:
-    """Relative standard deviation of every label of `split` (NaN where unknown)."""
-    out = []
-    for s in rdata.read_manifest(root).get("shards", []):
-        if s.get("split") != split:
-            continue
-        y = np.load(root / s["y"], mmap_mode="r").astype(np.float64)
-        meta = np.load(root / s["meta"], mmap_mode="r") if s.get("meta") else None
-        if meta is None or meta.ndim != 2 or meta.shape[1] <= 13:  # no label variance
-            out.append(np.full(len(y), np.nan))
-            continue
-        var = meta[:, 13].astype(np.float64)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            out.append(np.where(y > 0, np.sqrt(np.maximum(var, 0)) / y, np.nan))
-    return np.concatenate(out) if out else np.zeros(0)
-
-
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--data", required=True, type=Path)
@@ -61,18 +44,13 @@ def main(argv=None) -> dict:
     except (ValueError, TypeError) as e:
         raise SystemExit(f"error: {e}") from None
     result = {"model": str(args.model), "data": str(args.data)}
-    rng = np.random.default_rng(0)
     for split, name in (("val", "validation"), ("test", "test")):
         recs = rdata.Records(rdata.load_shards(args.data, split))
         if not len(recs):
             continue
         err = train.record_errors(model, train.Batches(recs, np.arange(len(recs)),
                                                        torch.device("cpu"), False), 4000)
-        noise = label_noise(args.data, split)
-        s = noise[np.isfinite(noise)]
-        err["label_noise_median"] = float(np.median(s)) if s.size else None
-        err["noise_floor_median"] = (float(np.median(np.abs(rng.normal(0.0, s))))
-                                     if s.size else None)
+        train.with_label_noise(err, args.data, split)
         result[name] = err
         print(f"{name}: {err['records']} records, median relative error "
               f"{100 * err['median_rel_error']:.1f} %, mean ratio {err['mean_ratio']:.3f}; "

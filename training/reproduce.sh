@@ -39,6 +39,18 @@ FINETUNE_RECORDS=${FINETUNE_RECORDS:-2000000}
 FINETUNE_EPS=${FINETUNE_EPS:-0.01}
 FINETUNE_LR=${FINETUNE_LR:-0.0003}
 FINETUNE_MAX_MINUTES=${FINETUNE_MAX_MINUTES:-200}
+# Second cloud set: SECOND_RECORDS records from the clouds of seed SECOND_SEED (150 new clouds,
+# none of them in the first set: train.py checks), the stage before's last weights fine-tuned
+# SECOND_EPOCHS epochs (Adam SECOND_LR, cosine) keeping a moving average of the weights (decay EMA
+# per step), tested on the first set's held-out clouds with two-stage precise labels (a relative
+# standard error of PRECISE_NOISE, see `nimbus datagen --eval-noise`). 0 epochs: no such stage.
+SECOND_EPOCHS=${SECOND_EPOCHS:-6}
+SECOND_SEED=${SECOND_SEED:-1}
+SECOND_RECORDS=${SECOND_RECORDS:-1000000}
+SECOND_LR=${SECOND_LR:-0.0003}
+EMA=${EMA:-0.999}
+PRECISE_NOISE=${PRECISE_NOISE:-0.035}
+SECOND_MAX_MINUTES=${SECOND_MAX_MINUTES:-200}
 DEVICE=${DEVICE:-cpu}          # datagen: cpu (the shipped set) or gpu (different random streams)
 # Phase function of the medium: hg (Henyey–Greenstein g = 0.857, the shipped rpnn-hg model) or
 # mie (chopped Lorenz–Mie; the shipped rpnn-mie model: PHASE=mie with its card's settings).
@@ -54,14 +66,16 @@ MODEL=${MODEL:-models/rpnn-$PHASE.onnx}
 cargo build --release -p nimbus-cli
 bash training/setup.sh
 datagen() { # SPLIT-specific counts; the same --out and settings, so later calls resume
+  # (SEED=… and OUT=… before the call choose another cloud set or folder.)
   ./target/release/nimbus datagen --clouds "$CLOUDS" --density-range "$DENSITY_RANGE" \
-    --phase "$PHASE" --seed 0 --shard-size 10000 --light "$LIGHT" \
-    --samples "$SAMPLES" --eval-samples "$EVAL_SAMPLES" --device "$DEVICE" --out "$DATA" "$@"
+    --phase "$PHASE" --seed "${SEED:-0}" --shard-size 10000 --light "$LIGHT" \
+    --samples "$SAMPLES" --eval-samples "$EVAL_SAMPLES" --device "$DEVICE" \
+    --out "${OUT:-$DATA}" "$@"
 }
 # Validation and test sets first (small, precise), then the training records.
 datagen --records 0 --val-records "$VAL_RECORDS" --test-records "$TEST_RECORDS"
 datagen --records "$RECORDS" --val-records "$VAL_RECORDS" --test-records "$TEST_RECORDS"
-SETTINGS="PHASE=$PHASE INIT=$INIT LR=$LR CLOUDS=$CLOUDS DENSITY_RANGE=$DENSITY_RANGE RECORDS=$RECORDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS TEST_RECORDS=$TEST_RECORDS EVAL_SAMPLES=$EVAL_SAMPLES LIGHT=$LIGHT EPOCHS=$EPOCHS MAX_MINUTES=$MAX_MINUTES RESTART_EPOCHS=$RESTART_EPOCHS RESTART_MAX_MINUTES=$RESTART_MAX_MINUTES LOSS=$LOSS REL_EPS=$REL_EPS FINETUNE_EPOCHS=$FINETUNE_EPOCHS FINETUNE_RECORDS=$FINETUNE_RECORDS FINETUNE_EPS=$FINETUNE_EPS FINETUNE_LR=$FINETUNE_LR FINETUNE_MAX_MINUTES=$FINETUNE_MAX_MINUTES DEVICE=$DEVICE"
+SETTINGS="PHASE=$PHASE INIT=$INIT LR=$LR CLOUDS=$CLOUDS DENSITY_RANGE=$DENSITY_RANGE RECORDS=$RECORDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS TEST_RECORDS=$TEST_RECORDS EVAL_SAMPLES=$EVAL_SAMPLES LIGHT=$LIGHT EPOCHS=$EPOCHS MAX_MINUTES=$MAX_MINUTES RESTART_EPOCHS=$RESTART_EPOCHS RESTART_MAX_MINUTES=$RESTART_MAX_MINUTES LOSS=$LOSS REL_EPS=$REL_EPS FINETUNE_EPOCHS=$FINETUNE_EPOCHS FINETUNE_RECORDS=$FINETUNE_RECORDS FINETUNE_EPS=$FINETUNE_EPS FINETUNE_LR=$FINETUNE_LR FINETUNE_MAX_MINUTES=$FINETUNE_MAX_MINUTES SECOND_EPOCHS=$SECOND_EPOCHS SECOND_SEED=$SECOND_SEED SECOND_RECORDS=$SECOND_RECORDS SECOND_LR=$SECOND_LR EMA=$EMA PRECISE_NOISE=$PRECISE_NOISE SECOND_MAX_MINUTES=$SECOND_MAX_MINUTES DEVICE=$DEVICE"
 train() {
   training/.venv/bin/python training/train.py --data "$DATA" --loss "$LOSS" --schedule cosine \
     --seed 0 --device auto --resume --export "$MODEL" \
@@ -90,5 +104,19 @@ if [ "$FINETUNE_EPOCHS" -gt 0 ]; then
   RUN="$RUN/finetune"
   train --run "$RUN" --epochs "$FINETUNE_EPOCHS" --max-minutes "$FINETUNE_MAX_MINUTES" \
     --select last --init "$INIT" --rel-eps "$FINETUNE_EPS" --lr "$FINETUNE_LR"
+fi
+if [ "$SECOND_EPOCHS" -gt 0 ]; then
+  cp "$RUN/curves.png" "${MODEL%.onnx}-curves-first.png"
+  TEST_PRECISE="$DATA-test-precise"
+  OUT="$TEST_PRECISE" datagen --records 0 --val-records 0 --test-records "$TEST_RECORDS" \
+    --eval-noise "$PRECISE_NOISE"
+  DATA2="$DATA-seed$SECOND_SEED"
+  SEED="$SECOND_SEED" OUT="$DATA2" datagen --records "$SECOND_RECORDS" \
+    --val-records "$VAL_RECORDS" --test-records 0
+  INIT="$RUN/last.pt"
+  RUN="$RUN/second"
+  train --data "$DATA2" --test-data "$TEST_PRECISE" --run "$RUN" --epochs "$SECOND_EPOCHS" \
+    --max-minutes "$SECOND_MAX_MINUTES" --select last --init "$INIT" --rel-eps "$FINETUNE_EPS" \
+    --lr "$SECOND_LR" --ema "$EMA"
 fi
 cp "$RUN/curves.png" "${MODEL%.onnx}-curves.png"

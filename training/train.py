@@ -11,6 +11,10 @@ records and export it to ONNX.
   ``--loss log`` is the paper's (log(1 + y_hat) - log(1 + y))^2 (§5.2), biased low under label
   noise. Adam, minibatches of 1000 (§5.2); ``--schedule cosine`` decays the step size to 0 over
   the run (averages out label noise at the end), ``constant`` is the paper's.
+- ``--ema DECAY``: an exponential moving average of the weights (Polyak averaging), updated
+  after every step; it is what is validated, kept and exported. With noisy labels the iterates
+  scatter about the minimiser and their average lies closer to it than any one of them. 0 (the
+  default) is off, as the paper trains.
 - ``--mirror`` (default): each minibatch mirrors a random half of its rows across the plane of
   the view and light directions (stencil ix -> 4 - ix): a free second record.
 - ``--axis-turns DEG``: rows within DEG degrees of gamma = 0 or 180 (view parallel to the light,
@@ -102,6 +106,13 @@ def parse_args(argv=None):
                    help="the checkpoint kept as best.pt and exported: the lowest validation "
                         "loss (default) or the last epoch (with --schedule cosine the step size "
                         "has decayed to 0 there; a small validation set is noisier than that)")
+    p.add_argument("--test-data", type=Path, metavar="DIR",
+                   help="take the test records from this set's test split instead of --data's "
+                        "(e.g. precise labels from `nimbus datagen --eval-noise`); its clouds "
+                        "must be held out from --data's training clouds")
+    p.add_argument("--ema", type=float, default=0.0, metavar="DECAY",
+                   help="validate, keep and export an exponential moving average of the weights "
+                        "with this decay per step (e.g. 0.999; 0: off)")
     p.add_argument("--resume", action="store_true", help="continue from <run>/last.pt")
     p.add_argument("--preload", default="auto", choices=["auto", "yes", "no"],
                    help="copy the records into memory (GPU memory on CUDA) instead of reading "
@@ -121,6 +132,8 @@ def parse_args(argv=None):
             p.error(f"--{name.replace('_', '-')} must be >= {0 if name == 'epochs' else 1}, got {v}")
     if not (args.lr > 0 and np.isfinite(args.lr)):
         p.error(f"--lr must be positive, got {args.lr}")
+    if not 0.0 <= args.ema < 1.0:
+        p.error(f"--ema must lie in [0, 1), got {args.ema}")
     if not (args.rel_eps > 0 and np.isfinite(args.rel_eps)):
         p.error(f"--rel-eps must be positive, got {args.rel_eps}")
     if args.init is not None and not args.init.is_file():
@@ -282,6 +295,20 @@ def record_errors(model, batches: Batches, batch: int) -> dict | None:
     return out
 
 
+def with_label_noise(err: dict | None, root: Path, split: str) -> dict | None:
+    """Adds to a split's record errors the median relative noise of its labels and the
+    median error a perfect model would show against them (|N(0, s_i)| per record, simulated
+    with a fixed seed); the errors themselves are never corrected for it."""
+    if not err:
+        return err
+    s = rdata.label_noise(root, split)
+    s = s[np.isfinite(s)]
+    rng = np.random.default_rng(0)
+    err["label_noise_median"] = float(np.median(s)) if s.size else None
+    err["noise_floor_median"] = float(np.median(np.abs(rng.normal(0.0, s)))) if s.size else None
+    return err
+
+
 def plot(log_rows: list[dict], path: Path) -> None:
     import matplotlib
 
@@ -303,6 +330,41 @@ def plot(log_rows: list[dict], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+
+
+def ema_update(ema: torch.nn.Module, model: torch.nn.Module, decay: float, step: int) -> None:
+    """One step of the weights' moving average: ema <- d ema + (1 - d) model with
+    d = min(decay, (1 + step) / (10 + step)), so the first steps (step counted from 0 in this
+    stage) do not keep the starting weights for ~1 / (1 - decay) steps."""
+    d = min(decay, (1.0 + step) / (10.0 + step))
+    with torch.no_grad():
+        for pe, pm in zip(ema.parameters(), model.parameters()):
+            pe.lerp_(pm, 1.0 - d)
+        for be, bm in zip(ema.buffers(), model.buffers()):
+            be.copy_(bm)
+
+
+def check_test_set(manifest: dict, test_manifest: dict, root: Path) -> None:
+    """Refuses a separate test set that does not measure the same thing (another phase
+    function or albedo) or that shares a cloud with the training set (same generator, kind,
+    seed and size)."""
+    a, b = manifest.get("settings", {}), test_manifest.get("settings", {})
+    for key in ("phase", "albedo"):
+        if a.get(key) != b.get(key):
+            raise SystemExit(f"--test-data {root}: its {key} is {b.get(key)}, the training "
+                             f"set's {a.get(key)}")
+
+    def key(c):
+        # The cloud's shape: its density scale may differ and it is still the same cloud.
+        return json.dumps({k: v for k, v in c.items()
+                           if k not in ("split", "name", "density_scale")}, sort_keys=True)
+
+    train = {key(c) for c in manifest.get("clouds", []) if c.get("split") == "train"}
+    shared = [c.get("name") for c in test_manifest.get("clouds", [])
+              if c.get("split") == "test" and key(c) in train]
+    if shared:
+        raise SystemExit(f"--test-data {root}: test clouds {shared} are training clouds of "
+                         f"--data")
 
 
 def build_model(args) -> RPNN:
@@ -359,7 +421,10 @@ def _train(args, dist: Dist, device) -> dict:
     manifest = rdata.read_manifest(args.data)
     train_shards = rdata.load_shards(args.data, "train", check=args.check)
     val_shards = rdata.load_shards(args.data, "val")
-    test_shards = rdata.load_shards(args.data, "test")
+    test_root = args.test_data or args.data
+    test_shards = rdata.load_shards(test_root, "test")
+    if args.test_data is not None:
+        check_test_set(manifest, rdata.read_manifest(args.test_data), args.test_data)
     train_recs = rdata.Records(train_shards)
     val_recs = rdata.Records(val_shards)
     test_recs = rdata.Records(test_shards)
@@ -398,8 +463,15 @@ def _train(args, dist: Dist, device) -> dict:
     if lead:
         args.run.mkdir(parents=True, exist_ok=True)
     last, best = args.run / "last.pt", args.run / "best.pt"
+    # The weights' moving average (--ema): a copy that follows the trained weights.
+    ema = None
+    if args.ema > 0:
+        import copy
+
+        ema = copy.deepcopy(model)
     state = {"epoch": 0, "best_val": float("inf"), "best_epoch": 0, "log": [], "seconds": 0.0,
-             "init": init, "loss": args.loss, "rel_eps": args.rel_eps}
+             "init": init, "loss": args.loss, "rel_eps": args.rel_eps, "ema": args.ema,
+             "ema_steps": 0}
     if args.resume and last.exists():
         ck = torch.load(last, map_location=device, weights_only=False)
         if ck["config"] != model.config():
@@ -411,8 +483,13 @@ def _train(args, dist: Dist, device) -> dict:
             raise SystemExit(f"{last}: trained with --loss {saved.get('loss')} --rel-eps "
                              f"{saved.get('rel_eps')}; resuming with --loss {args.loss} "
                              f"--rel-eps {args.rel_eps} would mix two losses")
+        if saved.get("ema", 0.0) != args.ema:
+            raise SystemExit(f"{last}: trained with --ema {saved.get('ema', 0.0)}; resuming "
+                             f"with --ema {args.ema} would mix two averages")
         model.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
+        if ema is not None:
+            ema.load_state_dict(ck["ema"])
         state = saved
         say(f"resumed from {last} after epoch {state['epoch']}")
     # DDP after loading: it broadcasts rank 0's parameters to the others.
@@ -423,13 +500,15 @@ def _train(args, dist: Dist, device) -> dict:
         f"{'preloaded' if preload else 'memory-mapped'}; loss {args.loss}"
         f"{', mirrored' if mirror is not None else ''}")
 
+    # What is validated, kept as best.pt and exported: the average when there is one.
+    scored = ema if ema is not None else model
     if not state["log"]:
         # Epoch 0: the untrained network (a constant near the mean target), the baseline of the
         # learning curves.
         state["log"].append({"epoch": 0, "train_loss": None,
-                             "val_loss": evaluate(model, val, 4 * args.batch, loss_fn, dist,
+                             "val_loss": evaluate(scored, val, 4 * args.batch, loss_fn, dist,
                                                   device),
-                             "test_loss": evaluate(model, test, 4 * args.batch, loss_fn, dist,
+                             "test_loss": evaluate(scored, test, 4 * args.batch, loss_fn, dist,
                                                    device),
                              "seconds": 0.0})
     steps_per_epoch = -(-len(fit) // args.batch)
@@ -468,12 +547,15 @@ def _train(args, dist: Dist, device) -> dict:
             loss = loss_fn(net(x), y[:, None].expand(-1, model.outputs))
             (loss * share).backward()
             opt.step()
+            if ema is not None:
+                ema_update(ema, model, args.ema, state["ema_steps"])
+                state["ema_steps"] += 1
             tl += float(loss.detach()) * len(y) * (share > 0)
             tn += len(y) * (share > 0)
         if dist.on:
             tl, tn = dist.sum([tl, tn], device)
-        vl = evaluate(model, val, 4 * args.batch, loss_fn, dist, device)
-        te = evaluate(model, test, 4 * args.batch, loss_fn, dist, device)
+        vl = evaluate(scored, val, 4 * args.batch, loss_fn, dist, device)
+        te = evaluate(scored, test, 4 * args.batch, loss_fn, dist, device)
         # Every rank keeps the same clock (--max-minutes must stop them together).
         dt = dist.max(time.time() - t0, device)
         state["seconds"] += dt
@@ -488,10 +570,11 @@ def _train(args, dist: Dist, device) -> dict:
             # Whole or absent: a run killed while saving keeps the previous checkpoint.
             if improved:
                 rexport.replace_atomically(best, lambda t: torch.save(
-                    {"model": model.state_dict(), "config": model.config(), "epoch": epoch}, t))
+                    {"model": scored.state_dict(), "config": model.config(), "epoch": epoch}, t))
             rexport.replace_atomically(last, lambda t: torch.save(
                 {"model": model.state_dict(), "optimizer": opt.state_dict(),
-                 "config": model.config(), "state": state}, t))
+                 "config": model.config(), "state": state,
+                 **({"ema": ema.state_dict()} if ema is not None else {})}, t))
             with open(args.run / "log.csv", "w", newline="") as f:
                 w = csv.DictWriter(f, fieldnames=list(row))
                 w.writeheader()
@@ -527,12 +610,16 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
     dev_model = RPNN(**ck["config"])
     dev_model.load_state_dict(ck["model"])
     dev_model = dev_model.to(device)
+    test_root = args.test_data or args.data
     errors = {
         "validation": record_errors(dev_model, Batches(val_source, val_idx, device, False),
                                     4 * args.batch),
-        "test": record_errors(dev_model, Batches(test_recs, np.arange(len(test_recs)), device,
-                                                 False), 4 * args.batch),
+        "test": with_label_noise(record_errors(
+            dev_model, Batches(test_recs, np.arange(len(test_recs)), device, False),
+            4 * args.batch), test_root, "test"),
     }
+    if result["val_from_clouds"]:
+        errors["validation"] = with_label_noise(errors["validation"], args.data, "val")
     # Check on real records: validation rows, then held-out ones (up to 2000 in all).
     xv, _ = val_source.gather(val_idx[:1000])
     rows = [xv]
@@ -543,6 +630,14 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
     cfg = model.config()
     settings = m.get("settings", {})
     splits = [c.get("split") for c in m.get("clouds", [])]
+    test_set = None
+    if args.test_data is not None:
+        tm = rdata.read_manifest(args.test_data)
+        ts = tm.get("settings", {})
+        test_set = {"root": str(args.test_data), "manifest_sha256":
+                    rdata.manifest_hash(args.test_data), "seed": ts.get("seed"),
+                    "eval_samples": ts.get("eval_samples"), "eval_noise": ts.get("eval_noise"),
+                    "test_clouds": [c.get("split") for c in tm.get("clouds", [])].count("test")}
     card = {
         "model": Path(args.export).name,
         "architecture": {**cfg, "input_len": model.input_len,
@@ -556,7 +651,9 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
                  "samples": settings.get("samples"), "eval_samples": settings.get("eval_samples"),
                  "light": settings.get("light"),
                  "train_clouds": splits.count("train"), "val_clouds": splits.count("val"),
-                 "test_clouds": splits.count("test"),
+                 "test_clouds": (test_set["test_clouds"] if test_set
+                                 else splits.count("test")),
+                 "test_set": test_set,
                  "clouds": m.get("clouds", []),
                  "train_records": result["fit"] + (0 if result["val_from_clouds"]
                                                    else result["val"]),
@@ -565,7 +662,7 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
                  "convergence_rate": m.get("convergence_rate")},
         "training": {"loss": args.loss,
                      "rel_eps": args.rel_eps if args.loss == "rel-l2" else None,
-                     "init": s.get("init"), "mirror": args.mirror,
+                     "init": s.get("init"), "mirror": args.mirror, "ema": args.ema,
                      "axis_turns_deg": args.axis_turns, "schedule": args.schedule,
                      "steps": s["epoch"] * -(-result["fit"] // args.batch),
                      "epochs": s["epoch"], "best_epoch": s["best_epoch"],

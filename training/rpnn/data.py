@@ -160,6 +160,23 @@ class Records:
         return x, y
 
 
+def label_noise(root: Path, split: str) -> np.ndarray:
+    """Relative standard deviation of every label of `split` (NaN where unknown)."""
+    out = []
+    for s in read_manifest(root).get("shards", []):
+        if s.get("split") != split:
+            continue
+        y = np.load(root / s["y"], mmap_mode="r").astype(np.float64)
+        meta = np.load(root / s["meta"], mmap_mode="r") if s.get("meta") else None
+        if meta is None or meta.ndim != 2 or meta.shape[1] <= 13:  # no label variance
+            out.append(np.full(len(y), np.nan))
+            continue
+        var = meta[:, 13].astype(np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out.append(np.where(y > 0, np.sqrt(np.maximum(var, 0)) / y, np.nan))
+    return np.concatenate(out) if out else np.zeros(0)
+
+
 def split_indices(n: int, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """A fixed random split of n rows: (train, validation)."""
     if not 0.0 < val_fraction < 1.0:

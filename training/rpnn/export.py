@@ -165,8 +165,25 @@ def record_error_lines(errors: dict | None) -> list[str]:
         out.append("  - by target tercile: " + ", ".join(
             f"{b['target'][0]:.3g}–{b['target'][1]:.3g}: {100 * b['median_rel_error']:.1f} %"
             for b in e["by_target"]))
+        if e.get("label_noise_median") is not None:
+            out.append(f"  - the labels' own relative noise: median "
+                       f"{100 * e['label_noise_median']:.1f} %; a perfect model would read "
+                       f"{100 * e['noise_floor_median']:.1f} % (not subtracted above)")
     out.append("")
     return out
+
+
+def test_set_lines(ts: dict | None) -> list[str]:
+    """The card's line on a separate test set (``train.py --test-data``; none without one)."""
+    if not ts:
+        return []
+    labels = (f"a pilot of {ts.get('eval_samples')} samples sets how many fresh samples reach a "
+              f"relative standard error of {ts['eval_noise']:g} (capped), the label is their "
+              f"mean (unbiased)" if ts.get("eval_noise") else
+              f"{ts.get('eval_samples') or 'converged'} samples each")
+    return [f"- Test records from `{ts['root']}` (manifest sha256 `{ts['manifest_sha256']}`, "
+            f"seed {ts.get('seed')}): {ts.get('test_clouds')} held-out clouds, none of them a "
+            f"training cloud; labels: {labels}."]
 
 
 def init_lines(init: dict | None) -> list[str]:
@@ -230,6 +247,8 @@ def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
         f"{'on' if t.get('mirror') else 'off'}"
         + (f", quarter turns about the light axis within {t['axis_turns_deg']:g}° of γ = 0 and 180°"
            if t.get("axis_turns_deg") else "")
+        + (f", the exported weights a moving average over the steps (decay {t['ema']:g} per step)"
+           if t.get("ema") else "")
         + f", seed {t['seed']}, device {t['device']}, "
         f"{t['seconds']:.0f} s.",
         *init_lines(t.get("init")),
@@ -238,6 +257,7 @@ def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
          if t.get("select") == "last" else
          f"- Best validation loss {t['best_val_loss']:.4g} (epoch {t['best_epoch']}); ")
         + f"test-cloud loss {t['test_loss'] if t['test_loss'] is None else format(t['test_loss'], '.4g')}.",
+        *test_set_lines(d.get("test_set")),
         "",
         *record_error_lines(card.get("record_errors")),
         "## Export check",

@@ -124,3 +124,75 @@ def test_resume_refuses_another_loss(record_set, tmp_path):
     run(record_set, tmp_path, "--epochs", "1")
     with pytest.raises(SystemExit, match="rel-eps 0.01; resuming with --loss rel-l2 --rel-eps 0.002"):
         run(record_set, tmp_path, "--epochs", "2", "--resume", "--rel-eps", "0.002")
+
+
+def test_ema_update_is_the_moving_average():
+    import torch
+    torch.manual_seed(0)
+    ema, model = torch.nn.Linear(3, 2), torch.nn.Linear(3, 2)
+    e0 = [p.detach().clone() for p in ema.parameters()]
+    m = [p.detach().clone() for p in model.parameters()]
+    # Step 0: the warm-up caps the decay at (1 + 0) / (10 + 0) = 0.1.
+    train.ema_update(ema, model, 0.999, 0)
+    for pe, a, b in zip(ema.parameters(), e0, m):
+        torch.testing.assert_close(pe.detach(), 0.1 * a + 0.9 * b)
+    # Late steps use the decay itself.
+    e1 = [p.detach().clone() for p in ema.parameters()]
+    train.ema_update(ema, model, 0.9, 10_000)
+    for pe, a, b in zip(ema.parameters(), e1, m):
+        torch.testing.assert_close(pe.detach(), 0.9 * a + 0.1 * b)
+
+
+def test_ema_is_kept_exported_and_resumes(record_set, tmp_path):
+    import torch
+    full = run(record_set, tmp_path / "a", "--epochs", "3", "--ema", "0.95", "--select", "last")
+    best = torch.load(tmp_path / "a" / "run" / "best.pt", weights_only=False)
+    last = torch.load(tmp_path / "a" / "run" / "last.pt", weights_only=False)
+    # best.pt (what is exported) holds the average, last.pt the trained weights and the average.
+    for k, v in best["model"].items():
+        assert torch.equal(v, last["ema"][k]), k
+    assert any(not torch.equal(v, last["model"][k]) for k, v in best["model"].items())
+    assert full["state"]["ema_steps"] == 3 * 9  # 900 fitting rows in minibatches of 100
+    # Interrupted after epoch 1 and resumed: the same computation (see the test above).
+    run(record_set, tmp_path / "b", "--epochs", "1", "--ema", "0.95", "--select", "last")
+    resumed = run(record_set, tmp_path / "b", "--epochs", "3", "--ema", "0.95", "--select",
+                  "last", "--resume")
+    np.testing.assert_allclose([r["val_loss"] for r in resumed["state"]["log"]],
+                               [r["val_loss"] for r in full["state"]["log"]], rtol=1e-4)
+    with pytest.raises(SystemExit, match="--ema 0.95; resuming with --ema 0.0"):
+        run(record_set, tmp_path / "b", "--epochs", "4", "--resume")
+
+
+def _set_clouds(root, clouds, **settings):
+    m = json.loads((root / "manifest.json").read_text())
+    m["clouds"] = clouds
+    m["settings"].update(settings)
+    (root / "manifest.json").write_text(json.dumps(m))
+
+
+def test_test_data_takes_the_test_split_of_another_set(record_set, tmp_path):
+    other = write_set(tmp_path / "other", 0, 300, seed=5)
+    cloud = {"source": "Generated", "kind": "cumulus", "resolution": [8, 8, 8]}
+    _set_clouds(record_set, [{**cloud, "name": "a", "split": "train", "seed": 1,
+                              "density_scale": 10.0},
+                             {**cloud, "name": "b", "split": "test", "seed": 2}])
+    _set_clouds(other, [{**cloud, "name": "c", "split": "test", "seed": 3}], eval_samples=64,
+                eval_noise=0.05)
+    res = run(record_set, tmp_path, "--epochs", "1", "--test-data", str(other),
+              "--export", str(tmp_path / "m.onnx"))
+    assert res["test"] == 300  # the other set's test records, not --data's 200
+    card = res["card"]
+    assert card["data"]["test_set"]["eval_noise"] == 0.05
+    assert card["data"]["test_clouds"] == 1
+    assert card["record_errors"]["test"]["records"] == 300
+    md = (tmp_path / "m.md").read_text()
+    assert "relative standard error of 0.05" in md and str(other) in md
+    # A training cloud among the test clouds (same shape, another density scale) is refused,
+    # and so is another phase function.
+    _set_clouds(other, [{**cloud, "name": "c", "split": "test", "seed": 1,
+                         "density_scale": 99.0}])
+    with pytest.raises(SystemExit, match=r"test clouds \['c'\] are training clouds"):
+        run(record_set, tmp_path / "b", "--epochs", "1", "--test-data", str(other))
+    _set_clouds(other, [{**cloud, "name": "c", "split": "test", "seed": 3}], phase="mie")
+    with pytest.raises(SystemExit, match="its phase is mie, the training set's hg"):
+        run(record_set, tmp_path / "c", "--epochs", "1", "--test-data", str(other))
