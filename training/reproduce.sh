@@ -39,13 +39,14 @@ FINETUNE_RECORDS=${FINETUNE_RECORDS:-2000000}
 FINETUNE_EPS=${FINETUNE_EPS:-0.01}
 FINETUNE_LR=${FINETUNE_LR:-0.0003}
 FINETUNE_MAX_MINUTES=${FINETUNE_MAX_MINUTES:-200}
-# Second cloud set: SECOND_RECORDS records from the clouds of seed SECOND_SEED (150 new clouds,
-# none of them in the first set: train.py checks), the stage before's last weights fine-tuned
-# SECOND_EPOCHS epochs (Adam SECOND_LR, cosine) keeping a moving average of the weights (decay EMA
-# per step), tested on the first set's held-out clouds with two-stage precise labels (a relative
-# standard error of PRECISE_NOISE, see `nimbus datagen --eval-noise`). 0 epochs: no such stage.
-SECOND_EPOCHS=${SECOND_EPOCHS:-6}
-SECOND_SEED=${SECOND_SEED:-1}
+# More cloud sets: SECOND_RECORDS records from the clouds of each seed in SECOND_SEEDS (150 new
+# clouds per seed, none of them in the first set: train.py checks), trained together: the stage
+# before's last weights fine-tuned SECOND_EPOCHS epochs (Adam SECOND_LR, cosine) keeping a moving
+# average of the weights (decay EMA per step), tested on the first set's held-out clouds with
+# two-stage precise labels (a relative standard error of PRECISE_NOISE, see `nimbus datagen
+# --eval-noise`). 0 epochs: no such stage.
+SECOND_EPOCHS=${SECOND_EPOCHS:-3}
+SECOND_SEEDS=${SECOND_SEEDS:-1 2}
 SECOND_RECORDS=${SECOND_RECORDS:-1000000}
 SECOND_LR=${SECOND_LR:-0.0003}
 EMA=${EMA:-0.999}
@@ -75,7 +76,7 @@ datagen() { # SPLIT-specific counts; the same --out and settings, so later calls
 # Validation and test sets first (small, precise), then the training records.
 datagen --records 0 --val-records "$VAL_RECORDS" --test-records "$TEST_RECORDS"
 datagen --records "$RECORDS" --val-records "$VAL_RECORDS" --test-records "$TEST_RECORDS"
-SETTINGS="PHASE=$PHASE INIT=$INIT LR=$LR CLOUDS=$CLOUDS DENSITY_RANGE=$DENSITY_RANGE RECORDS=$RECORDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS TEST_RECORDS=$TEST_RECORDS EVAL_SAMPLES=$EVAL_SAMPLES LIGHT=$LIGHT EPOCHS=$EPOCHS MAX_MINUTES=$MAX_MINUTES RESTART_EPOCHS=$RESTART_EPOCHS RESTART_MAX_MINUTES=$RESTART_MAX_MINUTES LOSS=$LOSS REL_EPS=$REL_EPS FINETUNE_EPOCHS=$FINETUNE_EPOCHS FINETUNE_RECORDS=$FINETUNE_RECORDS FINETUNE_EPS=$FINETUNE_EPS FINETUNE_LR=$FINETUNE_LR FINETUNE_MAX_MINUTES=$FINETUNE_MAX_MINUTES SECOND_EPOCHS=$SECOND_EPOCHS SECOND_SEED=$SECOND_SEED SECOND_RECORDS=$SECOND_RECORDS SECOND_LR=$SECOND_LR EMA=$EMA PRECISE_NOISE=$PRECISE_NOISE SECOND_MAX_MINUTES=$SECOND_MAX_MINUTES DEVICE=$DEVICE"
+SETTINGS="PHASE=$PHASE INIT=$INIT LR=$LR CLOUDS=$CLOUDS DENSITY_RANGE=$DENSITY_RANGE RECORDS=$RECORDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS TEST_RECORDS=$TEST_RECORDS EVAL_SAMPLES=$EVAL_SAMPLES LIGHT=$LIGHT EPOCHS=$EPOCHS MAX_MINUTES=$MAX_MINUTES RESTART_EPOCHS=$RESTART_EPOCHS RESTART_MAX_MINUTES=$RESTART_MAX_MINUTES LOSS=$LOSS REL_EPS=$REL_EPS FINETUNE_EPOCHS=$FINETUNE_EPOCHS FINETUNE_RECORDS=$FINETUNE_RECORDS FINETUNE_EPS=$FINETUNE_EPS FINETUNE_LR=$FINETUNE_LR FINETUNE_MAX_MINUTES=$FINETUNE_MAX_MINUTES SECOND_EPOCHS=$SECOND_EPOCHS SECOND_SEEDS='$SECOND_SEEDS' SECOND_RECORDS=$SECOND_RECORDS SECOND_LR=$SECOND_LR EMA=$EMA PRECISE_NOISE=$PRECISE_NOISE SECOND_MAX_MINUTES=$SECOND_MAX_MINUTES DEVICE=$DEVICE"
 train() {
   training/.venv/bin/python training/train.py --data "$DATA" --loss "$LOSS" --schedule cosine \
     --seed 0 --device auto --resume --export "$MODEL" \
@@ -110,12 +111,15 @@ if [ "$SECOND_EPOCHS" -gt 0 ]; then
   TEST_PRECISE="$DATA-test-precise"
   OUT="$TEST_PRECISE" datagen --records 0 --val-records 0 --test-records "$TEST_RECORDS" \
     --eval-noise "$PRECISE_NOISE"
-  DATA2="$DATA-seed$SECOND_SEED"
-  SEED="$SECOND_SEED" OUT="$DATA2" datagen --records "$SECOND_RECORDS" \
-    --val-records "$VAL_RECORDS" --test-records 0
+  SETS=()
+  for S in $SECOND_SEEDS; do
+    SEED="$S" OUT="$DATA-seed$S" datagen --records "$SECOND_RECORDS" \
+      --val-records "$VAL_RECORDS" --test-records 0
+    SETS+=("$DATA-seed$S")
+  done
   INIT="$RUN/last.pt"
-  RUN="$RUN/second"
-  train --data "$DATA2" --test-data "$TEST_PRECISE" --run "$RUN" --epochs "$SECOND_EPOCHS" \
+  RUN="$RUN/more"
+  train --data "${SETS[@]}" --test-data "$TEST_PRECISE" --run "$RUN" --epochs "$SECOND_EPOCHS" \
     --max-minutes "$SECOND_MAX_MINUTES" --select last --init "$INIT" --rel-eps "$FINETUNE_EPS" \
     --lr "$SECOND_LR" --ema "$EMA"
 fi

@@ -68,7 +68,9 @@ from rpnn.model import (  # noqa: E402
 
 def parse_args(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--data", required=True, type=Path, help="a `nimbus datagen --out` folder")
+    p.add_argument("--data", required=True, type=Path, nargs="+",
+                   help="`nimbus datagen --out` folders (several: their training and validation "
+                        "splits together; the same phase function, albedo and light sampling)")
     p.add_argument("--run", "--run-dir", dest="run", required=True, type=Path,
                    help="folder for checkpoints, log and plot (write --run-dir under torchrun, "
                         "whose own option --run-path makes --run ambiguous)")
@@ -295,13 +297,14 @@ def record_errors(model, batches: Batches, batch: int) -> dict | None:
     return out
 
 
-def with_label_noise(err: dict | None, root: Path, split: str) -> dict | None:
+def with_label_noise(err: dict | None, root: Path | list[Path], split: str) -> dict | None:
     """Adds to a split's record errors the median relative noise of its labels and the
     median error a perfect model would show against them (|N(0, s_i)| per record, simulated
     with a fixed seed); the errors themselves are never corrected for it."""
     if not err:
         return err
-    s = rdata.label_noise(root, split)
+    roots = root if isinstance(root, list) else [root]
+    s = np.concatenate([rdata.label_noise(r, split) for r in roots])
     s = s[np.isfinite(s)]
     rng = np.random.default_rng(0)
     err["label_noise_median"] = float(np.median(s)) if s.size else None
@@ -342,6 +345,22 @@ def ema_update(ema: torch.nn.Module, model: torch.nn.Module, decay: float, step:
             pe.lerp_(pm, 1.0 - d)
         for be, bm in zip(ema.buffers(), model.buffers()):
             be.copy_(bm)
+
+
+def merged_manifest(roots: list[Path]) -> dict:
+    """The manifest of one set, or of several read as one: the first one's settings (the
+    others must agree on phase function, albedo and light sampling), every set's clouds."""
+    ms = [rdata.read_manifest(r) for r in roots]
+    if len(ms) == 1:
+        return ms[0]
+    first = ms[0].get("settings", {})
+    for r, m in zip(roots[1:], ms[1:]):
+        for key in ("phase", "albedo", "light"):
+            if m.get("settings", {}).get(key) != first.get(key):
+                raise SystemExit(f"--data {r}: its {key} is {m.get('settings', {}).get(key)}, "
+                                 f"{roots[0]}'s {first.get(key)}")
+    return {**ms[0], "clouds": [c for m in ms for c in m.get("clouds", [])],
+            "convergence_rate": None}
 
 
 def check_test_set(manifest: dict, test_manifest: dict, root: Path) -> None:
@@ -418,10 +437,11 @@ def train(args) -> dict:
 def _train(args, dist: Dist, device) -> dict:
     lead = dist.rank == 0
     say = (lambda *a: None) if args.quiet or not lead else (lambda *a: print(*a, flush=True))
-    manifest = rdata.read_manifest(args.data)
-    train_shards = rdata.load_shards(args.data, "train", check=args.check)
-    val_shards = rdata.load_shards(args.data, "val")
-    test_root = args.test_data or args.data
+    manifest = merged_manifest(args.data)
+    train_shards = [sh for d in args.data for sh in rdata.load_shards(d, "train",
+                                                                      check=args.check)]
+    val_shards = [sh for d in args.data for sh in rdata.load_shards(d, "val")]
+    test_root = args.test_data or args.data[0]
     test_shards = rdata.load_shards(test_root, "test")
     if args.test_data is not None:
         check_test_set(manifest, rdata.read_manifest(args.test_data), args.test_data)
@@ -429,7 +449,8 @@ def _train(args, dist: Dist, device) -> dict:
     val_recs = rdata.Records(val_shards)
     test_recs = rdata.Records(test_shards)
     if len(train_recs) < 2:
-        raise SystemExit(f"{args.data}: {len(train_recs)} training records; at least 2 are needed")
+        raise SystemExit(f"{', '.join(map(str, args.data))}: {len(train_recs)} training records; "
+                         f"at least 2 are needed")
     if len(val_recs):
         # Held-out validation clouds with precise labels.
         fit_idx, val_idx = np.arange(len(train_recs)), np.arange(len(val_recs))
@@ -604,13 +625,13 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
     rexport.export_onnx(model, args.export, {
         "nimbus.rpnn.phase": m.get("settings", {}).get("phase", "unknown"),
         "nimbus.rpnn.albedo": str(m.get("settings", {}).get("albedo", "unknown")),
-        "nimbus.rpnn.data_manifest_sha256": rdata.manifest_hash(args.data),
+        "nimbus.rpnn.data_manifest_sha256": ",".join(rdata.manifest_hash(d) for d in args.data),
     })
     # Per-record errors of the best model on the precise splits.
     dev_model = RPNN(**ck["config"])
     dev_model.load_state_dict(ck["model"])
     dev_model = dev_model.to(device)
-    test_root = args.test_data or args.data
+    test_root = args.test_data or args.data[0]
     errors = {
         "validation": record_errors(dev_model, Batches(val_source, val_idx, device, False),
                                     4 * args.batch),
@@ -645,7 +666,8 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
                          "parameters": parameter_count(model),
                          "input": rexport.INPUT_NAME, "output": rexport.OUTPUT_NAME,
                          "opset": rexport.OPSET},
-        "data": {"root": str(args.data), "manifest_sha256": rdata.manifest_hash(args.data),
+        "data": {"root": ", ".join(map(str, args.data)),
+                 "manifest_sha256": ", ".join(rdata.manifest_hash(d) for d in args.data),
                  "phase": settings.get("phase"), "albedo": settings.get("albedo"),
                  "seed": settings.get("seed"), "max_samples": settings.get("max_samples"),
                  "samples": settings.get("samples"), "eval_samples": settings.get("eval_samples"),

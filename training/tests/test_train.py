@@ -196,3 +196,16 @@ def test_test_data_takes_the_test_split_of_another_set(record_set, tmp_path):
     _set_clouds(other, [{**cloud, "name": "c", "split": "test", "seed": 3}], phase="mie")
     with pytest.raises(SystemExit, match="its phase is mie, the training set's hg"):
         run(record_set, tmp_path / "c", "--epochs", "1", "--test-data", str(other))
+
+
+def test_several_sets_train_together(record_set, tmp_path):
+    second = write_set(tmp_path / "second", 500, 0, seed=9)
+    res = run(record_set, tmp_path, "--epochs", "1", "--data", str(record_set), str(second),
+              "--export", str(tmp_path / "m.onnx"))
+    # 1 700 training rows, no validation split in either: 25 % of them validate.
+    assert res["fit"] + res["val"] == 1700
+    assert res["card"]["data"]["root"] == f"{record_set}, {second}"
+    assert len(res["card"]["data"]["manifest_sha256"].split(", ")) == 2
+    _set_clouds(second, [{"name": "z", "split": "train"}], phase="mie")
+    with pytest.raises(SystemExit, match="its phase is mie"):
+        run(record_set, tmp_path / "b", "--epochs", "1", "--data", str(record_set), str(second))
