@@ -42,6 +42,7 @@ from __future__ import annotations
 import argparse
 import csv
 import functools
+import gc
 import json
 import os
 import sys
@@ -425,9 +426,13 @@ def train(args) -> dict:
     dist.start(device)
     try:
         result = _train(args, dist, device)
+        # The DistributedDataParallel wrapper (and its reducer, which holds the process group)
+        # is freed here, not at interpreter exit after the group was destroyed: gloo's threads
+        # must not outlive the group ("terminate called without an active exception", twice
+        # in CI at the end of a run).
+        gc.collect()
         # Every rank leaves the group together: a rank that tore gloo down while rank 0 was
-        # still writing its checkpoint, log and ONNX file could abort ("terminate called
-        # without an active exception"; seen once in CI).
+        # still writing its checkpoint, log and ONNX file could abort the same way.
         dist.barrier()
         return result
     finally:

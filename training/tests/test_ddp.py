@@ -27,7 +27,9 @@ def torchrun(nproc: int, *args: str) -> None:
     cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", str(nproc),
            "--master_addr", "127.0.0.1", "--master_port", str(free_port()), str(TRAIN), *args]
     r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    # Both ends of stderr: the first error of a rank, then the launcher's summary.
+    err = r.stderr if len(r.stderr) <= 6000 else r.stderr[:3000] + "\n…\n" + r.stderr[-3000:]
+    assert r.returncode == 0, r.stdout[-3000:] + err
 
 
 def log(run: Path) -> np.ndarray:
