@@ -35,6 +35,11 @@ def main(argv=None) -> dict:
     p.add_argument("--data", required=True, type=Path)
     p.add_argument("--model", required=True, type=Path, help="an ONNX file written by train.py")
     p.add_argument("--json", type=Path, help="also write the result here")
+    p.add_argument("--split", action="append", choices=["val", "test", "train"],
+                   help="the splits to score (repeatable; default: val and test). `train`: e.g. "
+                        "the fixed-count records of one cloud read from a folder (`nimbus "
+                        "datagen --clouds DIR --samples 4096 …`), whose per-gamma mean ratio "
+                        "is the network's bias on that cloud")
     args = p.parse_args(argv)
     meta = {m.key: m.value for m in __import__("onnx").load(str(args.model)).metadata_props}
     config = json.loads(meta.get("nimbus.rpnn.config", "{}")) or {}
@@ -44,7 +49,9 @@ def main(argv=None) -> dict:
     except (ValueError, TypeError) as e:
         raise SystemExit(f"error: {e}") from None
     result = {"model": str(args.model), "data": str(args.data)}
-    for split, name in (("val", "validation"), ("test", "test")):
+    names = {"val": "validation", "test": "test", "train": "training"}
+    for split in args.split or ["val", "test"]:
+        name = names[split]
         recs = rdata.Records(rdata.load_shards(args.data, split))
         if not len(recs):
             continue

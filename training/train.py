@@ -267,7 +267,8 @@ GAMMA_BINS_DEG = [0, 30, 60, 90, 120, 150, 180]
 def record_errors(model, batches: Batches, batch: int) -> dict | None:
     """Per-record relative error |y_hat - y| / y on a precise split: median overall, by gamma
     (30-degree bins; gamma = 180 is front-lit) and by target size (terciles), plus the ratio of
-    mean prediction to mean target."""
+    mean prediction to mean target (overall and per gamma bin, with the standard error of the
+    per-bin ratio: the bias an image lit at that angle inherits)."""
     if len(batches) == 0:
         return None
     model.eval()
@@ -286,8 +287,12 @@ def record_errors(model, batches: Batches, batch: int) -> dict | None:
     for lo, hi in zip(GAMMA_BINS_DEG[:-1], GAMMA_BINS_DEG[1:]):
         sel = (g >= lo) & ((g < hi) | (hi == 180))
         if sel.any():
-            out["by_gamma"].append({"gamma_deg": [lo, hi], "records": int(sel.sum()),
-                                    "median_rel_error": float(np.median(rel[sel]))})
+            n, ym = int(sel.sum()), float(yk[sel].mean())
+            out["by_gamma"].append({"gamma_deg": [lo, hi], "records": n,
+                                    "median_rel_error": float(np.median(rel[sel])),
+                                    "mean_ratio": float(p[ok][sel].mean()) / ym,
+                                    "mean_ratio_se": float((p[ok][sel] - yk[sel]).std()
+                                                           / np.sqrt(n) / ym)})
     edges = np.quantile(yk, [0, 1 / 3, 2 / 3, 1])
     for i in range(3):
         sel = (yk >= edges[i]) & ((yk < edges[i + 1]) | (i == 2))

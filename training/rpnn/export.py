@@ -162,6 +162,10 @@ def record_error_lines(errors: dict | None) -> list[str]:
         out.append("  - by gamma (180° = front-lit): " + ", ".join(
             f"{b['gamma_deg'][0]}–{b['gamma_deg'][1]}°: {100 * b['median_rel_error']:.1f} % "
             f"({b['records']})" for b in e["by_gamma"]))
+        if all("mean_ratio" in b for b in e["by_gamma"]):
+            out.append("  - mean prediction / mean target by gamma: " + ", ".join(
+                f"{b['gamma_deg'][0]}–{b['gamma_deg'][1]}°: {b['mean_ratio']:.3f} ± "
+                f"{b['mean_ratio_se']:.3f}" for b in e["by_gamma"]))
         out.append("  - by target tercile: " + ", ".join(
             f"{b['target'][0]:.3g}–{b['target'][1]:.3g}: {100 * b['median_rel_error']:.1f} %"
             for b in e["by_target"]))
