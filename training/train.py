@@ -280,18 +280,18 @@ def record_errors(model, batches: Batches, batch: int) -> dict | None:
             gammas.append(x[:, -1].cpu().numpy())
     p, y, g = np.concatenate(preds), np.concatenate(ys), np.degrees(np.concatenate(gammas))
     ok = y > 0
-    rel = np.abs(p[ok] - y[ok]) / y[ok]
-    g, yk = g[ok], y[ok]
+    pk, yk, g = p[ok], y[ok], g[ok]
+    rel = np.abs(pk - yk) / yk
     out = {"records": int(ok.sum()), "median_rel_error": float(np.median(rel)),
-           "mean_ratio": float(p[ok].mean() / yk.mean()), "by_gamma": [], "by_target": []}
+           "mean_ratio": float(pk.mean() / yk.mean()), "by_gamma": [], "by_target": []}
     for lo, hi in zip(GAMMA_BINS_DEG[:-1], GAMMA_BINS_DEG[1:]):
         sel = (g >= lo) & ((g < hi) | (hi == 180))
         if sel.any():
             n, ym = int(sel.sum()), float(yk[sel].mean())
             out["by_gamma"].append({"gamma_deg": [lo, hi], "records": n,
                                     "median_rel_error": float(np.median(rel[sel])),
-                                    "mean_ratio": float(p[ok][sel].mean()) / ym,
-                                    "mean_ratio_se": float((p[ok][sel] - yk[sel]).std()
+                                    "mean_ratio": float(pk[sel].mean()) / ym,
+                                    "mean_ratio_se": float((pk[sel] - yk[sel]).std()
                                                            / np.sqrt(n) / ym)})
     edges = np.quantile(yk, [0, 1 / 3, 2 / 3, 1])
     for i in range(3):
