@@ -52,8 +52,14 @@ def main(argv=None) -> dict:
     names = {"val": "validation", "test": "test", "train": "training"}
     for split in args.split or ["val", "test"]:
         name = names[split]
-        recs = rdata.Records(rdata.load_shards(args.data, split))
+        try:
+            recs = rdata.Records(rdata.load_shards(args.data, split))
+        except rdata.DataError as e:
+            raise SystemExit(f"error: {e}") from None
         if not len(recs):
+            if args.split:
+                # Asked for by name: say so rather than print nothing.
+                raise SystemExit(f"error: {args.data}: no {name} records (split `{split}`)")
             continue
         err = train.record_errors(model, train.Batches(recs, np.arange(len(recs)),
                                                        torch.device("cpu"), False), 4000)

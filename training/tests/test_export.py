@@ -155,6 +155,11 @@ def test_evaluate_reports_the_card_errors_and_the_label_noise(record_set, tmp_pa
                          "train"])
     assert set(res) == {"model", "data", "training"}
     assert res["training"]["records"] == 1200
+    # A split asked for by name but empty, and a missing set: errors that name them.
+    with pytest.raises(SystemExit, match="no validation records"):
+        evaluate.main(["--data", str(record_set), "--model", str(onnx_path), "--split", "val"])
+    with pytest.raises(SystemExit, match="manifest.json: not found"):
+        evaluate.main(["--data", str(tmp_path / "none"), "--model", str(onnx_path)])
 
 
 def test_mean_ratio_by_gamma_is_the_bias_at_that_angle(record_set):
