@@ -30,7 +30,7 @@
 // sun-transmittance volume, and the cache holds only light scattered at least once.
 #import params
 #import grid
-#import density_dense
+#import density_light
 #import rng
 #import hg
 #import constants
@@ -44,6 +44,9 @@
 // 1 for each cache cell that no later stage reads (no density within a cell and three light
 // voxels of it: `nimbus_photon::mapper::light::skippable_cells`); read when `P.skip_empty`.
 @group(0) @binding(4) var<storage, read> cell_skip: array<u32>;
+// The light bricks' index and slots: the density is the work density's brick pool
+// (`lib/density_light.wgsl`).
+@group(0) @binding(5) var<storage, read> light_map: array<u32>;
 
 // Cells accumulated in workgroup memory: set per pipeline by the mapper (`cache_layout.rs`).
 override SHARED_CELLS: u32 = 256u;

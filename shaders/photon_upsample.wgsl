@@ -23,7 +23,7 @@
 // interpolated by the ray marcher.
 #import params
 #import grid
-#import density_dense
+#import density_light
 #import constants
 
 @group(0) @binding(0) var<uniform> P: Params;
@@ -44,6 +44,8 @@
 // orders and the upsampled high-order fluence; j_hi: high orders.
 @group(0) @binding(7) var<storage, read_write> j_dir: array<vec4<f32>>;
 @group(0) @binding(8) var<storage, read_write> j_hi: array<vec4<f32>>;
+// The light bricks' index and slots: J and the work density are pools of the stored bricks.
+@group(0) @binding(9) var<storage, read> light_map: array<u32>;
 
 
 struct CellValue {
@@ -182,24 +184,29 @@ fn trilinear_fluence(p: vec3<f32>) -> vec3<f32> {
 
 @compute @workgroup_size(WG)
 fn upsample(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let idx = gid.x + gid.y * nwg.x * WG;
+    // Pool entries from 512 on: the voxels of the stored bricks (`lib/light_bricks.wgsl`).
+    let local = gid.x + gid.y * nwg.x * WG;
+    if (local >= P.light_voxels) { return; }
+    let idx = 512u + local;
     let res = P.d_res;
-    let n = res.x * res.y * res.z;
-    if (idx >= n) { return; }
-    let x = idx % res.x;
-    let y = (idx / res.x) % res.y;
-    let z = idx / (res.x * res.y);
+    let v = light_voxel(idx);
+    let x = v.x;
+    let y = v.y;
+    let z = v.z;
+    // Voxels past the grid's edge in its last bricks are never read.
+    if (any(v >= res)) { return; }
     if (P.filtered == 0u) {
-        j_out[idx] = cell_vals[idx];
+        let ci = grid_index(x, y, z, res);
+        j_out[idx] = cell_vals[ci];
         if (P.lobe_axis != 0u) {
-            j_dir[idx] = vec4<f32>(cell_dirs[2u * idx].xyz, cell_dirs[2u * idx + 1u].w);
-            j_hi[idx] = vec4<f32>(cell_dirs[2u * idx + 1u].xyz, 0.0);
+            j_dir[idx] = vec4<f32>(cell_dirs[2u * ci].xyz, cell_dirs[2u * ci + 1u].w);
+            j_hi[idx] = vec4<f32>(cell_dirs[2u * ci + 1u].xyz, 0.0);
         }
         return;
     }
     // J is read only where σ(x) > 0, i.e. next to density (`near_density`): elsewhere 0,
     // so the empty space of a sparse box costs 27 reads per voxel, not a 27-cell filter.
-    if (!near_density(vec3<u32>(x, y, z))) {
+    if (!near_density(v)) {
         j_out[idx] = vec4<f32>(0.0);
         if (P.lobe_axis != 0u) {
             j_dir[idx] = vec4<f32>(0.0);

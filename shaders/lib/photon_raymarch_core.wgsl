@@ -1,9 +1,11 @@
 // Ray marching of D and J (Elek 2012 §4.4, Appendix C): the body of the stages
+// `photon_raymarch_light.wgsl` (the work density: light and grid resolutions equal),
 // `photon_raymarch.wgsl` (dense density) and `photon_raymarch_bricks.wgsl` (brick map), which
 // bind the density. CPU twin: `nimbus_photon::cpu::raymarch`.
-// J, its flux directions and T_sun are read at `P.light_res`, the density at `P.d_res`: equal
-// unless the grid is too large for light volumes at full resolution (the photon stages then
-// run on a block-averaged density at `light_res`; `nimbus_photon::settings::light_res`).
+// J, its flux directions and T_sun are read at `P.light_res` from the light bricks' pools
+// (`lib/light_bricks.wgsl`), the density at `P.d_res`: equal unless the active bricks of the
+// grid's resolution would not fit one storage binding (the photon stages then run on a
+// block-averaged density at `light_res`: `nimbus_photon::mapper::light`).
 // Front to back with step `P.step` (default: box diagonal / 300), a per-pixel hashed start
 // offset against banding, exact per-step attenuation, early exit below `P.early_exit`
 // transmittance (2 %). In-scattered radiance at x for view direction ω (propagation):
@@ -23,6 +25,7 @@
 // adds sub-voxel detail to a smooth density field.
 #import params
 #import grid
+#import light_bricks
 #import rng
 #import hg
 
@@ -35,30 +38,40 @@
 // sun light (photon_upsample.wgsl).
 @group(0) @binding(5) var<storage, read> j_dir: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read> j_hi: array<vec4<f32>>;
+// The light bricks' index and slots (`lib/light_bricks.wgsl`).
+@group(0) @binding(9) var<storage, read> light_map: array<u32>;
 
-fn interp_dir(p: vec3<f32>, hi: bool) -> vec4<f32> {
+// The eight pool entries (`lib/light_bricks.wgsl`) of a trilinear lookup in the light
+// volumes at p, and its weights: found once per step, read by J, T_sun and the flux lobes.
+struct Corners {
+    i000: u32, i100: u32, i010: u32, i110: u32,
+    i001: u32, i101: u32, i011: u32, i111: u32,
+    f: vec3<f32>,
+};
+
+fn light_corners(p: vec3<f32>) -> Corners {
     let t = trilinear(p, P.light_res);
-    let r = P.light_res;
-    let f = t.f;
-    let i000 = grid_index(t.i0.x, t.i0.y, t.i0.z, r);
-    let i100 = grid_index(t.i1.x, t.i0.y, t.i0.z, r);
-    let i010 = grid_index(t.i0.x, t.i1.y, t.i0.z, r);
-    let i110 = grid_index(t.i1.x, t.i1.y, t.i0.z, r);
-    let i001 = grid_index(t.i0.x, t.i0.y, t.i1.z, r);
-    let i101 = grid_index(t.i1.x, t.i0.y, t.i1.z, r);
-    let i011 = grid_index(t.i0.x, t.i1.y, t.i1.z, r);
-    let i111 = grid_index(t.i1.x, t.i1.y, t.i1.z, r);
+    return Corners(
+        light_at(t.i0.x, t.i0.y, t.i0.z), light_at(t.i1.x, t.i0.y, t.i0.z),
+        light_at(t.i0.x, t.i1.y, t.i0.z), light_at(t.i1.x, t.i1.y, t.i0.z),
+        light_at(t.i0.x, t.i0.y, t.i1.z), light_at(t.i1.x, t.i0.y, t.i1.z),
+        light_at(t.i0.x, t.i1.y, t.i1.z), light_at(t.i1.x, t.i1.y, t.i1.z),
+        t.f);
+}
+
+fn interp_dir(c: Corners, hi: bool) -> vec4<f32> {
+    let f = c.f;
     if (hi) {
-        let c00 = mix(j_hi[i000], j_hi[i100], f.x);
-        let c10 = mix(j_hi[i010], j_hi[i110], f.x);
-        let c01 = mix(j_hi[i001], j_hi[i101], f.x);
-        let c11 = mix(j_hi[i011], j_hi[i111], f.x);
+        let c00 = mix(j_hi[c.i000], j_hi[c.i100], f.x);
+        let c10 = mix(j_hi[c.i010], j_hi[c.i110], f.x);
+        let c01 = mix(j_hi[c.i001], j_hi[c.i101], f.x);
+        let c11 = mix(j_hi[c.i011], j_hi[c.i111], f.x);
         return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
     }
-    let c00 = mix(j_dir[i000], j_dir[i100], f.x);
-    let c10 = mix(j_dir[i010], j_dir[i110], f.x);
-    let c01 = mix(j_dir[i001], j_dir[i101], f.x);
-    let c11 = mix(j_dir[i011], j_dir[i111], f.x);
+    let c00 = mix(j_dir[c.i000], j_dir[c.i100], f.x);
+    let c10 = mix(j_dir[c.i010], j_dir[c.i110], f.x);
+    let c01 = mix(j_dir[c.i001], j_dir[c.i101], f.x);
+    let c11 = mix(j_dir[c.i011], j_dir[c.i111], f.x);
     return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
 }
 
@@ -74,34 +87,30 @@ fn lobe_phase(v: vec3<f32>, d: vec3<f32>) -> f32 {
 // Sun fluence per unit irradiance times the phase of its lobes towards the camera: one lobe
 // along the sun with J's g' (the paper), or per-cell flux lobes — one for all orders, or one
 // for the low and one for the high orders (`P.lobe_split`).
-fn sun_in_scatter(x: vec3<f32>, jv: vec4<f32>, d: vec3<f32>) -> f32 {
+fn sun_in_scatter(c: Corners, jv: vec4<f32>, d: vec3<f32>) -> f32 {
     if (P.lobe_axis == 0u) { return jv.x * lobe_phase(-P.sun_dir * jv.z, d); }
-    let lo = interp_dir(x, false);
+    let lo = interp_dir(c, false);
     if (P.lobe_split == 0u) { return jv.x * lobe_phase(lo.xyz, d); }
-    let hi = interp_dir(x, true);
+    let hi = interp_dir(c, true);
     let f_hi = clamp(lo.w, 0.0, jv.x);
     return (jv.x - f_hi) * lobe_phase(lo.xyz, d) + f_hi * lobe_phase(hi.xyz, d);
 }
 
-fn t_sun_at(p: vec3<f32>) -> f32 {
-    let t = trilinear(p, P.light_res);
-    let r = P.light_res;
-    let f = t.f;
-    let c00 = mix(t_sun[grid_index(t.i0.x, t.i0.y, t.i0.z, r)], t_sun[grid_index(t.i1.x, t.i0.y, t.i0.z, r)], f.x);
-    let c10 = mix(t_sun[grid_index(t.i0.x, t.i1.y, t.i0.z, r)], t_sun[grid_index(t.i1.x, t.i1.y, t.i0.z, r)], f.x);
-    let c01 = mix(t_sun[grid_index(t.i0.x, t.i0.y, t.i1.z, r)], t_sun[grid_index(t.i1.x, t.i0.y, t.i1.z, r)], f.x);
-    let c11 = mix(t_sun[grid_index(t.i0.x, t.i1.y, t.i1.z, r)], t_sun[grid_index(t.i1.x, t.i1.y, t.i1.z, r)], f.x);
+fn t_sun_at(c: Corners) -> f32 {
+    let f = c.f;
+    let c00 = mix(t_sun[c.i000], t_sun[c.i100], f.x);
+    let c10 = mix(t_sun[c.i010], t_sun[c.i110], f.x);
+    let c01 = mix(t_sun[c.i001], t_sun[c.i101], f.x);
+    let c11 = mix(t_sun[c.i011], t_sun[c.i111], f.x);
     return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
 }
 
-fn j_at(p: vec3<f32>) -> vec4<f32> {
-    let t = trilinear(p, P.light_res);
-    let r = P.light_res;
-    let f = t.f;
-    let c00 = mix(j_in[grid_index(t.i0.x, t.i0.y, t.i0.z, r)], j_in[grid_index(t.i1.x, t.i0.y, t.i0.z, r)], f.x);
-    let c10 = mix(j_in[grid_index(t.i0.x, t.i1.y, t.i0.z, r)], j_in[grid_index(t.i1.x, t.i1.y, t.i0.z, r)], f.x);
-    let c01 = mix(j_in[grid_index(t.i0.x, t.i0.y, t.i1.z, r)], j_in[grid_index(t.i1.x, t.i0.y, t.i1.z, r)], f.x);
-    let c11 = mix(j_in[grid_index(t.i0.x, t.i1.y, t.i1.z, r)], j_in[grid_index(t.i1.x, t.i1.y, t.i1.z, r)], f.x);
+fn j_at(c: Corners) -> vec4<f32> {
+    let f = c.f;
+    let c00 = mix(j_in[c.i000], j_in[c.i100], f.x);
+    let c10 = mix(j_in[c.i010], j_in[c.i110], f.x);
+    let c01 = mix(j_in[c.i001], j_in[c.i101], f.x);
+    let c11 = mix(j_in[c.i011], j_in[c.i111], f.x);
     return mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z);
 }
 
@@ -156,18 +165,19 @@ fn raymarch(@builtin(global_invocation_id) gid: vec3<u32>) {
             let dens = density_at(x);
             let sigma_t = P.density_scale * dens;
             if (sigma_t > 0.0) {
-                let jv = j_at(x);
+                let lc = light_corners(x);
+                let jv = j_at(lc);
                 // Light along the axis a scattered towards the camera (−d): cos = a·(−d).
                 var ls: vec3<f32>;
                 if (P.view_mode == 2u) {
                     // J holds the in-scattering towards the camera itself (view mode).
                     ls = sigma_s_scale * dens * (P.sun_irradiance * jv.x + P.sky_radiance * jv.y);
                 } else {
-                    ls = sigma_s_scale * dens * (P.sun_irradiance * sun_in_scatter(x, jv, d)
+                    ls = sigma_s_scale * dens * (P.sun_irradiance * sun_in_scatter(lc, jv, d)
                         + P.sky_radiance * (jv.y / (4.0 * PI)));
                 }
                 if (P.single_scatter != 0u) {
-                    ls += sigma_s_scale * dens * P.sun_irradiance * (t_sun_at(x) * hg_eval(P.g, mu));
+                    ls += sigma_s_scale * dens * P.sun_irradiance * (t_sun_at(lc) * hg_eval(P.g, mu));
                 }
                 let ts = exp(-sigma_t * dt);
                 l += tr * ls * (1.0 - ts) / sigma_t;

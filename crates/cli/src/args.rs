@@ -76,8 +76,9 @@ pub(crate) struct PmArgs {
     #[arg(long, value_delimiter = ',')]
     cache_res: Option<Vec<u32>>,
     /// Photon mapping: resolution X,Y,Z of the light volumes (J, T_sun) and of the block-averaged
-    /// density the photons trace (default: the grid's, or coarser by an integer factor when J
-    /// would not fit one GPU storage binding); the ray marcher reads the grid itself.
+    /// density the photons trace (default: the grid's, stored only in the 8³ bricks near
+    /// density where the whole box's J would not fit one GPU storage binding, or coarser by an
+    /// integer factor when even those would not); the ray marcher reads the grid itself.
     #[arg(long, value_delimiter = ',')]
     light_res: Option<Vec<u32>>,
     /// Photon mapping: ray march at half resolution and upscale.

@@ -100,7 +100,9 @@ pub struct VolumeParams {
     /// Photon mapping: 1 = beams cross the cache cells no later stage reads in one step
     /// (`cell_skip` in photon_trace.wgsl), 0 = Woodcock tracking everywhere.
     pub skip_empty: u32,
-    pub _pad_skip0: u32,
+    /// Photon mapping: voxels of the light volumes' stored bricks, slot 0 excluded (the
+    /// upsampling's dispatch: `shaders/lib/light_bricks.wgsl`).
+    pub light_voxels: u32,
     pub _pad_skip1: u32,
     pub _pad_skip2: u32,
 }
@@ -180,7 +182,7 @@ mod tests {
             ("light_res", offset_of!(VolumeParams, light_res)),
             ("near_radius", offset_of!(VolumeParams, near_radius)),
             ("skip_empty", offset_of!(VolumeParams, skip_empty)),
-            ("_pad_skip0", offset_of!(VolumeParams, _pad_skip0)),
+            ("light_voxels", offset_of!(VolumeParams, light_voxels)),
             ("_pad_skip1", offset_of!(VolumeParams, _pad_skip1)),
             ("_pad_skip2", offset_of!(VolumeParams, _pad_skip2)),
         ];

@@ -33,6 +33,8 @@ pub const MODULES: &[(&str, &str)] = &[
     module!("grid"),
     module!("density_dense"),
     module!("density_bricks"),
+    module!("light_bricks"),
+    module!("density_light"),
     module!("pt_core"),
     module!("photon_raymarch_core"),
 ];
@@ -44,6 +46,7 @@ pub const SHADERS: &[(&str, &str)] = &[
     stage!("photon_upsample.wgsl"),
     stage!("photon_raymarch.wgsl"),
     stage!("photon_raymarch_bricks.wgsl"),
+    stage!("photon_raymarch_light.wgsl"),
     stage!("photon_sun.wgsl"),
     stage!("pt.wgsl"),
     stage!("pt_bricks.wgsl"),

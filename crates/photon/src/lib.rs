@@ -11,6 +11,7 @@
 pub mod animate;
 pub mod cache_layout;
 pub mod impostor;
+pub mod light_map;
 pub mod mapper;
 
 pub mod cpu;

@@ -66,7 +66,12 @@ pub struct PhotonMapper<'g> {
     pub params: VolumeParams,
     pub settings: PmSettings,
     cells: u32,
+    /// Entries of each light-volume pool (`crate::light_map`: slots × 512).
     voxels: u32,
+    /// The light volumes' layout (its work density uploaded and dropped).
+    map: crate::light_map::LightMap,
+    /// The light bricks' index and slots (`shaders/lib/light_bricks.wgsl`).
+    light_map: wgpu::Buffer,
     trace: Stage,
     update: Stage,
     /// Per-cell values of I (computed once per upsampling).
@@ -109,6 +114,8 @@ pub struct PhotonMapper<'g> {
     cell_skip: wgpu::Buffer,
     /// The grid's largest value (the work density's is `params.d_max`).
     grid_max: f64,
+    /// The densest cache cell's fill (`light::cache_fill`).
+    cache_fill: f64,
     /// The ray marcher's uniform block (`params` with `d_res = fine_res`) and density.
     march_buf: wgpu::Buffer,
     march_density: light::MarchDensity,
@@ -178,8 +185,10 @@ impl<'g> PhotonMapper<'g> {
         // The photon stages work at the light resolution (the grid's unless J would not fit
         // one storage binding: `mapper/light.rs`); the ray marcher reads the grid itself.
         let fine_res = vol.grid().res().map(|v| v as u32);
-        let light_res = light::light_res(gpu, vol.grid(), &settings)?;
-        let d_res = light_res.map(|v| v as usize);
+        let grid_max = vol.grid().stats().max as f64;
+        let mut map = light::light_map(gpu, vol, grid_max, &settings)?;
+        let d_res = map.res();
+        let light_res = d_res.map(|v| v as u32);
         let i_res = match settings.cache_res {
             Some(r) => check_axes(
                 "cache_res",
@@ -202,15 +211,13 @@ impl<'g> PhotonMapper<'g> {
                 ),
             });
         }
-        // At most 2^32 light voxels (`light::light_res`); J (16 bytes each) is checked first,
-        // which bounds the work density computed next (4 bytes each).
-        let voxels = light_res.iter().product::<u32>();
-        gpu.check_storage("the upsampled cache J", voxels as u64 * 16)?;
+        // The pools' entries: J (16 bytes each) was checked against one binding and 2^32
+        // entries by `light::light_map`.
+        let voxels = map.pool_len() as u32;
         gpu.check_storage("the photon stages' density", voxels as u64 * 4)?;
         let (march_plan, march_bytes) = light::march_plan(gpu, vol.grid(), light_res);
-        let (work, work_max) = light::work_density(vol.grid(), light_res)?;
         let aabb = vol.aabb();
-        let d_max = work_max as f64;
+        let d_max = map.max() as f64;
         let sigma_max = (vol.density_scale() * d_max).max(1e-30);
         let centre = aabb.center();
         let radius = 0.5 * aabb.extent().length();
@@ -306,8 +313,10 @@ impl<'g> PhotonMapper<'g> {
             view_mode: settings.effective_view() as u32,
             light_res,
             near_radius: light::near_radius(fine_res, light_res),
-            skip_empty: settings.skip_empty.unwrap_or(light_res != fine_res) as u32,
-            _pad_skip0: 0,
+            skip_empty: settings
+                .skip_empty
+                .unwrap_or(light_res != fine_res || !map.is_full()) as u32,
+            light_voxels: map.light_voxels(),
             _pad_skip1: 0,
             _pad_skip2: 0,
         };
@@ -326,7 +335,7 @@ impl<'g> PhotonMapper<'g> {
             voxels,
             cells,
             &scene.camera,
-            march_bytes,
+            march_bytes + 4 * map.words() as u64,
         )?;
         let march_density = light::march_density(gpu, vol.grid(), march_plan)?;
         let params_buf = gpu.uniform("pm params", &params);
@@ -337,16 +346,18 @@ impl<'g> PhotonMapper<'g> {
                 ..params
             },
         );
-        let density = gpu.storage("density D", &work);
+        let density = gpu.storage("density D (light bricks)", &map.density);
+        let light_map = gpu.storage("light bricks", &map.gpu_words());
         let cell_skip = if params.skip_empty != 0 {
             gpu.storage(
                 "skippable cache cells",
-                &light::skippable_cells(&work, light_res, i_res),
+                &light::skippable_cells(&map, i_res),
             )
         } else {
             gpu.zeroed("skippable cache cells (unused)", 4)
         };
-        drop(work);
+        let cache_fill = light::cache_fill(&map, i_res);
+        map.drop_values();
         let cell_bytes = cells as u64 * CELL_BYTES as u64;
         let h_new = gpu.zeroed("H_new", cell_bytes);
         let ring = gpu.zeroed("ring H_0..H_m-1", settings.ring as u64 * cell_bytes);
@@ -368,9 +379,23 @@ impl<'g> PhotonMapper<'g> {
             &shaders::source("photon_sun.wgsl"),
             "sun_transmittance",
         );
-        let sun = sun::SunRebuild::new(gpu, &settings, &sun_p, &params_buf, &density, voxels);
+        let sun = sun::SunRebuild::new(
+            gpu,
+            &settings,
+            &sun_p,
+            [&params_buf, &density, &light_map],
+            voxels,
+        );
         let sun_stage = Stage {
-            bind: gpu.bind(&sun_p, &[(0, &params_buf), (1, &density), (2, &t_sun)]),
+            bind: gpu.bind(
+                &sun_p,
+                &[
+                    (0, &params_buf),
+                    (1, &density),
+                    (2, &t_sun),
+                    (3, &light_map),
+                ],
+            ),
             pipeline: sun_p,
         };
         let slot_buf = gpu.uniform("ring slot", &[0u32; 4]);
@@ -390,6 +415,7 @@ impl<'g> PhotonMapper<'g> {
                     (2, &h_new),
                     (3, &overflow),
                     (4, &cell_skip),
+                    (5, &light_map),
                 ],
             ),
             pipeline: trace_p,
@@ -444,6 +470,7 @@ impl<'g> PhotonMapper<'g> {
                     (4, &cell_vals),
                     (5, &cell_aux),
                     (6, &cell_dir),
+                    (9, &light_map),
                 ],
             ),
             pipeline: cells_p,
@@ -461,6 +488,7 @@ impl<'g> PhotonMapper<'g> {
                     (6, &cell_dir),
                     (7, &j_dir),
                     (8, &j_hi),
+                    (9, &light_map),
                 ],
             ),
             pipeline: up_p,
@@ -483,6 +511,8 @@ impl<'g> PhotonMapper<'g> {
             params,
             cells,
             voxels,
+            map,
+            light_map,
             trace,
             update,
             cells_stage,
@@ -512,7 +542,8 @@ impl<'g> PhotonMapper<'g> {
             overflow,
             fine_res,
             cell_skip,
-            grid_max: vol.grid().stats().max as f64,
+            grid_max,
+            cache_fill,
             march_buf,
             march_density,
             slot_view: vec![None; settings.ring as usize],
@@ -664,7 +695,7 @@ impl<'g> PhotonMapper<'g> {
             pass.dispatch_workgroups(self.cells.div_ceil(64), 1, 1);
         }
         {
-            let (x, y) = Gpu::workgroups_1d(self.voxels);
+            let (x, y) = Gpu::workgroups_1d(self.params.light_voxels.max(1));
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("upsample"),
                 timestamp_writes: self.timer.pass(if self.params.filtered != 0 {

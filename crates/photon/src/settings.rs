@@ -72,8 +72,9 @@ pub struct PmSettings {
     pub cache_res: Option<[u32; 3]>,
     /// Resolution of the light volumes (J, its flux directions, T_sun) and of the density the
     /// photon stages trace (block means of the grid); the ray marcher reads the grid itself.
-    /// Default: [`default_light_res`] (the density's resolution when J fits one storage
-    /// binding).
+    /// Default: the density's, or coarser by the smallest integer factor at which J fits one
+    /// storage binding — for every 8³ brick of the box, or else for the bricks near density
+    /// (`crate::light_map`, `mapper::light::light_map`).
     pub light_res: Option<[u32; 3]>,
     /// Beams cross the cache cells no stage reads (no density within a cell and three light
     /// voxels) in one step instead of by Woodcock tracking (`photon_trace.wgsl`); `None`: on
@@ -232,30 +233,6 @@ impl PmSettings {
             PmVariant::Exact => LobeAxis::Flux,
             PmVariant::Elek2012 => LobeAxis::Sun,
         })
-    }
-}
-
-/// Default resolution of the light volumes: the density's own, or — when J at 16 bytes per
-/// voxel would not fit one storage binding of `max_binding` bytes (lavapipe: 128 MiB, 8.4 M
-/// voxels; a 1200³ grid's J would be 27.6 GB) or its voxels would not fit the kernels' u32
-/// index — each axis divided by the smallest integer k that makes it fit, ⌈N/k⌉. The photon
-/// stages then trace block means of the grid (`nimbus_scene::downsample`) and the ray marcher
-/// reads J and T_sun trilinearly at this resolution, the density at the grid's (Elek 2012
-/// §4.3 already upsamples from a cache far coarser than either). Measured on the demo cumulus at
-/// half resolution: BENCHMARKS.md "Volumes at scale".
-pub fn default_light_res(d_res: [usize; 3], max_binding: u64) -> [u32; 3] {
-    let fits = |r: [u64; 3]| {
-        let v = r[0] * r[1] * r[2];
-        v * 16 <= max_binding && v <= u32::MAX as u64
-    };
-    let d = d_res.map(|v| v.max(1) as u64);
-    let mut k = 1u64;
-    loop {
-        let r = d.map(|v| v.div_ceil(k));
-        if fits(r) || r == [1, 1, 1] {
-            return r.map(|v| v as u32);
-        }
-        k += 1;
     }
 }
 

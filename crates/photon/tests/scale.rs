@@ -205,7 +205,8 @@ fn half_light_resolution_changes_the_image_little() {
 }
 
 /// A grid whose J would not fit one storage binding gets coarser light volumes by default
-/// (each axis divided by the smallest integer that fits, `default_light_res`); asking for them
+/// (each axis divided by the smallest integer at which the bricks near density fit: here every
+/// brick, the grid being constant; `mapper::light::light_map`); asking for them
 /// at full resolution is refused with the bytes, before any allocation.
 #[test]
 fn oversized_grids_get_coarser_light_volumes() {
@@ -294,6 +295,94 @@ fn cloud_in_a_corner() -> Scene {
     s
 }
 
+/// A cloud in a corner of an otherwise empty box, on an adapter whose storage bindings hold J
+/// for the bricks near the cloud but not for the whole box (the limit lowered to 1 MiB).
+/// Where the whole box's bricks fit at half resolution and a light voxel there is optically
+/// thin, that is the default (the layout and cost of a grid that fits); where it would be
+/// thick, the light volumes keep the grid's resolution with only the bricks near density
+/// stored. The sparse image is that of the whole-box layout bit for bit (the same work
+/// density, deterministic photons, absent bricks read as the zeros the whole-box layout holds
+/// there, the sun pass skipping absent bricks exactly).
+#[test]
+fn sparse_light_bricks_keep_the_grid_resolution() {
+    let Some(mut gpu) =
+        nimbus_gpu::testing::gpu("scale::sparse_light_bricks_keep_the_grid_resolution")
+    else {
+        return;
+    };
+    // A light voxel of half resolution is 3.3 mean free paths wide at the densest; at a
+    // quarter of the density, 0.83.
+    let thick = cloud_in_a_corner();
+    let mut thin = thick.clone();
+    thin.volume = std::sync::Arc::new(
+        Volume::new(
+            thick.volume.grid().clone(),
+            *thick.volume.aabb(),
+            0.25 * thick.volume.density_scale(),
+        )
+        .unwrap(),
+    );
+    let run = |gpu: &nimbus_gpu::Gpu, s: &Scene, light_res: Option<[u32; 3]>| {
+        let mut pm = PhotonMapper::new(
+            gpu,
+            s,
+            PmSettings {
+                skip_empty: Some(true),
+                ..settings(light_res, false)
+            },
+        )
+        .unwrap();
+        let img = pm.render(&s.camera).unwrap();
+        let t_sun = pm.read_sun_transmittance().unwrap();
+        let depth = pm.light_voxel_depth();
+        (
+            img,
+            pm.light_res(),
+            pm.light_bricks(),
+            pm.light_note(),
+            t_sun,
+            depth,
+        )
+    };
+    let (full, res_full, (stored_full, total), note_full, t_full, _) = run(&gpu, &thick, None);
+    // 48×36×48 voxels: 6×5×6 bricks, J 1.48 MB with every brick.
+    assert_eq!((res_full, stored_full, total), ([48, 36, 48], 180, 180));
+    assert_eq!(note_full, None);
+    gpu.limits.max_storage_buffer_binding_size = 1 << 20;
+    let (_, res, (stored, total), _, _, depth) = run(&gpu, &thin, None);
+    assert_eq!(
+        (res, stored, total),
+        ([24, 18, 24], 27, 27),
+        "thin at half resolution"
+    );
+    assert!((depth - 0.8333).abs() < 1e-3, "{depth}");
+    let (sparse, res, (stored, _), note, t_sparse, _) = run(&gpu, &thick, None);
+    assert_eq!(res, [48, 36, 48]);
+    // The cloud lies within the corner's 3×3×3 bricks; grown by the reach of the lookups,
+    // at most 4×4×4 of the 180.
+    assert!((8..=64).contains(&stored), "{stored} bricks stored");
+    assert!(
+        note.unwrap()
+            .contains(&format!("{stored} of 180 8³ bricks stored"))
+    );
+    assert!(t_full == t_sparse, "sparse and whole-box T_sun differ");
+    assert!(
+        full.pixels == sparse.pixels,
+        "sparse and whole-box light volumes differ"
+    );
+    // Asked for, the thin cloud's light volumes are sparse at full resolution too.
+    let (_, res, (stored_thin, _), ..) = run(&gpu, &thin, Some([48, 36, 48]));
+    assert_eq!((res, stored_thin), ([48, 36, 48], stored));
+    // With a limit below even the bricks near the cloud, the light volumes get coarser.
+    gpu.limits.max_storage_buffer_binding_size = 100 << 10;
+    let (_, res, _, note, ..) = run(&gpu, &thick, None);
+    assert!(res[0] < 48, "{res:?}");
+    assert!(
+        note.unwrap()
+            .starts_with(&format!("light volumes {}×", res[0]))
+    );
+}
+
 /// Empty-space skipping in the trace: the GPU trace equals its CPU twin with skipping on (the
 /// same word-class bounds as `gpu.rs`'s twin test), and the image with skipping equals the one
 /// without to photon noise (1 M beams, lobes: two seeds differ by ≈ 3 % RMSE, see above; the
@@ -324,7 +413,13 @@ fn skipping_empty_cells_changes_only_the_noise() {
     let gpu_total = pm.read_total().unwrap();
     let density = pm.read_density().unwrap();
     let p = pm.params;
-    let skip = nimbus_photon::mapper::light::skippable_cells(&density, p.light_res, p.i_res);
+    let work = nimbus_photon::light_map::LightMap::from_dense(
+        p.light_res.map(|v| v as usize),
+        &density,
+        1,
+        false,
+    );
+    let skip = nimbus_photon::mapper::light::skippable_cells(&work, p.i_res);
     assert!(skip.iter().filter(|&&v| v == 1).count() > skip.len() / 4);
     let mut h = vec![0u32; gpu_total.len()];
     for beam in 0..p.n_sun + p.n_sky {

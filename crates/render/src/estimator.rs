@@ -340,7 +340,11 @@ impl Estimator<'_> {
                         } else {
                             "global atomics"
                         },
-                        pm.light_note().map_or(String::new(), |n| format!(", {n}")),
+                        [pm.light_note(), pm.cache_note()]
+                            .into_iter()
+                            .flatten()
+                            .map(|n| format!(", {n}"))
+                            .collect::<String>(),
                         cam.width,
                         cam.height,
                         setup_s + seconds

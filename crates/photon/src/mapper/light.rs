@@ -1,15 +1,17 @@
 //! The light grid: the resolution the photon stages work at and the density each stage reads.
 //!
 //! J (16 bytes per voxel), its flux directions (16) and T_sun (4) live at the light resolution
-//! ([`crate::settings::default_light_res`]); the trace, the sun pass and the upsampling read a
-//! density at that resolution ("work density": the grid itself, or its block means,
-//! `nimbus_scene::downsample`). The ray marcher reads J and T_sun there and the grid at its own
+//! ([`light_map`]), in pools of the 8³ bricks near density (`crate::light_map`); the trace, the
+//! sun pass and the upsampling read a density at that resolution in the same layout ("work
+//! density": the grid itself, or its block means, `nimbus_scene::downsample`). The ray marcher reads J and T_sun there and the grid at its own
 //! resolution: from the work density when they coincide, else from a dense buffer or — for a
 //! sparse grid or one beyond a storage binding — the brick map the GPU path tracer uses
 //! (`shaders/lib/density_bricks.wgsl`), so a sparse cloud is never densified.
 
 use nimbus_gpu::density::GpuDensity;
 use nimbus_scene::DensityGrid;
+
+use crate::light_map::LightMap;
 
 use super::*;
 
@@ -32,53 +34,119 @@ impl MarchDensity {
     /// The ray-marching stage for this density.
     pub fn stage(&self) -> &'static str {
         match self {
+            MarchDensity::Work => "photon_raymarch_light.wgsl",
+            MarchDensity::Dense(_) => "photon_raymarch.wgsl",
             MarchDensity::Bricks(_) => "photon_raymarch_bricks.wgsl",
-            _ => "photon_raymarch.wgsl",
         }
     }
 }
 
-/// The light resolution for `grid`: the setting (each axis in 1..= the grid's), else the
-/// default for this adapter.
-pub(super) fn light_res(
+/// Bytes per light voxel of the largest light volume (J), which must fit one storage binding.
+const J_BYTES: u64 = 16;
+
+/// Whether a light map with `slots` slots over `bricks` bricks fits the adapter: J in one
+/// binding, the index and slot words in another, every pool entry a u32 index.
+fn fits(slots: u64, bricks: u64, max_binding: u64) -> bool {
+    let voxels = slots * crate::light_map::BRICK_VOXELS as u64;
+    voxels * J_BYTES <= max_binding
+        && (bricks + slots) * 4 <= max_binding
+        && voxels <= u32::MAX as u64
+}
+
+/// The light grid for `vol`: its resolution and layout with the work density
+/// (`crate::light_map`). The resolution is the setting (each axis in 1..= the grid's), else
+/// the grid's divided by an integer k ≥ 1 (⌈N/k⌉ per axis): the smallest k at which every 8³
+/// brick fits the adapter (the *full* layout), unless a light voxel would then be more than
+/// [`THICK_LIGHT_VOXEL`] mean free paths wide at the grid's largest density — light varying
+/// inside it would be smoothed away — in which case the coarsest k that is thin enough and
+/// fits with only the bricks near density stored (*sparse*), else the finest k that fits at
+/// all. So a cloud whose light volumes fit as they are keeps today's layout and cost, and a
+/// small dense cloud in a large box gets light voxels fine enough for it, at a memory cost in
+/// proportion to the cloud. Where nothing fits, the smallest J is checked (and refused with its
+/// bytes) before any allocation.
+pub(super) fn light_map(
     gpu: &Gpu,
-    grid: &DensityGrid,
+    vol: &nimbus_scene::Volume,
+    grid_max: f64,
     settings: &PmSettings,
-) -> Result<[u32; 3], PmError> {
+) -> Result<LightMap, PmError> {
+    let grid = vol.grid();
     let d_res = grid.res();
-    let r = match settings.light_res {
-        Some(r) => check_axes("light_res", r, d_res, "density resolution")?,
-        None => crate::settings::default_light_res(
-            d_res,
-            gpu.limits
-                .max_storage_buffer_binding_size
-                .min(gpu.limits.max_buffer_size),
-        ),
+    let fine = d_res.map(|v| v as u32);
+    let max_binding = gpu
+        .limits
+        .max_storage_buffer_binding_size
+        .min(gpu.limits.max_buffer_size);
+    let boxes = nimbus_scene::downsample::nonzero_boxes(grid);
+    // (full layout fits, some layout fits, slots).
+    let plan = |r: [u32; 3]| -> (bool, bool, u64) {
+        let l = r.map(|v| v as usize);
+        let bricks = crate::light_map::brick_res(l).iter().product::<usize>() as u64;
+        if fits(bricks + 1, bricks, max_binding) {
+            return (true, true, bricks + 1);
+        }
+        let radius = near_radius(fine, r) as usize;
+        let (active, _) = crate::light_map::active_bricks(&boxes, d_res, l, radius);
+        let slots = active.iter().filter(|&&a| a).count() as u64 + 1;
+        (false, fits(slots, bricks, max_binding), slots)
     };
-    let voxels = r.iter().map(|&v| v as u64).product::<u64>();
+    let d = fine.map(|v| v.max(1));
+    let res_k = |k: u32| d.map(|v| v.div_ceil(k));
+    let ext = vol.aabb().extent();
+    let depth = |r: [u32; 3]| {
+        let edge = (0..3).map(|a| ext[a] / r[a] as f64).fold(0.0, f64::max);
+        vol.density_scale() * grid_max * edge
+    };
+    let (r, full, slots) = match settings.light_res {
+        Some(r) => {
+            let r = check_axes("light_res", r, d_res, "density resolution")?;
+            let (full, _, slots) = plan(r);
+            (r, full, slots)
+        }
+        None => {
+            // The smallest k at which every brick fits.
+            let mut k_full = 1u32;
+            let fits_full = |r: [u32; 3]| {
+                let b = crate::light_map::brick_res(r.map(|v| v as usize));
+                let bricks = b.iter().product::<usize>() as u64;
+                fits(bricks + 1, bricks, max_binding)
+            };
+            while !fits_full(res_k(k_full)) && res_k(k_full) != [1, 1, 1] {
+                k_full += 1;
+            }
+            let mut k = k_full;
+            if depth(res_k(k_full)) > THICK_LIGHT_VOXEL {
+                // The coarsest thin-enough k, then coarser until a layout fits.
+                while k > 1 && depth(res_k(k)) > THICK_LIGHT_VOXEL {
+                    k -= 1;
+                }
+                while k < k_full && !plan(res_k(k)).1 {
+                    k += 1;
+                }
+            }
+            let r = res_k(k);
+            let (full, _, slots) = plan(r);
+            (r, full, slots)
+        }
+    };
+    let voxels = slots * crate::light_map::BRICK_VOXELS as u64;
     if voxels > u32::MAX as u64 {
         return Err(PmError::Setting {
             field: "light_res",
-            msg: format!("{r:?} = {voxels} voxels exceed the 2^32 the kernels can index"),
+            msg: format!(
+                "{r:?}: {voxels} voxels in the stored light bricks exceed the 2^32 the kernels can index"
+            ),
         });
     }
-    Ok(r)
-}
-
-/// The work density at `l_res` (the grid's values when equal, its block means otherwise) and
-/// its largest value.
-pub(super) fn work_density(
-    grid: &DensityGrid,
-    l_res: [u32; 3],
-) -> Result<(std::borrow::Cow<'_, [f32]>, f32), PmError> {
-    let l = l_res.map(|v| v as usize);
-    let data = if l == grid.res() {
-        grid.dense().map_err(PmError::Memory)?
-    } else {
-        nimbus_scene::downsample::block_means(grid, l).into()
-    };
-    let max = data.iter().fold(0.0f32, |m, &v| m.max(v));
-    Ok((data, max))
+    gpu.check_storage("the upsampled cache J", voxels * J_BYTES)?;
+    let radius = near_radius(fine, r) as usize;
+    Ok(LightMap::build(
+        grid,
+        &boxes,
+        r.map(|v| v as usize),
+        radius,
+        full,
+    ))
 }
 
 /// Which density the ray marcher will read, decided before anything is allocated.
@@ -130,35 +198,65 @@ pub fn near_radius(d_res: [u32; 3], l_res: [u32; 3]) -> u32 {
     }
 }
 
+/// Fill of the densest cache cell below which [`PhotonMapper::cache_note`] warns.
+pub const THIN_CACHE_FILL: f64 = 0.1;
+
+/// Mean work density of the densest cache cell (of `i_res` over the box; each light voxel
+/// counts in the cell holding its centre) over the largest work density; 0 for an empty grid.
+pub fn cache_fill(map: &LightMap, i_res: [u32; 3]) -> f64 {
+    let l = map.res();
+    let i = i_res.map(|v| v as usize);
+    let counts = [0, 1, 2].map(|a| {
+        let mut c = vec![0usize; i[a]];
+        for v in 0..l[a] {
+            c[nimbus_scene::downsample::coarse_of(v, l[a], i[a])] += 1;
+        }
+        c
+    });
+    let mut sums = vec![0.0f64; i.iter().product()];
+    for (p, &d) in map.density.iter().enumerate() {
+        if d > 0.0
+            && let Some(v) = map.voxel_of(p)
+        {
+            let c: [usize; 3] =
+                std::array::from_fn(|a| nimbus_scene::downsample::coarse_of(v[a], l[a], i[a]));
+            sums[(c[2] * i[1] + c[1]) * i[0] + c[0]] += d as f64;
+        }
+    }
+    let max = map.max() as f64;
+    if max <= 0.0 {
+        return 0.0;
+    }
+    sums.iter()
+        .enumerate()
+        .map(|(k, s)| {
+            let n =
+                counts[0][k % i[0]] * counts[1][(k / i[0]) % i[1]] * counts[2][k / (i[0] * i[1])];
+            s / n.max(1) as f64
+        })
+        .fold(0.0, f64::max)
+        / max
+}
+
 /// 1 for each cache cell (of `i_res` over the box) that no stage after the trace reads, given
-/// the work density at `l_res`: no non-zero light voxel within the cell's extent grown by one
+/// the work density in `map`: no non-zero light voxel within the cell's extent grown by one
 /// cell and three light voxels. The upsampling of a voxel reads the 3³ cells around its own,
 /// and only voxels within `near_radius` ≤ 2 light voxels of density are upsampled; the trilinear
-/// density a beam scatters on is non-zero only within one light voxel of a non-zero one.
-pub fn skippable_cells(work: &[f32], l_res: [u32; 3], i_res: [u32; 3]) -> Vec<u32> {
-    let l = l_res.map(|v| v as usize);
+/// density a beam scatters on is non-zero only within one light voxel of a non-zero one. Each
+/// light brick's non-zero voxels count by their bounding box (conservative: a cell kept for
+/// nothing costs only Woodcock steps).
+pub fn skippable_cells(map: &LightMap, i_res: [u32; 3]) -> Vec<u32> {
+    let l = map.res();
     let i = i_res.map(|v| v as usize);
-    // Light voxels with density within 3 voxels (separable dilation, axis by axis).
-    let mut mask: Vec<bool> = work.iter().map(|&v| v > 0.0).collect();
-    for a in 0..3 {
-        let stride = [1, l[0], l[0] * l[1]][a];
-        let mut out = vec![false; mask.len()];
-        for (idx, o) in out.iter_mut().enumerate() {
-            let c = (idx / stride) % l[a];
-            let lo = c.saturating_sub(3);
-            let hi = (c + 3).min(l[a] - 1);
-            *o = (lo..=hi).any(|k| mask[idx - c * stride + k * stride]);
-        }
-        mask = out;
-    }
-    // Cells overlapped by such a voxel, then grown by one cell.
     let mut used = vec![false; i.iter().product()];
-    let span = |v: usize, a: usize| (v * i[a] / l[a])..=(((v + 1) * i[a]).div_ceil(l[a]) - 1);
-    for (idx, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
-        let v = [idx % l[0], (idx / l[0]) % l[1], idx / (l[0] * l[1])];
-        for z in span(v[2], 2) {
-            for y in span(v[1], 1) {
-                for x in span(v[0], 0) {
+    let span_lo = |v: usize, a: usize| v * i[a] / l[a];
+    let span_hi = |v: usize, a: usize| ((v + 1) * i[a]).div_ceil(l[a]) - 1;
+    for (lo, hi) in map.nonzero_boxes() {
+        let c0: [usize; 3] = std::array::from_fn(|a| span_lo(lo[a].saturating_sub(3), a));
+        let c1: [usize; 3] = std::array::from_fn(|a| span_hi((hi[a] + 3).min(l[a] - 1), a));
+        for z in c0[2]..=c1[2] {
+            for y in c0[1]..=c1[1] {
+                for x in c0[0]..=c1[0] {
                     used[(z * i[1] + y) * i[0] + x] = true;
                 }
             }
@@ -195,21 +293,28 @@ impl PhotonMapper<'_> {
         self.params.light_res
     }
 
-    /// What a user should know about coarse light volumes (`None` at full resolution): their
-    /// resolution and, when a light voxel at the grid's densest is more than
+    /// What a user should know about the light volumes (`None` at full resolution with every
+    /// brick stored): their resolution, how many bricks are stored and, when a light voxel at the grid's densest is more than
     /// [`THICK_LIGHT_VOXEL`] mean free paths wide, that light varying inside it is smoothed —
     /// small dense features then come out too dark (a 6-voxel sphere at 9 voxels per light
     /// voxel, τ ≈ 4.5: 0.3 × the path tracer; BENCHMARKS.md "Volumes at scale").
     pub fn light_note(&self) -> Option<String> {
-        if !self.light_is_coarse() {
-            return None;
-        }
         let [x, y, z] = self.params.light_res;
+        let (stored, total) = self.light_bricks();
+        let bricks = if self.map.is_full() {
+            String::new()
+        } else {
+            format!(", {stored} of {total} 8³ bricks stored (those near density)")
+        };
+        if !self.light_is_coarse() {
+            return (!self.map.is_full())
+                .then(|| format!("light volumes {x}×{y}×{z} (the grid's){bricks}"));
+        }
         let k = (0..3)
             .map(|a| self.fine_res[a] as f64 / self.params.light_res[a] as f64)
             .fold(0.0, f64::max);
         let mut note =
-            format!("light volumes {x}×{y}×{z} (each ≤ {k:.1} grid voxels along an axis)");
+            format!("light volumes {x}×{y}×{z} (each ≤ {k:.1} grid voxels along an axis){bricks}");
         let tau = self.light_voxel_depth();
         if tau > THICK_LIGHT_VOXEL {
             note += &format!(
@@ -217,6 +322,28 @@ impl PhotonMapper<'_> {
             );
         }
         Some(note)
+    }
+
+    /// What a user should know about the cache (`None` when its densest cell is at least
+    /// [`THIN_CACHE_FILL`] filled): a cloud whose features are far smaller than a cache cell
+    /// gets its scattered light averaged over the whole cell, mostly empty space, and comes out
+    /// too dark (the far-spheres file: 0.24 × the path tracer, BENCHMARKS.md).
+    pub fn cache_note(&self) -> Option<String> {
+        (self.cache_fill < THIN_CACHE_FILL).then(|| {
+            let w = (0..3)
+                .map(|a| self.fine_res[a] as f64 / self.params.i_res[a] as f64)
+                .fold(0.0, f64::max);
+            format!(
+                "the densest cache cell is only {:.1} % filled: the cloud's features are far smaller than a cache cell (≈ {w:.0} grid voxels wide), so scattered light is averaged over mostly empty space and the image comes out too dark (a finer --cache-res, or the path tracer)",
+                100.0 * self.cache_fill
+            )
+        })
+    }
+
+    /// Mean work density of the densest cache cell over the largest work density (1 when a
+    /// cell lies wholly inside the densest part of the cloud).
+    pub fn cache_fill(&self) -> f64 {
+        self.cache_fill
     }
 
     /// Optical width of a light voxel at the grid's largest density: σ_max × its longest edge.
@@ -244,15 +371,19 @@ impl PhotonMapper<'_> {
                 msg: format!("voxel {i} is {}; densities must be finite and ≥ 0", data[i]),
             });
         }
-        let work: Vec<f32> = match &self.march_density {
-            MarchDensity::Work => data.to_vec(),
+        let fine = self.fine_res.map(|v| v as usize);
+        let radius = self.params.near_radius.max(1) as usize;
+        let l_res = self.map.res();
+        let full = self.map.is_full();
+        let map = match &self.march_density {
+            MarchDensity::Work => LightMap::from_dense(fine, data, radius, full),
             MarchDensity::Dense(b) => {
                 self.gpu
                     .queue
                     .write_buffer(b, 0, bytemuck::cast_slice(data));
-                let grid = DensityGrid::new(self.fine_res.map(|v| v as usize), data.to_vec())
-                    .map_err(PmError::Memory)?;
-                work_density(&grid, self.params.light_res)?.0.into_owned()
+                let grid = DensityGrid::new(fine, data.to_vec()).map_err(PmError::Memory)?;
+                let boxes = nimbus_scene::downsample::nonzero_boxes(&grid);
+                LightMap::build(&grid, &boxes, l_res, radius, full)
             }
             MarchDensity::Bricks(_) => {
                 return Err(PmError::Unsupported(
@@ -261,15 +392,34 @@ impl PhotonMapper<'_> {
                 ));
             }
         };
+        // A sparse layout keeps its pools: the new density's bricks must fit them.
+        if map.slots() > self.map.slots_capacity() {
+            return Err(PmError::Setting {
+                field: "density",
+                msg: format!(
+                    "this frame's density needs {} light bricks; the light volumes were made for {} (the first frame's); give --light-res to size them",
+                    map.slots() - 1,
+                    self.map.slots_capacity() - 1
+                ),
+            });
+        }
         self.gpu
             .queue
-            .write_buffer(&self.density, 0, bytemuck::cast_slice(&work));
+            .write_buffer(&self.light_map, 0, bytemuck::cast_slice(&map.gpu_words()));
+        self.gpu
+            .queue
+            .write_buffer(&self.density, 0, bytemuck::cast_slice(&map.density));
+        self.params.light_voxels = map.light_voxels();
         if self.params.skip_empty != 0 {
-            let skip = skippable_cells(&work, self.params.light_res, self.params.i_res);
+            let skip = skippable_cells(&map, self.params.i_res);
             self.gpu
                 .queue
                 .write_buffer(&self.cell_skip, 0, bytemuck::cast_slice(&skip));
         }
+        self.cache_fill = cache_fill(&map, self.params.i_res);
+        let mut map = map.with_capacity(self.map.slots_capacity());
+        map.drop_values();
+        self.map = map;
         self.grid_max = data.iter().fold(0.0f32, |m, &v| m.max(v)) as f64;
         self.sun.dirty = true;
         Ok(())
@@ -279,16 +429,21 @@ impl PhotonMapper<'_> {
 #[cfg(test)]
 mod tests {
     use super::{near_radius, skippable_cells};
+    use crate::light_map::LightMap;
+
+    fn map(res: [usize; 3], data: &[f32]) -> LightMap {
+        LightMap::from_dense(res, data, 1, false)
+    }
 
     /// One non-zero light voxel in a 40³ grid under a 10³ cache (4 voxels per cell): the cells
     /// within the reach of the voxel (3 voxels, then one cell) are kept, every other is skipped;
     /// an empty grid skips everything, a full one nothing.
     #[test]
     fn skippable_cells_keep_the_reach_of_density() {
-        let (l, i) = ([40u32; 3], [10u32; 3]);
+        let i = [10u32; 3];
         let mut work = vec![0.0f32; 40 * 40 * 40];
         work[(20 * 40 + 20) * 40 + 20] = 0.5;
-        let skip = skippable_cells(&work, l, i);
+        let skip = skippable_cells(&map([40; 3], &work), i);
         // The voxel grown by 3 covers voxels 17..=23: cells 4..=5; grown by one cell: 3..=6.
         for z in 0..10usize {
             for y in 0..10usize {
@@ -303,20 +458,37 @@ mod tests {
             }
         }
         assert!(
-            skippable_cells(&vec![0.0; work.len()], l, i)
+            skippable_cells(&map([40; 3], &vec![0.0; work.len()]), i)
                 .iter()
                 .all(|&s| s == 1)
         );
         assert!(
-            skippable_cells(&vec![1.0; work.len()], l, i)
+            skippable_cells(&map([40; 3], &vec![1.0; work.len()]), i)
                 .iter()
                 .all(|&s| s == 0)
         );
         // Cells coarser than voxels and not dividing them: a voxel's cells are those it overlaps.
         let mut w = vec![0.0f32; 7 * 7 * 7];
         w[0] = 1.0;
-        let s = skippable_cells(&w, [7; 3], [3; 3]);
+        let s = skippable_cells(&map([7; 3], &w), [3; 3]);
         assert_eq!(s.iter().filter(|&&v| v == 0).count(), 27);
+    }
+
+    /// A cell wholly inside a uniform cloud is filled; a one-voxel speck in a cell of 4³ fills
+    /// 1/64 of it; an empty grid fills nothing.
+    #[test]
+    fn cache_fill_is_the_densest_cells_mean_over_the_maximum() {
+        use super::cache_fill;
+        let res = [16usize; 3];
+        let mut w = vec![0.0f32; 16 * 16 * 16];
+        w[(5 * 16 + 5) * 16 + 5] = 2.0;
+        assert!((cache_fill(&map(res, &w), [4; 3]) - 1.0 / 64.0).abs() < 1e-12);
+        assert!((cache_fill(&map(res, &w), [16; 3]) - 1.0).abs() < 1e-12);
+        for v in w.iter_mut().take(16 * 16 * 8) {
+            *v = 2.0;
+        }
+        assert!((cache_fill(&map(res, &w), [4; 3]) - 1.0).abs() < 1e-12);
+        assert_eq!(cache_fill(&map(res, &vec![0.0; w.len()]), [4; 3]), 0.0);
     }
 
     /// The claim behind the skip, checked along one axis for every pair of resolutions up to

@@ -3,10 +3,11 @@
 
 use super::*;
 
-/// All of the photon map's buffers, in bytes: the density at the light resolution (`voxels`),
-/// J and its flux directions, the sun-transmittance volume, the ring of partial caches with
-/// H_new and I, the per-cell read-outs, the image, and `march_bytes` of the ray marcher's own
-/// density (0 when it reads the work density).
+/// All of the photon map's buffers, in bytes: the light volumes' pools of `voxels` entries
+/// each (`crate::light_map`: the work density, J and its flux directions, the
+/// sun-transmittance volume), the ring of partial caches with H_new and I, the per-cell
+/// read-outs, the image, and `march_bytes` of the ray marcher's own density (0 when it reads
+/// the work density) and the light bricks' index.
 pub fn buffer_bytes(
     settings: &PmSettings,
     params: &VolumeParams,

@@ -46,6 +46,7 @@ impl PhotonMapper<'_> {
                 (4, &self.t_sun),
                 (5, &self.j_dir),
                 (6, &self.j_hi),
+                (9, &self.light_map),
             ];
             let bind = match &self.march_density {
                 light::MarchDensity::Work => {

@@ -8,7 +8,8 @@ impl PhotonMapper<'_> {
     /// Reads the sun-transmittance volume back (exact variant).
     pub fn read_sun_transmittance(&mut self) -> Result<Vec<f32>, PmError> {
         self.update_sun_transmittance();
-        Ok(self.gpu.read(&self.t_sun)?)
+        let pool: Vec<f32> = self.gpu.read(&self.t_sun)?;
+        Ok(self.map.to_dense(&pool))
     }
 
     /// Reads the coarse cells' flux entries back (as written by the last upsampling): per
@@ -21,12 +22,12 @@ impl PhotonMapper<'_> {
             .collect())
     }
 
-    /// Reads the upsampled flux lobes back (flux axes; one per light voxel): (low-order mean
-    /// propagation vector, high-order fluence) and (high-order mean propagation vector, 0).
+    /// Reads the upsampled flux lobes back (flux axes; one per light voxel, dense): (low-order
+    /// mean propagation vector, high-order fluence) and (high-order mean propagation vector, 0).
     pub fn read_j_dirs(&self) -> Result<Vec<[glam::Vec4; 2]>, PmError> {
-        let a: Vec<[f32; 4]> = self.gpu.read(&self.j_dir)?;
+        let a: Vec<[f32; 4]> = self.map.to_dense(&self.gpu.read::<[f32; 4]>(&self.j_dir)?);
         let b: Vec<[f32; 4]> = if self.params.lobe_split != 0 {
-            self.gpu.read(&self.j_hi)?
+            self.map.to_dense(&self.gpu.read::<[f32; 4]>(&self.j_hi)?)
         } else {
             vec![[0.0; 4]; a.len()]
         };
@@ -41,15 +42,21 @@ impl PhotonMapper<'_> {
         Ok(self.gpu.read(&self.total)?)
     }
 
-    /// Reads J (4 floats per voxel) back.
+    /// Reads J (4 floats per light voxel, dense: 0 in absent bricks) back.
     pub fn read_j(&self) -> Result<Vec<[f32; 4]>, PmError> {
-        Ok(self.gpu.read(&self.j)?)
+        Ok(self.map.to_dense(&self.gpu.read::<[f32; 4]>(&self.j)?))
     }
 
     /// The density the photon stages read (the grid's values, or its block means at the light
-    /// resolution).
+    /// resolution), dense.
     pub fn read_density(&self) -> Result<Vec<f32>, PmError> {
-        Ok(self.gpu.read(&self.density)?)
+        Ok(self.map.to_dense(&self.gpu.read::<f32>(&self.density)?))
+    }
+
+    /// Light bricks stored and in the light grid (`crate::light_map`).
+    pub fn light_bricks(&self) -> (usize, usize) {
+        let b = crate::light_map::brick_res(self.map.res());
+        (self.map.slots() - 1, b.iter().product())
     }
 
     /// Total number of (sun, sky) beams in the ring.

@@ -31,14 +31,16 @@ impl SunRebuild {
         gpu: &Gpu,
         settings: &PmSettings,
         pipeline: &wgpu::ComputePipeline,
-        params: &wgpu::Buffer,
-        density: &wgpu::Buffer,
+        [params, density, light_map]: [&wgpu::Buffer; 3],
         voxels: u32,
     ) -> Self {
         let chunks = settings.sun_chunks.clamp(1, voxels.max(1));
         let back = (chunks > 1 && settings.variant == PmVariant::Exact).then(|| {
             let b = gpu.zeroed("sun transmittance (back)", voxels as u64 * 4);
-            let bind = gpu.bind(pipeline, &[(0, params), (1, density), (2, &b)]);
+            let bind = gpu.bind(
+                pipeline,
+                &[(0, params), (1, density), (2, &b), (3, light_map)],
+            );
             (b, bind)
         });
         Self {
@@ -65,7 +67,7 @@ impl PhotonMapper<'_> {
         }
         if !self.sun.built || self.sun.chunks == 1 {
             if self.sun.dirty || !self.sun.built {
-                self.sun_pass(0, self.voxels, false);
+                self.sun_pass(0, self.params.light_voxels, false);
                 self.sun.built = true;
                 self.sun.dirty = false;
             }
@@ -78,9 +80,11 @@ impl PhotonMapper<'_> {
         let Some(k) = self.sun.next else {
             return;
         };
-        let per = self.voxels.div_ceil(self.sun.chunks);
+        // Slices of the stored bricks' voxels (pool entries from 512 on).
+        let n = self.params.light_voxels;
+        let per = n.div_ceil(self.sun.chunks);
         let first = k * per;
-        self.sun_pass(first, per.min(self.voxels - first.min(self.voxels)), true);
+        self.sun_pass(first, per.min(n - first.min(n)), true);
         if k + 1 == self.sun.chunks {
             let (back, _) = self.sun.back.as_ref().unwrap();
             let mut enc = self.gpu.device.create_command_encoder(&Default::default());
