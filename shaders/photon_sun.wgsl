@@ -56,21 +56,23 @@ fn sun_transmittance(@builtin(global_invocation_id) gid: vec3<u32>,
     loop {
         if (i >= u32(n)) { break; }
         let t = (f32(i) + 0.5) * dt;
-        let u = u0 + du * t;
-        let v = vec3<u32>(clamp(floor(u), vec3<f32>(0.0), vec3<f32>(r) - vec3<f32>(1.0)));
-        let b = v / 8u;
-        if (light_map[(b.z * nb.y + b.y) * nb.x + b.x] == 0u) {
-            let lo = vec3<f32>(b * 8u);
-            var t_exit = 3.0e38;
-            for (var a = 0; a < 3; a++) {
-                if (du[a] > 0.0) {
-                    t_exit = min(t_exit, (lo[a] + 8.0 - u0[a]) / du[a]);
-                } else if (du[a] < 0.0) {
-                    t_exit = min(t_exit, (lo[a] - u0[a]) / du[a]);
+        if (LIGHT_SPARSE) {
+            let u = u0 + du * t;
+            let v = vec3<u32>(clamp(floor(u), vec3<f32>(0.0), vec3<f32>(r) - vec3<f32>(1.0)));
+            let b = v / 8u;
+            if (light_map[(b.z * nb.y + b.y) * nb.x + b.x] == 0u) {
+                let lo = vec3<f32>(b * 8u);
+                var t_exit = 3.0e38;
+                for (var a = 0; a < 3; a++) {
+                    if (du[a] > 0.0) {
+                        t_exit = min(t_exit, (lo[a] + 8.0 - u0[a]) / du[a]);
+                    } else if (du[a] < 0.0) {
+                        t_exit = min(t_exit, (lo[a] - u0[a]) / du[a]);
+                    }
                 }
+                i = max(i + 1u, u32(max(ceil(t_exit / dt - 0.5), 0.0)));
+                continue;
             }
-            i = max(i + 1u, u32(max(ceil(t_exit / dt - 0.5), 0.0)));
-            continue;
         }
         tau += density_at(x + P.sun_dir * t);
         i++;

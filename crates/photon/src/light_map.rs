@@ -8,16 +8,17 @@
 //! cloud, not the box, and the light volumes can stay at the grid's resolution where a dense
 //! J would not fit one storage binding.
 //!
-//! Layout: `index` holds each brick's slot (x fastest over ⌈res / 8⌉ bricks), 0 for an absent
-//! brick; every volume is a pool of `slots × 512` values, slot `s` at `s × 512`, voxels x
-//! fastest within it. Slot 0 is all zeros and never written, so a lookup in an absent brick
-//! reads 0 with no branch. `slots[s]` is the brick of slot `s` (the kernels that write the
-//! pools run over slots ≥ 1). The GPU gets `index` and `slots` as one u32 array, `slots`
-//! starting at word `index.len()`.
+//! Every volume is a pool whose first 512 entries are zeros, never written. Two layouts:
+//! - *full*, for light grids whose whole box fits: the voxels follow, x fastest (entry
+//!   512 + the dense index) — the plain dense layout, with no lookup;
+//! - *sparse*: `index` holds each brick's slot (x fastest over ⌈res / 8⌉ bricks), 0 for an
+//!   absent brick, slot `s` at entries `s × 512 ..`, voxels x fastest within it, so a lookup in
+//!   an absent brick reads the zeros of slot 0 with no branch; `slots[s]` is the brick of slot
+//!   `s`. The GPU gets `index` and `slots` as one u32 array, `slots` from word `index.len()`.
 //!
-//! Two layouts: *full* — every brick has a slot (slot = brick + 1), for grids whose whole box
-//! fits (the layout then never changes, so a density sequence can replace the values) — and
-//! *sparse*, only the active bricks.
+//! The kernels that write the pools run over the entries from 512 on. A full layout never
+//! changes, so a density sequence can replace its values; a sparse one is rebuilt within the
+//! pools' capacity.
 
 use nimbus_scene::DensityGrid;
 use nimbus_scene::downsample::{axis_ranges, block_means_box, coarse_of};
@@ -39,8 +40,10 @@ pub struct LightMap {
     /// entry.
     pub density: Vec<f32>,
     full: bool,
-    /// Slots the GPU pools were made for (≥ `slots.len()`).
+    /// Entries the GPU pools were made for (≥ `density.len()` while it is held).
     capacity: usize,
+    /// Entries in use (512 + the voxels of the stored bricks or the whole grid).
+    len: usize,
 }
 
 /// Bricks per axis for a light grid of `res` voxels.
@@ -92,39 +95,77 @@ impl LightMap {
         radius: usize,
         full: bool,
     ) -> Self {
+        let whole = res.iter().product::<usize>() <= 1 << 26;
+        Self::build_in(grid, boxes, res, radius, full, whole)
+    }
+
+    /// [`Self::build`], the block means computed for the whole light grid at once (`whole`) or
+    /// brick by brick.
+    fn build_in(
+        grid: &DensityGrid,
+        boxes: &[([usize; 3], [usize; 3])],
+        res: [usize; 3],
+        radius: usize,
+        full: bool,
+        whole: bool,
+    ) -> Self {
         let fine = grid.res();
         let (active, occupied) = active_bricks(boxes, fine, res, radius);
         let mut map = Self::layout(res, &active, full);
-        let ranges = [0, 1, 2].map(|a| axis_ranges(fine[a], res[a]));
         let bres = map.bres;
-        let slots = &map.slots;
-        map.density
-            .par_chunks_mut(BRICK_VOXELS)
-            .enumerate()
-            .skip(1)
-            .for_each(|(s, out)| {
-                let b = slots[s] as usize;
-                if !occupied[b] {
-                    return;
-                }
-                let bc = [
-                    b % bres[0],
-                    (b / bres[0]) % bres[1],
-                    b / (bres[0] * bres[1]),
-                ];
-                let lo = bc.map(|c| c * BRICK);
-                let hi = lo.map(|c| c + BRICK);
-                let vals = block_means_box(grid, &ranges, lo, hi);
-                let n: [usize; 3] = std::array::from_fn(|a| hi[a].min(res[a]) - lo[a]);
-                let mut i = 0;
-                for z in 0..n[2] {
-                    for y in 0..n[1] {
-                        let row = (z * BRICK + y) * BRICK;
-                        out[row..row + n[0]].copy_from_slice(&vals[i..i + n[0]]);
-                        i += n[0];
+        // The bricks to fill: (brick, first pool entry) — in the full layout the brick's
+        // voxels are scattered over rows of the dense grid.
+        let todo: Vec<usize> = (0..active.len()).filter(|&b| occupied[b]).collect();
+        let brick_lo = |b: usize| {
+            [
+                b % bres[0] * BRICK,
+                (b / bres[0]) % bres[1] * BRICK,
+                b / (bres[0] * bres[1]) * BRICK,
+            ]
+        };
+        // A light grid of up to 2^26 voxels (256 MB) is computed whole, plane by plane
+        // (`block_means`: fast, a sparse grid read by its non-zero bricks); a larger one brick
+        // by brick, only where there is density.
+        let dense = whole.then(|| nimbus_scene::downsample::block_means(grid, res));
+        if full && let Some(d) = &dense {
+            map.density[BRICK_VOXELS..].copy_from_slice(d);
+            return map;
+        }
+        let ranges = [0, 1, 2].map(|a| axis_ranges(fine[a], res[a]));
+        let values: Vec<(usize, Vec<f32>)> = todo
+            .par_iter()
+            .map(|&b| {
+                let lo = brick_lo(b);
+                let hi: [usize; 3] = std::array::from_fn(|a| (lo[a] + BRICK).min(res[a]));
+                let vals = match &dense {
+                    Some(d) => {
+                        let mut v = Vec::with_capacity(BRICK_VOXELS);
+                        for z in lo[2]..hi[2] {
+                            for y in lo[1]..hi[1] {
+                                let row = (z * res[1] + y) * res[0];
+                                v.extend_from_slice(&d[row + lo[0]..row + hi[0]]);
+                            }
+                        }
+                        v
                     }
+                    None => block_means_box(grid, &ranges, lo, hi),
+                };
+                (b, vals)
+            })
+            .collect();
+        for (b, vals) in values {
+            let lo = brick_lo(b);
+            let hi: [usize; 3] = std::array::from_fn(|a| (lo[a] + BRICK).min(res[a]));
+            let mut i = 0;
+            for z in lo[2]..hi[2] {
+                for y in lo[1]..hi[1] {
+                    let at = map.pool_index([lo[0], y, z]);
+                    let n = hi[0] - lo[0];
+                    map.density[at..at + n].copy_from_slice(&vals[i..i + n]);
+                    i += n;
                 }
-            });
+            }
+        }
         map
     }
 
@@ -136,44 +177,60 @@ impl LightMap {
         Self::build(&grid, &boxes, res, radius, full)
     }
 
-    /// Slots for the active bricks (or all), with a zero work density.
+    /// The layout: every voxel (`full`) or slots for the active bricks, with a zero work
+    /// density.
     fn layout(res: [usize; 3], active: &[bool], full: bool) -> Self {
         let bres = brick_res(res);
-        let mut index = vec![0u32; active.len()];
-        let mut slots = vec![u32::MAX];
-        for (b, &a) in active.iter().enumerate() {
-            if a || full {
-                index[b] = slots.len() as u32;
-                slots.push(b as u32);
+        let (mut index, mut slots) = (Vec::new(), Vec::new());
+        let len = if full {
+            BRICK_VOXELS + res.iter().product::<usize>()
+        } else {
+            index = vec![0u32; active.len()];
+            slots.push(u32::MAX);
+            for (b, &a) in active.iter().enumerate() {
+                if a {
+                    index[b] = slots.len() as u32;
+                    slots.push(b as u32);
+                }
             }
-        }
-        let density = vec![0.0; slots.len() * BRICK_VOXELS];
-        let capacity = slots.len();
+            slots.len() * BRICK_VOXELS
+        };
         Self {
             res,
             bres,
             index,
             slots,
-            capacity,
-            density,
+            density: vec![0.0; len],
             full,
+            capacity: len,
+            len,
         }
     }
 
-    /// The same map, its pools sized for `capacity` slots (at least its own).
+    /// The same map, its pools sized for `capacity` entries (at least its own).
     pub fn with_capacity(mut self, capacity: usize) -> Self {
-        self.capacity = capacity.max(self.slots.len());
+        self.capacity = capacity.max(self.len);
         self
     }
 
-    /// Slots the pools hold (a density sequence's later frames may use fewer).
-    pub fn slots_capacity(&self) -> usize {
+    /// Entries each pool holds (a density sequence's later frames may use fewer).
+    pub fn pool_len(&self) -> usize {
         self.capacity
     }
 
-    /// Voxels of the stored bricks, slot 0 excluded: what the writing kernels run over.
+    /// Entries in use: 512 (the zeros) + the stored voxels.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether no voxel is stored (an empty sparse grid).
+    pub fn is_empty(&self) -> bool {
+        self.len == BRICK_VOXELS
+    }
+
+    /// Stored voxels, the zeros excluded: what the writing kernels run over.
     pub fn light_voxels(&self) -> u32 {
-        ((self.slots.len() - 1) * BRICK_VOXELS) as u32
+        (self.len - BRICK_VOXELS) as u32
     }
 
     /// Drops the work density (uploaded), keeping the layout.
@@ -191,18 +248,21 @@ impl LightMap {
         self.full
     }
 
-    /// Slots, the zero slot 0 included.
-    pub fn slots(&self) -> usize {
-        self.slots.len()
+    /// Bricks stored (every brick in the full layout).
+    pub fn stored_bricks(&self) -> usize {
+        if self.full {
+            self.bres.iter().product()
+        } else {
+            self.slots.len() - 1
+        }
     }
 
-    /// Values in each pool (`capacity × 512`).
-    pub fn pool_len(&self) -> usize {
-        self.capacity * BRICK_VOXELS
-    }
-
-    /// The brick index and the slots' bricks, as the GPU reads them.
+    /// The brick index and the slots' bricks, as the GPU reads them (one unused word in the
+    /// full layout).
     pub fn gpu_words(&self) -> Vec<u32> {
+        if self.full {
+            return vec![0];
+        }
         let mut w = self.index.clone();
         w.extend(&self.slots);
         w
@@ -210,11 +270,18 @@ impl LightMap {
 
     /// Words of [`Self::gpu_words`].
     pub fn words(&self) -> usize {
-        self.index.len() + self.slots.len()
+        if self.full {
+            1
+        } else {
+            self.index.len() + self.slots.len()
+        }
     }
 
-    /// Pool entry of light voxel `v` (in slot 0 when its brick is absent).
+    /// Pool entry of light voxel `v` (among the zeros when its brick is absent).
     pub fn pool_index(&self, v: [usize; 3]) -> usize {
+        if self.full {
+            return BRICK_VOXELS + (v[2] * self.res[1] + v[1]) * self.res[0] + v[0];
+        }
         let b = v.map(|c| c / BRICK);
         let s = self.index[(b[2] * self.bres[1] + b[1]) * self.bres[0] + b[0]] as usize;
         s * BRICK_VOXELS + ((v[2] % BRICK) * BRICK + v[1] % BRICK) * BRICK + v[0] % BRICK
@@ -222,6 +289,11 @@ impl LightMap {
 
     /// The light voxel of pool entry `i` (slot ≥ 1; `None` past the grid's edge or in slot 0).
     pub fn voxel_of(&self, i: usize) -> Option<[usize; 3]> {
+        if self.full {
+            let j = i.checked_sub(BRICK_VOXELS)?;
+            let [nx, ny, nz] = self.res;
+            return (j < nx * ny * nz).then_some([j % nx, (j / nx) % ny, j / (nx * ny)]);
+        }
         let s = i / BRICK_VOXELS;
         if s == 0 || s >= self.slots.len() {
             return None;
@@ -257,25 +329,42 @@ impl LightMap {
         self.density.iter().fold(0.0f32, |m, &v| m.max(v))
     }
 
-    /// Per slot with density, the bounding box (inclusive light voxels) of its non-zero values.
+    /// Per stored brick with density, the bounding box (inclusive light voxels) of its
+    /// non-zero values.
     pub fn nonzero_boxes(&self) -> Vec<([usize; 3], [usize; 3])> {
-        (1..self.slots.len())
-            .filter_map(|s| {
-                let mut b: Option<([usize; 3], [usize; 3])> = None;
-                for l in 0..BRICK_VOXELS {
-                    let i = s * BRICK_VOXELS + l;
-                    if self.density[i] > 0.0 {
-                        let v = self.voxel_of(i)?;
-                        b = Some(match b {
-                            None => (v, v),
-                            Some((lo, hi)) => (
-                                std::array::from_fn(|a| lo[a].min(v[a])),
-                                std::array::from_fn(|a| hi[a].max(v[a])),
-                            ),
-                        });
+        let bricks: Vec<usize> = if self.full {
+            (0..self.bres.iter().product()).collect()
+        } else {
+            self.slots[1..].iter().map(|&b| b as usize).collect()
+        };
+        let bres = self.bres;
+        bricks
+            .into_iter()
+            .filter_map(|b| {
+                let lo = [
+                    b % bres[0] * BRICK,
+                    (b / bres[0]) % bres[1] * BRICK,
+                    b / (bres[0] * bres[1]) * BRICK,
+                ];
+                let hi: [usize; 3] = std::array::from_fn(|a| (lo[a] + BRICK).min(self.res[a]));
+                let mut bx: Option<([usize; 3], [usize; 3])> = None;
+                for z in lo[2]..hi[2] {
+                    for y in lo[1]..hi[1] {
+                        for x in lo[0]..hi[0] {
+                            let v = [x, y, z];
+                            if self.density[self.pool_index(v)] > 0.0 {
+                                bx = Some(match bx {
+                                    None => (v, v),
+                                    Some((l, h)) => (
+                                        std::array::from_fn(|a| l[a].min(v[a])),
+                                        std::array::from_fn(|a| h[a].max(v[a])),
+                                    ),
+                                });
+                            }
+                        }
                     }
                 }
-                b
+                bx
             })
             .collect()
     }
@@ -301,7 +390,7 @@ mod tests {
     }
 
     /// Sparse and full layouts hold the block means `nimbus_scene::downsample::block_means`
-    /// gives, bit for bit, at the grid's resolution and coarser, from dense and sparse grids;
+    /// gives, bit for bit (computed whole or brick by brick), at the grid's resolution and coarser, from dense and sparse grids;
     /// the sparse one stores only bricks near density, and every light voxel within the
     /// radius of a non-zero one has a slot.
     #[test]
@@ -316,14 +405,20 @@ mod tests {
             let want = nimbus_scene::downsample::block_means(&dense, res);
             for g in [&dense, &bricks] {
                 let boxes = nimbus_scene::downsample::nonzero_boxes(g);
-                for full in [false, true] {
-                    let m = LightMap::build(g, &boxes, res, 2, full);
+                for (full, whole) in [(false, false), (false, true), (true, false), (true, true)] {
+                    let m = LightMap::build_in(g, &boxes, res, 2, full, whole);
                     assert_eq!(m.to_dense(&m.density), want, "{res:?} full {full}");
                     let total = brick_res(res).iter().product::<usize>();
+                    let voxels = res.iter().product::<usize>();
                     if full {
-                        assert_eq!(m.slots(), total + 1);
+                        assert_eq!(
+                            (m.stored_bricks(), m.light_voxels()),
+                            (total, voxels as u32)
+                        );
                     } else {
-                        assert!(m.slots() - 1 < total / 2, "{} of {total}", m.slots() - 1);
+                        let n = m.stored_bricks();
+                        assert!(n < total / 2, "{n} of {total}");
+                        assert_eq!(m.light_voxels() as usize, n * BRICK_VOXELS);
                     }
                     // Every voxel within 2 of density is stored; pool entries map back.
                     for (i, _) in want.iter().enumerate().filter(|(_, v)| **v > 0.0) {

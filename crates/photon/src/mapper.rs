@@ -374,10 +374,13 @@ impl<'g> PhotonMapper<'g> {
                 4
             },
         );
-        let sun_p = gpu.pipeline(
+        // The light volumes' layout, compiled into every stage that reads them.
+        let sparse = ("LIGHT_SPARSE", if map.is_full() { 0.0 } else { 1.0 });
+        let sun_p = gpu.pipeline_with_constants(
             "sun transmittance",
             &shaders::source("photon_sun.wgsl"),
             "sun_transmittance",
+            &[sparse],
         );
         let sun = sun::SunRebuild::new(
             gpu,
@@ -404,7 +407,10 @@ impl<'g> PhotonMapper<'g> {
             "photon trace",
             &trace_source(),
             "trace",
-            &trace_constants(if use_shared { cells.max(1) } else { 1 }),
+            &[
+                trace_constants(if use_shared { cells.max(1) } else { 1 })[0],
+                sparse,
+            ],
         );
         let trace = Stage {
             bind: gpu.bind(
@@ -459,7 +465,8 @@ impl<'g> PhotonMapper<'g> {
                 gpu.zeroed("J high-order flux directions (unused)", 16),
             )
         };
-        let cells_p = gpu.pipeline("photon cache cells", &up_src, "cells");
+        let cells_p =
+            gpu.pipeline_with_constants("photon cache cells", &up_src, "cells", &[sparse]);
         let cells_stage = Stage {
             bind: gpu.bind(
                 &cells_p,
@@ -475,7 +482,7 @@ impl<'g> PhotonMapper<'g> {
             ),
             pipeline: cells_p,
         };
-        let up_p = gpu.pipeline("photon upsample", &up_src, "upsample");
+        let up_p = gpu.pipeline_with_constants("photon upsample", &up_src, "upsample", &[sparse]);
         let upsample = Stage {
             bind: gpu.bind(
                 &up_p,
@@ -497,14 +504,17 @@ impl<'g> PhotonMapper<'g> {
             "photon raymarch",
             &shaders::source(march_density.stage()),
             "raymarch",
-            &[(
-                "DETAIL_NOISE",
-                if settings.detail_noise > 0.0 {
-                    1.0
-                } else {
-                    0.0
-                },
-            )],
+            &[
+                (
+                    "DETAIL_NOISE",
+                    if settings.detail_noise > 0.0 {
+                        1.0
+                    } else {
+                        0.0
+                    },
+                ),
+                sparse,
+            ],
         );
         Ok(Self {
             gpu,

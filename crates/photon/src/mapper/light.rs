@@ -44,13 +44,15 @@ impl MarchDensity {
 /// Bytes per light voxel of the largest light volume (J), which must fit one storage binding.
 const J_BYTES: u64 = 16;
 
-/// Whether a light map with `slots` slots over `bricks` bricks fits the adapter: J in one
-/// binding, the index and slot words in another, every pool entry a u32 index.
-fn fits(slots: u64, bricks: u64, max_binding: u64) -> bool {
-    let voxels = slots * crate::light_map::BRICK_VOXELS as u64;
-    voxels * J_BYTES <= max_binding
-        && (bricks + slots) * 4 <= max_binding
-        && voxels <= u32::MAX as u64
+/// Whether pools of `entries` (`crate::light_map`) and `words` of brick index fit the
+/// adapter: J in one binding, the words in another, every entry a u32 index.
+fn fits(entries: u64, words: u64, max_binding: u64) -> bool {
+    entries * J_BYTES <= max_binding && words * 4 <= max_binding && entries <= u32::MAX as u64
+}
+
+/// Pool entries of the full layout at `r`.
+fn full_entries(r: [u32; 3]) -> u64 {
+    crate::light_map::BRICK_VOXELS as u64 + r.iter().map(|&v| v as u64).product::<u64>()
 }
 
 /// The light grid for `vol`: its resolution and layout with the work density
@@ -78,17 +80,18 @@ pub(super) fn light_map(
         .max_storage_buffer_binding_size
         .min(gpu.limits.max_buffer_size);
     let boxes = nimbus_scene::downsample::nonzero_boxes(grid);
-    // (full layout fits, some layout fits, slots).
+    // (full layout fits, some layout fits, pool entries).
     let plan = |r: [u32; 3]| -> (bool, bool, u64) {
+        if fits(full_entries(r), 1, max_binding) {
+            return (true, true, full_entries(r));
+        }
         let l = r.map(|v| v as usize);
         let bricks = crate::light_map::brick_res(l).iter().product::<usize>() as u64;
-        if fits(bricks + 1, bricks, max_binding) {
-            return (true, true, bricks + 1);
-        }
         let radius = near_radius(fine, r) as usize;
         let (active, _) = crate::light_map::active_bricks(&boxes, d_res, l, radius);
         let slots = active.iter().filter(|&&a| a).count() as u64 + 1;
-        (false, fits(slots, bricks, max_binding), slots)
+        let entries = slots * crate::light_map::BRICK_VOXELS as u64;
+        (false, fits(entries, bricks + slots, max_binding), entries)
     };
     let d = fine.map(|v| v.max(1));
     let res_k = |k: u32| d.map(|v| v.div_ceil(k));
@@ -97,20 +100,16 @@ pub(super) fn light_map(
         let edge = (0..3).map(|a| ext[a] / r[a] as f64).fold(0.0, f64::max);
         vol.density_scale() * grid_max * edge
     };
-    let (r, full, slots) = match settings.light_res {
+    let (r, full, entries) = match settings.light_res {
         Some(r) => {
             let r = check_axes("light_res", r, d_res, "density resolution")?;
-            let (full, _, slots) = plan(r);
-            (r, full, slots)
+            let (full, _, entries) = plan(r);
+            (r, full, entries)
         }
         None => {
             // The smallest k at which every brick fits.
             let mut k_full = 1u32;
-            let fits_full = |r: [u32; 3]| {
-                let b = crate::light_map::brick_res(r.map(|v| v as usize));
-                let bricks = b.iter().product::<usize>() as u64;
-                fits(bricks + 1, bricks, max_binding)
-            };
+            let fits_full = |r: [u32; 3]| fits(full_entries(r), 1, max_binding);
             while !fits_full(res_k(k_full)) && res_k(k_full) != [1, 1, 1] {
                 k_full += 1;
             }
@@ -125,16 +124,16 @@ pub(super) fn light_map(
                 }
             }
             let r = res_k(k);
-            let (full, _, slots) = plan(r);
-            (r, full, slots)
+            let (full, _, entries) = plan(r);
+            (r, full, entries)
         }
     };
-    let voxels = slots * crate::light_map::BRICK_VOXELS as u64;
+    let voxels = entries;
     if voxels > u32::MAX as u64 {
         return Err(PmError::Setting {
             field: "light_res",
             msg: format!(
-                "{r:?}: {voxels} voxels in the stored light bricks exceed the 2^32 the kernels can index"
+                "{r:?}: {voxels} entries in the light volumes exceed the 2^32 the kernels can index"
             ),
         });
     }
@@ -393,13 +392,13 @@ impl PhotonMapper<'_> {
             }
         };
         // A sparse layout keeps its pools: the new density's bricks must fit them.
-        if map.slots() > self.map.slots_capacity() {
+        if map.len() > self.map.pool_len() {
             return Err(PmError::Setting {
                 field: "density",
                 msg: format!(
                     "this frame's density needs {} light bricks; the light volumes were made for {} (the first frame's); give --light-res to size them",
-                    map.slots() - 1,
-                    self.map.slots_capacity() - 1
+                    map.stored_bricks(),
+                    self.map.stored_bricks()
                 ),
             });
         }
@@ -417,7 +416,7 @@ impl PhotonMapper<'_> {
                 .write_buffer(&self.cell_skip, 0, bytemuck::cast_slice(&skip));
         }
         self.cache_fill = cache_fill(&map, self.params.i_res);
-        let mut map = map.with_capacity(self.map.slots_capacity());
+        let mut map = map.with_capacity(self.map.pool_len());
         map.drop_values();
         self.map = map;
         self.grid_max = data.iter().fold(0.0f32, |m, &v| m.max(v)) as f64;

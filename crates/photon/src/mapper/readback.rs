@@ -56,7 +56,7 @@ impl PhotonMapper<'_> {
     /// Light bricks stored and in the light grid (`crate::light_map`).
     pub fn light_bricks(&self) -> (usize, usize) {
         let b = crate::light_map::brick_res(self.map.res());
-        (self.map.slots() - 1, b.iter().product())
+        (self.map.stored_bricks(), b.iter().product())
     }
 
     /// Total number of (sun, sky) beams in the ring.
