@@ -381,6 +381,16 @@ fn sparse_light_bricks_keep_the_grid_resolution() {
         note.unwrap()
             .starts_with(&format!("light volumes {}×", res[0]))
     );
+    // Asked for a resolution whose brick index alone exceeds the binding: refused, naming it.
+    gpu.limits.max_storage_buffer_binding_size = 512;
+    let e = PhotonMapper::new(&gpu, &thick, settings(Some([48, 36, 48]), false))
+        .err()
+        .expect("must be refused")
+        .to_string();
+    assert!(
+        e.contains("light_res") && e.contains("6×5×6 light bricks would not fit"),
+        "{e}"
+    );
 }
 
 /// Empty-space skipping in the trace: the GPU trace equals its CPU twin with skipping on (the

@@ -87,6 +87,11 @@ pub(super) fn light_map(
         }
         let l = r.map(|v| v as usize);
         let bricks = crate::light_map::brick_res(l).iter().product::<usize>() as u64;
+        // The index alone must fit a binding (and its flags host memory): else coarser, before
+        // anything of the brick count's size is allocated.
+        if bricks * 4 > max_binding || bricks > 1 << 30 {
+            return (false, false, u64::MAX);
+        }
         let radius = near_radius(fine, r) as usize;
         let (active, _) = crate::light_map::active_bricks(&boxes, d_res, l, radius);
         let slots = active.iter().filter(|&&a| a).count() as u64 + 1;
@@ -129,6 +134,16 @@ pub(super) fn light_map(
         }
     };
     let voxels = entries;
+    if voxels == u64::MAX {
+        let b = crate::light_map::brick_res(r.map(|v| v as usize));
+        return Err(PmError::Setting {
+            field: "light_res",
+            msg: format!(
+                "{r:?}: the index of its {}×{}×{} light bricks would not fit one storage binding of {max_binding} bytes; choose a coarser resolution",
+                b[0], b[1], b[2]
+            ),
+        });
+    }
     if voxels > u32::MAX as u64 {
         return Err(PmError::Setting {
             field: "light_res",
