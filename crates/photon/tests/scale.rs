@@ -381,6 +381,31 @@ fn sparse_light_bricks_keep_the_grid_resolution() {
         note.unwrap()
             .starts_with(&format!("light volumes {}×", res[0]))
     );
+    // A density sequence on the sparse layout: a frame within the first frame's bricks is
+    // taken (the same density: the same image), one that needs more bricks is refused.
+    gpu.limits.max_storage_buffer_binding_size = 1 << 20;
+    let mut pm = PhotonMapper::new(
+        &gpu,
+        &thick,
+        PmSettings {
+            skip_empty: Some(true),
+            ..settings(None, false)
+        },
+    )
+    .unwrap();
+    let grid = thick.volume.grid().as_dense().unwrap().to_vec();
+    pm.set_density(&grid).unwrap();
+    assert!(pm.render(&thick.camera).unwrap().pixels == sparse.pixels);
+    let e = pm
+        .set_density(&vec![0.5; grid.len()])
+        .err()
+        .expect("more bricks than the pools hold")
+        .to_string();
+    assert!(
+        e.contains("light bricks") && e.contains("--light-res"),
+        "{e}"
+    );
+    drop(pm);
     // Asked for a resolution whose brick index alone exceeds the binding: refused, naming it.
     gpu.limits.max_storage_buffer_binding_size = 512;
     let e = PhotonMapper::new(&gpu, &thick, settings(Some([48, 36, 48]), false))
