@@ -78,7 +78,8 @@ pub struct PmSettings {
     pub light_res: Option<[u32; 3]>,
     /// Beams cross the cache cells no stage reads (no density within a cell and three light
     /// voxels) in one step instead of by Woodcock tracking (`photon_trace.wgsl`); `None`: on
-    /// when the light volumes are coarser than the grid (a large box, often mostly empty).
+    /// when the light volumes are coarser than the grid or stored sparse (a large box, often
+    /// mostly empty).
     pub skip_empty: Option<bool>,
     /// A beam stops when its weight (albedo^scatterings) falls below this.
     pub beam_threshold: f32,
