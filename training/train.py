@@ -419,7 +419,11 @@ def load_init(model: RPNN, path: Path) -> dict:
         info["before"] = {k: t.get(k) for k in ("loss", "rel_eps", "epochs", "steps", "seconds",
                                                 "lr", "schedule", "init")}
     elif path.suffix != ".onnx" and st.get("epoch"):
-        info["before"] = {"epochs": st["epoch"], "seconds": st.get("seconds")}
+        # A checkpoint of an earlier stage: what its run state says of it (and of its own start).
+        init = st.get("init") or {}
+        info["before"] = {"epochs": st["epoch"], "seconds": st.get("seconds"),
+                          "loss": st.get("loss"), "rel_eps": st.get("rel_eps"),
+                          "init": {"path": init["path"]} if init.get("path") else None}
     return info
 
 

@@ -198,8 +198,12 @@ def init_lines(init: dict | None) -> list[str]:
     before = ""
     if b.get("epochs") is not None:
         eps = f", ε {b['rel_eps']:g}" if b.get("rel_eps") is not None else ""
-        before = (f"; that model: loss {b.get('loss')}{eps}, {b['epochs']} epochs "
-                  f"({b.get('steps')} steps), {b.get('seconds') or 0:.0f} s")
+        loss = f"loss {b['loss']}{eps}, " if b.get("loss") else ""
+        steps = f" ({b['steps']} steps)" if b.get("steps") is not None else ""
+        start = ((b.get("init") or {}).get("path"))
+        start = f", itself started from `{start}`" if start else ""
+        before = (f"; that model: {loss}{b['epochs']} epochs{steps}, "
+                  f"{b.get('seconds') or 0:.0f} s{start}")
     return [f"- Fine-tuned from `{init['path']}` (sha256 {init['sha256'][:16]}…): its weights, "
             f"a fresh Adam and step-size schedule; epochs, steps and seconds above are this "
             f"stage's{before}."]

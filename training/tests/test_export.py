@@ -183,3 +183,24 @@ def test_mean_ratio_by_gamma_is_the_bias_at_that_angle(record_set):
         assert 0 <= b["mean_ratio_se"] < 0.02
     assert any("mean prediction / mean target by gamma" in line
                for line in rexport.record_error_lines({"test": err}))
+
+
+def test_card_names_the_stage_a_fine_tuning_started_from(tmp_path):
+    """A fine-tuning stage started from an exported model's card or from an earlier stage's
+    checkpoint: the card line says what that stage was, and never prints unknown fields."""
+    onnx_before = {"loss": "rel-l2", "rel_eps": 0.01, "epochs": 20, "steps": 20000,
+                   "seconds": 5003.2}
+    line = rexport.init_lines({"path": "models/m.onnx", "sha256": "ab" * 32,
+                               "before": onnx_before})[0]
+    assert "that model: loss rel-l2, ε 0.01, 20 epochs (20000 steps), 5003 s." in line
+    # A checkpoint: its run state as train.load_init reads it (no step count).
+    model = RPNN(levels=10, width=8, head_layers=1)
+    state = {"epoch": 8, "seconds": 270.4, "loss": "rel-l2", "rel_eps": 0.01,
+             "init": {"path": "models/rpnn-hg.onnx", "sha256": "cd" * 32}}
+    ck = tmp_path / "last.pt"
+    torch.save({"model": model.state_dict(), "config": model.config(), "state": state}, ck)
+    info = train.load_init(RPNN(levels=10, width=8, head_layers=1), ck)
+    line = rexport.init_lines(info)[0]
+    assert ("that model: loss rel-l2, ε 0.01, 8 epochs, 270 s, itself started from "
+            "`models/rpnn-hg.onnx`.") in line, line
+    assert "None" not in line
