@@ -398,8 +398,7 @@ fn sparse_light_bricks_keep_the_grid_resolution() {
     assert!(pm.render(&thick.camera).unwrap().pixels == sparse.pixels);
     let e = pm
         .set_density(&vec![0.5; grid.len()])
-        .err()
-        .expect("more bricks than the pools hold")
+        .expect_err("more bricks than the pools hold")
         .to_string();
     assert!(
         e.contains("light bricks") && e.contains("--light-res"),
