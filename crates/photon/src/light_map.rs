@@ -51,6 +51,15 @@ pub fn brick_res(res: [usize; 3]) -> [usize; 3] {
     res.map(|r| r.div_ceil(BRICK))
 }
 
+/// The light voxel at the corner of brick `b` (x fastest over `bres` bricks).
+fn brick_origin(b: usize, bres: [usize; 3]) -> [usize; 3] {
+    [
+        b % bres[0] * BRICK,
+        (b / bres[0]) % bres[1] * BRICK,
+        b / (bres[0] * bres[1]) * BRICK,
+    ]
+}
+
 /// Per brick of a light grid of `res` over a grid of `fine` voxels whose non-zero voxels lie in
 /// `boxes` (inclusive fine indices, `nimbus_scene::downsample::nonzero_boxes`): whether it
 /// holds a light voxel within `radius` of one with density (`true`: active), and whether it
@@ -116,13 +125,7 @@ impl LightMap {
         // The bricks to fill: (brick, first pool entry) — in the full layout the brick's
         // voxels are scattered over rows of the dense grid.
         let todo: Vec<usize> = (0..active.len()).filter(|&b| occupied[b]).collect();
-        let brick_lo = |b: usize| {
-            [
-                b % bres[0] * BRICK,
-                (b / bres[0]) % bres[1] * BRICK,
-                b / (bres[0] * bres[1]) * BRICK,
-            ]
-        };
+        let brick_lo = |b: usize| brick_origin(b, bres);
         // A light grid of up to 2^26 voxels (256 MB) is computed whole, plane by plane
         // (`block_means`: fast, a sparse grid read by its non-zero bricks); a larger one brick
         // by brick, only where there is density.
@@ -298,17 +301,12 @@ impl LightMap {
         if s == 0 || s >= self.slots.len() {
             return None;
         }
-        let b = self.slots[s] as usize;
+        let o = brick_origin(self.slots[s] as usize, self.bres);
         let l = i % BRICK_VOXELS;
-        let bc = [
-            b % self.bres[0],
-            (b / self.bres[0]) % self.bres[1],
-            b / (self.bres[0] * self.bres[1]),
-        ];
         let v = [
-            bc[0] * BRICK + l % BRICK,
-            bc[1] * BRICK + (l / BRICK) % BRICK,
-            bc[2] * BRICK + l / (BRICK * BRICK),
+            o[0] + l % BRICK,
+            o[1] + (l / BRICK) % BRICK,
+            o[2] + l / (BRICK * BRICK),
         ];
         (0..3).all(|a| v[a] < self.res[a]).then_some(v)
     }
@@ -337,29 +335,17 @@ impl LightMap {
         } else {
             self.slots[1..].iter().map(|&b| b as usize).collect()
         };
-        let bres = self.bres;
         bricks
             .into_iter()
             .filter_map(|b| {
-                let lo = [
-                    b % bres[0] * BRICK,
-                    (b / bres[0]) % bres[1] * BRICK,
-                    b / (bres[0] * bres[1]) * BRICK,
-                ];
+                let lo = brick_origin(b, self.bres);
                 let hi: [usize; 3] = std::array::from_fn(|a| (lo[a] + BRICK).min(self.res[a]));
-                let mut bx: Option<([usize; 3], [usize; 3])> = None;
+                let mut bx = None;
                 for z in lo[2]..hi[2] {
                     for y in lo[1]..hi[1] {
                         for x in lo[0]..hi[0] {
-                            let v = [x, y, z];
-                            if self.density[self.pool_index(v)] > 0.0 {
-                                bx = Some(match bx {
-                                    None => (v, v),
-                                    Some((l, h)) => (
-                                        std::array::from_fn(|a| l[a].min(v[a])),
-                                        std::array::from_fn(|a| h[a].max(v[a])),
-                                    ),
-                                });
+                            if self.density[self.pool_index([x, y, z])] > 0.0 {
+                                nimbus_scene::downsample::grow_box(&mut bx, [x, y, z]);
                             }
                         }
                     }
@@ -390,9 +376,9 @@ mod tests {
     }
 
     /// Sparse and full layouts hold the block means `nimbus_scene::downsample::block_means`
-    /// gives, bit for bit (computed whole or brick by brick), at the grid's resolution and coarser, from dense and sparse grids;
-    /// the sparse one stores only bricks near density, and every light voxel within the
-    /// radius of a non-zero one has a slot.
+    /// gives, bit for bit (computed whole or brick by brick), at the grid's resolution and
+    /// coarser, from dense and sparse grids; the sparse one stores only bricks near density,
+    /// and every light voxel within the radius of a non-zero one has a slot.
     #[test]
     fn layouts_hold_the_block_means_where_they_are_read() {
         let fine = [45, 20, 39];

@@ -121,6 +121,17 @@ pub fn block_means_box(
     out
 }
 
+/// Grows the inclusive box `b` (none yet: `None`) to hold index `v`.
+pub fn grow_box(b: &mut Option<([usize; 3], [usize; 3])>, v: [usize; 3]) {
+    *b = Some(match *b {
+        None => (v, v),
+        Some((l, h)) => (
+            std::array::from_fn(|a| l[a].min(v[a])),
+            std::array::from_fn(|a| h[a].max(v[a])),
+        ),
+    })
+}
+
 /// Bounding boxes (inclusive fine indices) of the non-zero voxels of each 8³ block of the
 /// grid that holds any (for a sparse grid, its bricks; for a dense one, aligned 8³ blocks):
 /// where a coarser or sparse structure derived from the grid can be non-zero, found in one
@@ -128,15 +139,6 @@ pub fn block_means_box(
 pub fn nonzero_boxes(grid: &DensityGrid) -> Vec<([usize; 3], [usize; 3])> {
     const B: usize = 8;
     let [nx, ny, nz] = grid.res();
-    let grow = |b: &mut Option<([usize; 3], [usize; 3])>, v: [usize; 3]| {
-        *b = Some(match *b {
-            None => (v, v),
-            Some((l, h)) => (
-                std::array::from_fn(|a| l[a].min(v[a])),
-                std::array::from_fn(|a| h[a].max(v[a])),
-            ),
-        })
-    };
     if let Some(b) = grid.as_bricks() {
         let mut out = Vec::new();
         b.visit(|v| {
@@ -152,7 +154,7 @@ pub fn nonzero_boxes(grid: &DensityGrid) -> Vec<([usize; 3], [usize; 3])> {
                         for y in v.lo[1]..v.hi[1] {
                             for x in v.lo[0]..v.hi[0] {
                                 if s[v.local(x, y, z)] > 0.0 {
-                                    grow(&mut bx, [x, y, z]);
+                                    grow_box(&mut bx, [x, y, z]);
                                 }
                             }
                         }
@@ -174,7 +176,7 @@ pub fn nonzero_boxes(grid: &DensityGrid) -> Vec<([usize; 3], [usize; 3])> {
                     let row = &data[(z * ny + y) * nx..][..nx];
                     for (x, &v) in row.iter().enumerate() {
                         if v > 0.0 {
-                            grow(&mut boxes[(y / B) * bx + x / B], [x, y, z]);
+                            grow_box(&mut boxes[(y / B) * bx + x / B], [x, y, z]);
                         }
                     }
                 }
