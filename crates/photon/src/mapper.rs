@@ -66,7 +66,7 @@ pub struct PhotonMapper<'g> {
     pub params: VolumeParams,
     pub settings: PmSettings,
     cells: u32,
-    /// Entries of each light-volume pool (`crate::light_map`: slots × 512).
+    /// Entries of each light-volume pool (`crate::light_map`: 512 zeros, then the stored voxels).
     voxels: u32,
     /// The light volumes' layout (its work density uploaded and dropped).
     map: crate::light_map::LightMap,
