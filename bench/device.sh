@@ -2,12 +2,17 @@
 # Everything Nimbus claims about GPU speed, measured in one run, as one CSV + Markdown table:
 #   1. photon mapping per stage at 1920×1200 on the Elek 2012 Table 1 scenes (a turning sun, so
 #      every frame traces, updates, upsamples and ray marches; mean over frames 2..N);
-#   2. RPNN milliseconds per sample at 1280×720 for both network backends (wgpu, ort);
-#   3. GPU path tracer camera paths/s against the CPU path tracer on scenes/refs/cumulus_side;
+#   2. RPNN milliseconds per sample at 1280×720 for both network backends (wgpu, ort), split
+#      into descriptors, network and the rest (`--timings`);
+#   3. GPU path tracer camera paths/s against the CPU path tracer on scenes/refs/cumulus_side
+#      at 1280×720;
 #   4. `datagen --device gpu` records per hour (fixed-count labels, --samples 1024);
-#   5. memory at scale: a generated 1200³ cumulus (Kallweit 2017 §5's largest) written as
-#      `.vol` and rendered by the GPU path tracer and the photon map, wall time and peak RSS
-#      (GNU time), as bench/volumes.sh measures them on lavapipe.
+#   5. training records/s of training/train.py (synthetic records in the datagen layout, the
+#      paper's minibatch of 1 000 and a larger one; bench/train_throughput.py);
+#   6. memory at scale: a generated 1200³ cumulus (Kallweit 2017 §5's largest) written as
+#      `.vol` and rendered by every estimator (CPU and GPU path tracers, photon map, RPNN at
+#      2 spp), wall time, peak RSS and (nvidia-smi) GPU memory, as bench/volumes.sh measures
+#      them on lavapipe.
 #
 #   bash bench/device.sh [--small] [--out DIR]
 #
@@ -23,7 +28,7 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --small) small=1 ;;
     --out) out="$2"; shift ;;
-    -h|--help) sed -n '2,14p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
     *) echo "bench/device.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
   shift
@@ -37,12 +42,16 @@ echo "measure,scene,setting,value,unit" > "$csv"
 row() { echo "$1,$2,$3,$4,$5" >> "$csv"; }
 
 if [ "$small" = 1 ]; then
-  W=240; H=150; FRAMES=3; BEAMS=1024; RW=160; RH=90; RSPP=1; PTSPP=4; GPTSPP=16
-  DG_RECORDS=16; DG_SAMPLES=256; VOLRES=96
+  W=240; H=150; FRAMES=3; BEAMS=1024; RW=160; RH=90; RSPP=1; PW=128; PH=96; PTSPP=4; GPTSPP=16
+  DG_RECORDS=16; DG_SAMPLES=256; VOLRES=96; TR_RECORDS=3000; TR_EPOCHS=1; TR_BATCH="1000"
 else
-  W=1920; H=1200; FRAMES=12; BEAMS=8192; RW=1280; RH=720; RSPP=2; PTSPP=16; GPTSPP=256
-  DG_RECORDS=2000; DG_SAMPLES=1024; VOLRES=1200
+  W=1920; H=1200; FRAMES=12; BEAMS=8192; RW=1280; RH=720; RSPP=2; PW=1280; PH=720; PTSPP=4; GPTSPP=64
+  DG_RECORDS=2000; DG_SAMPLES=1024; VOLRES=1200; TR_RECORDS=200000; TR_EPOCHS=3
+  TR_BATCH="1000 8000"
 fi
+# The training environment of training/setup.sh where there is one, else python3 (with torch).
+py=${PYTHON:-$([ -x training/.venv/bin/python ] && echo training/.venv/bin/python || echo python3)}
+export PYTHON=$py
 # A copy of a scene with another image size (relative volume paths stay valid: generators).
 sized() { # SRC W H -> path
   local dst="$out/scenes/$(basename "$1" .toml)_$2x$3.toml"
@@ -68,19 +77,29 @@ done
 # 2. RPNN ms per sample, both backends.
 scene=$(sized scenes/bench/rpnn_720p.toml "$RW" "$RH")
 for b in wgpu ort; do
-  line=$("$nimbus" render "$scene" --method rpnn --backend "$b" --spp "$RSPP" -q \
-    -o "$out/rpnn_$b.exr" | grep "ms per spp" | head -1)
-  ms=$(echo "$line" | sed -E 's/.* ([0-9.]+) ms per spp.*/\1/')
+  "$nimbus" render "$scene" --method rpnn --backend "$b" --spp "$RSPP" --timings -q \
+    -o "$out/rpnn_$b.exr" > "$out/rpnn_$b.txt"
+  ms=$(grep -m1 "ms per spp" "$out/rpnn_$b.txt" | sed -E 's/.* ([0-9.]+) ms per spp.*/\1/')
   row rpnn_ms_per_spp rpnn_720p "${RW}x${RH} backend=$b" "$ms" ms
+  # The split: descriptors, the network (transfers included), the rest on the CPU (camera rays,
+  # delta tracking, sun shadow rays).
+  for stage in descriptor inference rest; do
+    ms=$(grep -m1 "^ *$stage " "$out/rpnn_$b.txt" | awk '{ print $2 }')
+    row "rpnn_${stage}_ms_per_spp" rpnn_720p "${RW}x${RH} backend=$b" "$ms" ms
+  done
 done
 
-# 3. Camera paths/s: GPU path tracer against the CPU one.
+# 3. Camera paths/s: GPU path tracer against the CPU one (the shared cumulus, its volume path
+# made absolute for the sized copy; at 128×96 a large GPU would sit mostly idle).
+vol=$(realpath scenes/refs/../../../shared/refs/volumes/cumulus.vol)
+pt_scene=$(sized scenes/refs/cumulus_side.toml "$PW" "$PH")
+sed -i "s|^file = .*|file = \"$vol\"|" "$pt_scene"
 for dev in gpu cpu; do
   spp=$([ "$dev" = gpu ] && echo "$GPTSPP" || echo "$PTSPP")
-  line=$("$nimbus" render scenes/refs/cumulus_side.toml --device "$dev" --spp "$spp" -q \
+  line=$("$nimbus" render "$pt_scene" --device "$dev" --spp "$spp" -q \
     -o "$out/pt_$dev.exr" | grep "camera paths/s" | head -1)
   rate=$(echo "$line" | sed -E 's/.*\(([0-9.e+-]+) camera paths\/s.*/\1/')
-  row pt_paths_per_s cumulus_side "device=$dev spp=$spp" "$rate" paths/s
+  row pt_paths_per_s cumulus_side "${PW}x${PH} device=$dev spp=$spp" "$rate" paths/s
 done
 
 # 4. Training records per hour with the GPU path tracer.
@@ -91,25 +110,42 @@ rps=$(echo "$line" | sed -E 's/.*, ([0-9.]+) records\/s.*/\1/')
 row datagen_records_per_hour gen:5 "device=gpu samples=$DG_SAMPLES records=$DG_RECORDS" \
   "$(awk -v r="$rps" 'BEGIN { printf "%.0f", r * 3600 }')" records/h
 
-# 5. Memory and time at scale (the photon map's light volumes are coarser than the grid when J
-# would not fit one storage binding; the render line says which).
-"$nimbus" generate cumulus --seed 7 --res "$VOLRES,$VOLRES,$VOLRES" -o "$out/scale.vol" > /dev/null
-sed -e "s|^file = .*|file = \"$(realpath "$out/scale.vol")\"|" scenes/bench/scale.toml > "$out/scenes/scale.toml"
-for m in "--device gpu" "--method pm"; do
-  t0=$(date +%s.%N)
-  rss=-
-  if [ -x /usr/bin/time ]; then
-    # shellcheck disable=SC2086
-    /usr/bin/time -f "%M" -o "$out/rss" "$nimbus" render "$out/scenes/scale.toml" $m -q \
-      -o "$out/scale_img" > /dev/null
-    rss=$(( $(tail -1 "$out/rss") / 1024 ))
-  else
-    # shellcheck disable=SC2086
-    "$nimbus" render "$out/scenes/scale.toml" $m -q -o "$out/scale_img" > /dev/null
+# 5. Training records/s (CUDA where torch sees a GPU).
+# shellcheck disable=SC2086
+"$py" bench/train_throughput.py --records "$TR_RECORDS" --epochs "$TR_EPOCHS" --batch $TR_BATCH |
+  while read -r rate dev rows batch; do
+    row train_records_per_s synthetic "device=$dev batch=$batch rows=$rows" "$rate" records/s
+  done
+
+# 6. Memory and time at scale, every estimator (the photon map's light volumes are coarser than
+# the grid when J would not fit one storage binding; the render line says which). Peak RSS from
+# GNU time, else from Python's getrusage of the child; where nvidia-smi is there, the most GPU
+# memory in use while the command ran (sampled every 100 ms, the driver's context included).
+. bench/peak.sh
+scale_row() { # SETTING CMD...: wall time, peak RSS and GPU memory of CMD
+  local setting=$1 t0 t1 gpid=""
+  shift
+  if command -v nvidia-smi > /dev/null; then
+    nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits -lms 100 > "$out/gpumem" &
+    gpid=$!
   fi
+  t0=$(date +%s.%N)
+  peak "$out/rss" "$@" > /dev/null
   t1=$(date +%s.%N)
-  row scale_wall_s "cumulus ${VOLRES}³ .vol" "$m" "$(awk -v a="$t0" -v b="$t1" 'BEGIN { printf "%.1f", b - a }')" s
-  row scale_peak_rss "cumulus ${VOLRES}³ .vol" "$m" "$rss" MB
+  row scale_wall_s "cumulus ${VOLRES}³ .vol" "$setting" "$(awk -v a="$t0" -v b="$t1" 'BEGIN { printf "%.1f", b - a }')" s
+  row scale_peak_rss "cumulus ${VOLRES}³ .vol" "$setting" "$(cat "$out/rss")" MB
+  if [ -n "$gpid" ]; then
+    kill "$gpid" 2> /dev/null || true
+    wait "$gpid" 2> /dev/null || true
+    row scale_gpu_memory "cumulus ${VOLRES}³ .vol" "$setting" "$(sort -n "$out/gpumem" | tail -1)" MB
+  fi
+}
+scale_row "generate + write .vol" "$nimbus" generate cumulus --seed 7 --res "$VOLRES,$VOLRES,$VOLRES" \
+  -o "$out/scale.vol"
+sed -e "s|^file = .*|file = \"$(realpath "$out/scale.vol")\"|" scenes/bench/scale.toml > "$out/scenes/scale.toml"
+for m in "--method pt" "--device gpu" "--method pm" "--method rpnn --spp 2"; do
+  # shellcheck disable=SC2086
+  scale_row "$m" "$nimbus" render "$out/scenes/scale.toml" $m -q -o "$out/scale_img"
 done
 rm -f "$out/scale.vol"
 

@@ -379,17 +379,20 @@ fn device_benchmark_script_small() {
         assert!(v.is_finite() && v > 0.0, "{line}");
         *measures.entry(f[0].to_string()).or_insert(0) += 1;
     }
-    // 3 scenes × 6 photon-mapping figures, 2 RPNN backends, 2 path tracers, 1 datagen, wall
-    // time and peak RSS of 2 estimators at scale (every value finite and > 0: GNU time ran).
+    // 3 scenes × 6 photon-mapping figures, 2 RPNN backends (total and split), 2 path tracers, 1 datagen, 1 training
+    // throughput, wall time and peak RSS of the generator and 4 estimators at scale (every value
+    // finite and > 0: the memory was measured).
     assert_eq!(measures.get("pm_frame_ms"), Some(&3), "{csv}");
     // The default (exact) variant rebuilds its sun-transmittance volume as the sun turns.
     assert_eq!(measures.get("pm_sun_transmittance_ms"), Some(&3), "{csv}");
     assert_eq!(measures.get("pm_upsample_ms"), Some(&3), "{csv}");
     assert_eq!(measures.get("rpnn_ms_per_spp"), Some(&2), "{csv}");
+    assert_eq!(measures.get("rpnn_inference_ms_per_spp"), Some(&2), "{csv}");
     assert_eq!(measures.get("pt_paths_per_s"), Some(&2), "{csv}");
     assert_eq!(measures.get("datagen_records_per_hour"), Some(&1), "{csv}");
-    assert_eq!(measures.get("scale_wall_s"), Some(&2), "{csv}");
-    assert_eq!(measures.get("scale_peak_rss"), Some(&2), "{csv}");
+    assert_eq!(measures.get("train_records_per_s"), Some(&1), "{csv}");
+    assert_eq!(measures.get("scale_wall_s"), Some(&5), "{csv}");
+    assert_eq!(measures.get("scale_peak_rss"), Some(&5), "{csv}");
     assert!(
         std::fs::read_to_string(d.join("device.md"))
             .unwrap()
