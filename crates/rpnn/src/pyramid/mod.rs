@@ -207,6 +207,14 @@ impl Pyramid {
         every: bool,
         sparse_above: usize,
     ) -> Result<Self, PyramidError> {
+        // The stream's recycled plane buffers are freed however the build ends.
+        struct ReleasePlanes;
+        impl Drop for ReleasePlanes {
+            fn drop(&mut self) {
+                stream::release_planes();
+            }
+        }
+        let _release = ReleasePlanes;
         let g = volume.grid();
         let [x, y, z] = g.res();
         let voxel = volume.cell_size().min_element();

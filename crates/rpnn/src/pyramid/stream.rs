@@ -22,25 +22,6 @@ pub(super) fn gauss_kernel(sigma: f64) -> Vec<f32> {
     w.into_iter().map(|v| (v / s) as f32).collect()
 }
 
-/// Blurs `src` along one line with kernel `k` and zero padding into `dst[lo..=hi]` (the rest of
-/// `dst` is untouched). Taps in kernel order: the accumulation order of every blur in this
-/// module, so computing only where the result can be non-zero changes no value.
-#[inline]
-fn blur_line(src: &[f32], k: &[f32], dst: &mut [f32], lo: usize, hi: usize) {
-    let r = (k.len() / 2) as i64;
-    let n = src.len() as i64;
-    for (c, out) in dst.iter_mut().enumerate().take(hi + 1).skip(lo) {
-        let mut acc = 0.0f32;
-        for (j, w) in k.iter().enumerate() {
-            let o = c as i64 + j as i64 - r;
-            if o >= 0 && o < n {
-                acc += w * src[o as usize];
-            }
-        }
-        *out = acc;
-    }
-}
-
 /// Inclusive x and y bounds of a plane's non-zero values (a bound: it may hold zeros too).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) struct Rect {
@@ -106,60 +87,162 @@ impl Rect {
 pub(super) struct Plane {
     pub(super) data: Vec<f32>,
     rect: Option<Rect>,
+    nx: usize,
+}
+
+// Recycled plane buffers. A level's planes are all one size; a dropped plane's buffer is
+// zeroed again only within its bound (where it can hold non-zero values), so a mostly empty
+// plane of a large sparse box is not cleared whole for every z. Planes are made and dropped
+// on the thread that drives the stream; `release_planes` empties the pool when a build ends.
+/// A recycled buffer: its values, the plane's width and the bound of its non-zero values.
+type Recycled = (Vec<f32>, usize, Option<Rect>);
+
+thread_local! {
+    static POOL: std::cell::RefCell<Vec<Recycled>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Most buffers the pool keeps (a few planes' worth beyond the filters' windows).
+const POOL_MAX: usize = 16;
+
+/// A buffer of `nx × ny` zeros, recycled when the pool has one of that shape.
+fn zeroed(nx: usize, ny: usize) -> Vec<f32> {
+    let n = nx * ny;
+    let got = POOL.with(|p| {
+        let mut p = p.borrow_mut();
+        let i = p.iter().position(|(b, w, _)| b.len() == n && *w == nx)?;
+        Some(p.swap_remove(i))
+    });
+    match got {
+        Some((mut b, _, rect)) => {
+            if let Some(r) = rect {
+                for y in r.y[0]..=r.y[1] {
+                    b[y * nx + r.x[0]..=y * nx + r.x[1]].fill(0.0);
+                }
+            }
+            debug_assert!(
+                b.iter().all(|&v| v == 0.0),
+                "a plane held values outside its bound"
+            );
+            b
+        }
+        None => vec![0.0f32; n],
+    }
+}
+
+/// Frees the recycled plane buffers of this thread.
+pub(super) fn release_planes() {
+    POOL.with(|p| p.borrow_mut().clear());
+}
+
+impl Drop for Plane {
+    fn drop(&mut self) {
+        let data = std::mem::take(&mut self.data);
+        if data.is_empty() || self.nx == 0 {
+            return;
+        }
+        let rect = self.rect;
+        POOL.with(|p| {
+            let mut p = p.borrow_mut();
+            if p.len() < POOL_MAX {
+                p.push((data, self.nx, rect));
+            }
+        });
+    }
 }
 
 impl Plane {
     pub(super) fn new(data: Vec<f32>, nx: usize) -> Self {
         let rect = Rect::of(&data, nx);
-        Self { data, rect }
+        Self { data, rect, nx }
     }
 
     /// A plane whose values are zero outside `bound` (inclusive x, y ranges; None: all zero):
     /// its exact bounds are found within `bound` only.
     fn within(data: Vec<f32>, nx: usize, bound: Option<([usize; 2], [usize; 2])>) -> Self {
         let rect = bound.and_then(|(bx, by)| Rect::of_within(&data, nx, bx, by));
-        Self { data, rect }
+        Self { data, rect, nx }
     }
 }
 
 /// Blurs one z-plane (`nx` × `ny`) along x, then along y, in place, computing only within `r`
 /// cells of its non-zero values: elsewhere the blur is zero exactly (the densities are
-/// non-negative, so every product is +0), which keeps mostly empty boxes cheap.
+/// non-negative, so every product is +0), which keeps mostly empty boxes cheap. Both passes
+/// read and write only the bound's rows and columns; the y pass runs row by row (contiguous),
+/// each output row the sum over the kernel's taps in kernel order, as `blur_span` sums them.
 pub(super) fn blur_plane_xy(plane: &mut Plane, nx: usize, ny: usize, k: &[f32]) {
     let Some(rc) = plane.rect else {
         return;
     };
-    let g = rc.grow(k.len() / 2, nx, ny);
+    let r = k.len() / 2;
+    let g = rc.grow(r, nx, ny);
+    // x pass: the row's non-zero span is within rc.x, so a copy of rc.x (zeros outside) is
+    // the whole input the taps can read.
     plane
         .data
         .par_chunks_mut(nx)
-        .enumerate()
         .skip(rc.y[0])
         .take(rc.y[1] + 1 - rc.y[0])
-        .for_each(|(_, row)| {
-            if row.iter().any(|&v| v != 0.0) {
-                let src = row.to_vec();
-                blur_line(&src, k, row, g.x[0], g.x[1]);
+        .for_each(|row| {
+            let src = &row[rc.x[0]..=rc.x[1]];
+            if src.iter().any(|&v| v != 0.0) {
+                let src = src.to_vec();
+                blur_span(&src, rc.x[0], nx, k, row, g.x[0], g.x[1]);
             }
         });
+    // y pass: rows g.y of the result from rows rc.y of the x-blurred plane, columns g.x.
+    let (x0, w) = (g.x[0], g.x[1] + 1 - g.x[0]);
     let plane_ro: &[f32] = &plane.data;
-    let cols: Vec<Vec<f32>> = (g.x[0]..=g.x[1])
-        .into_par_iter()
-        .map(|x| {
-            let col: Vec<f32> = (0..ny).map(|y| plane_ro[y * nx + x]).collect();
-            let mut out = vec![0.0f32; ny];
-            if col.iter().any(|&v| v != 0.0) {
-                blur_line(&col, k, &mut out, g.y[0], g.y[1]);
+    let mut out = vec![0.0f32; (g.y[1] + 1 - g.y[0]) * w];
+    out.par_chunks_mut(w).enumerate().for_each(|(i, acc)| {
+        let y = g.y[0] + i;
+        for (j, wgt) in k.iter().enumerate() {
+            let o = y as i64 + j as i64 - r as i64;
+            if o < rc.y[0] as i64 || o > rc.y[1] as i64 {
+                continue; // a zero row (or outside the plane): every term +0
             }
-            out
-        })
-        .collect();
-    for (c, x) in cols.iter().zip(g.x[0]..=g.x[1]) {
-        for (y, v) in c.iter().enumerate() {
-            plane.data[y * nx + x] = *v;
+            let src = &plane_ro[o as usize * nx + x0..o as usize * nx + x0 + w];
+            for (a, s) in acc.iter_mut().zip(src) {
+                *a += wgt * s;
+            }
+        }
+    });
+    for (i, row) in out.chunks(w).enumerate() {
+        let y = g.y[0] + i;
+        plane.data[y * nx + x0..y * nx + x0 + w].copy_from_slice(row);
+    }
+    // Rows of rc outside g cannot exist (g contains rc); rows of g outside rc were zero and
+    // now hold the blur.
+    plane.rect = Some(g);
+}
+
+/// Blurs a line `n` long, zero outside `src` (which starts at `at`), with kernel `k` and zero
+/// padding into `dst[lo..=hi]` (the rest of `dst` is untouched). Taps in kernel order: the
+/// accumulation order of every blur in this module; the zero taps are skipped (+0 changes no
+/// sum of non-negative terms), so computing only where the result can be non-zero changes no
+/// value.
+#[inline]
+fn blur_span(src: &[f32], at: usize, n: usize, k: &[f32], dst: &mut [f32], lo: usize, hi: usize) {
+    let r = k.len() as i64 / 2;
+    let (a, b) = (at as i64, (at + src.len()) as i64);
+    debug_assert!(b <= n as i64);
+    let out = &mut dst[lo..=hi];
+    out.fill(0.0);
+    // Tap by tap over the outputs it reaches (contiguous, vectorisable): every output still
+    // adds its taps in kernel order.
+    for (j, &w) in k.iter().enumerate() {
+        let shift = j as i64 - r; // output c reads src position c + shift
+        let c0 = (lo as i64).max(a - shift);
+        let c1 = (hi as i64).min(b - 1 - shift);
+        if c0 > c1 {
+            continue;
+        }
+        let s0 = (c0 + shift - a) as usize;
+        let len = (c1 - c0 + 1) as usize;
+        let o0 = (c0 - lo as i64) as usize;
+        for (o, v) in out[o0..o0 + len].iter_mut().zip(&src[s0..s0 + len]) {
+            *o += w * v;
         }
     }
-    plane.rect = Some(g);
 }
 
 /// Overlap weights resampling `n` cells onto `m` cells over the same extent: for each new cell,
@@ -266,7 +349,7 @@ impl Planes for GridPlanes<'_> {
         let [nx, ny, _] = self.grid.res();
         // Only the bricks crossing the plane are written and scaled (0 × scale = 0 elsewhere):
         // a mostly empty plane of a huge sparse box costs what its cloud costs.
-        let mut p = vec![0.0f32; nx * ny];
+        let mut p = zeroed(nx, ny);
         let bound = self.grid.plane_into_zeroed(self.z, &mut p);
         if let Some((bx, by)) = bound {
             for row in p[by[0] * nx..(by[1] + 1) * nx].chunks_mut(nx) {
@@ -350,23 +433,24 @@ impl<'a> XyWindow<'a> {
             .filter(|(_, p)| p.rect.is_some())
             .collect();
         let rect = taps.iter().fold(None, |u, (_, p)| Rect::union(u, p.rect));
-        let mut data = vec![0.0f32; nx * ny];
+        let mut data = zeroed(nx, ny);
         if let Some(u) = rect {
             data.par_chunks_mut(nx)
                 .enumerate()
                 .skip(u.y[0])
                 .take(u.y[1] + 1 - u.y[0])
                 .for_each(|(y, row)| {
-                    for (x, v) in row.iter_mut().enumerate().take(u.x[1] + 1).skip(u.x[0]) {
-                        let mut acc = 0.0f32;
-                        for (w, t) in &taps {
-                            acc += w * t.data[y * nx + x];
+                    // Tap by tap over the row (contiguous): each value sums its taps in order.
+                    let acc = &mut row[u.x[0]..=u.x[1]];
+                    for (w, t) in &taps {
+                        let src = &t.data[y * nx + u.x[0]..=y * nx + u.x[1]];
+                        for (a, v) in acc.iter_mut().zip(src) {
+                            *a += w * v;
                         }
-                        *v = acc;
                     }
                 });
         }
-        Plane { data, rect }
+        Plane { data, rect, nx }
     }
 }
 
@@ -440,7 +524,7 @@ impl Planes for Down<'_> {
         let nx = self.window.input.res()[0];
         let nr = self.res;
         let blurred = &self.blurred;
-        let mut out = vec![0.0f32; nr[0] * nr[1]];
+        let mut out = zeroed(nr[0], nr[1]);
         let Some(u) = wz[z2]
             .iter()
             .fold(None, |u, (iz, _)| Rect::union(u, blurred[iz].rect))
@@ -448,6 +532,7 @@ impl Planes for Down<'_> {
             return Plane {
                 data: out,
                 rect: None,
+                nx: nr[0],
             };
         };
         // The new cells whose footprint meets the input's non-zero bound.
@@ -490,6 +575,7 @@ impl Planes for Down<'_> {
         Plane {
             data: out,
             rect: Some(rect),
+            nx: nr[0],
         }
     }
 }
