@@ -16,7 +16,7 @@
 #
 #   bash bench/device.sh [--small] [--out DIR]
 #
-# On an H100/H200 the full run takes ≈ 3–5 minutes. `--small` runs the same steps at reduced
+# On an H200 the full run took 134 s (2026-12-04). `--small` runs the same steps at reduced
 # sizes (1/8 of the pixels, fewer frames and records) so lavapipe finishes in about a minute;
 # the tests run it that way. The binary is ./target/release/nimbus (or $NIMBUS). Writes
 # DIR/device.csv and DIR/device.md (default DIR: out/device).
@@ -91,9 +91,11 @@ done
 
 # 3. Camera paths/s: GPU path tracer against the CPU one (the shared cumulus, its volume path
 # made absolute for the sized copy; at 128×96 a large GPU would sit mostly idle).
-vol=$(realpath scenes/refs/../../../shared/refs/volumes/cumulus.vol)
-pt_scene=$(sized scenes/refs/cumulus_side.toml "$PW" "$PH")
-sed -i "s|^file = .*|file = \"$vol\"|" "$pt_scene"
+src=scenes/refs/cumulus_side.toml
+vol=$(cd "$(dirname "$src")" && realpath "$(sed -n 's/^file = "\(.*\)"$/\1/p' "$(basename "$src")")")
+pt_scene=$(sized "$src" "$PW" "$PH")
+vol=$vol awk '/^file = / { print "file = \"" ENVIRON["vol"] "\""; next } { print }' "$pt_scene" \
+  > "$pt_scene.tmp" && mv "$pt_scene.tmp" "$pt_scene"
 for dev in gpu cpu; do
   spp=$([ "$dev" = gpu ] && echo "$GPTSPP" || echo "$PTSPP")
   line=$("$nimbus" render "$pt_scene" --device "$dev" --spp "$spp" -q \
@@ -111,6 +113,8 @@ row datagen_records_per_hour gen:5 "device=gpu samples=$DG_SAMPLES records=$DG_R
   "$(awk -v r="$rps" 'BEGIN { printf "%.0f", r * 3600 }')" records/h
 
 # 5. Training records/s (CUDA where torch sees a GPU).
+"$py" -c "import torch" 2> /dev/null ||
+  { echo "bench/device.sh: $py has no torch (bash training/setup.sh, or PYTHON=...)" >&2; exit 1; }
 # shellcheck disable=SC2086
 "$py" bench/train_throughput.py --records "$TR_RECORDS" --epochs "$TR_EPOCHS" --batch $TR_BATCH |
   while read -r rate dev rows batch; do
@@ -118,34 +122,46 @@ row datagen_records_per_hour gen:5 "device=gpu samples=$DG_SAMPLES records=$DG_R
   done
 
 # 6. Memory and time at scale, every estimator (the photon map's light volumes are coarser than
-# the grid when J would not fit one storage binding; the render line says which). Peak RSS from
-# GNU time, else from Python's getrusage of the child; where nvidia-smi is there, the most GPU
-# memory in use while the command ran (sampled every 100 ms, the driver's context included).
+# the grid when J would not fit one storage binding; the render lines, in DIR/scale.log, say
+# which). Peak RSS from GNU time, else from Python's getrusage of the child; for the GPU
+# estimators where nvidia-smi is there, the most GPU memory in use while the command ran
+# (sampled every 100 ms, the driver's context included).
 . bench/peak.sh
-scale_row() { # SETTING CMD...: wall time, peak RSS and GPU memory of CMD
-  local setting=$1 t0 t1 gpid=""
-  shift
-  if command -v nvidia-smi > /dev/null; then
-    nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits -lms 100 > "$out/gpumem" &
+scale_row() { # GPU SETTING CMD...: wall time and peak RSS of CMD, and its GPU memory (GPU = 1)
+  local gpu=$1 setting=$2 t0 t1 gpid="" rc=0
+  shift 2
+  if [ "$gpu" = 1 ] && command -v nvidia-smi > /dev/null; then
+    nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits -lms 100 \
+      > "$out/gpumem" 2> /dev/null &
     gpid=$!
   fi
   t0=$(date +%s.%N)
-  peak "$out/rss" "$@" > /dev/null
+  echo "== $setting" >> "$out/scale.log"
+  peak "$out/rss" "$@" >> "$out/scale.log" 2>&1 || rc=$?
   t1=$(date +%s.%N)
-  row scale_wall_s "cumulus ${VOLRES}³ .vol" "$setting" "$(awk -v a="$t0" -v b="$t1" 'BEGIN { printf "%.1f", b - a }')" s
-  row scale_peak_rss "cumulus ${VOLRES}³ .vol" "$setting" "$(cat "$out/rss")" MB
   if [ -n "$gpid" ]; then
     kill "$gpid" 2> /dev/null || true
     wait "$gpid" 2> /dev/null || true
-    row scale_gpu_memory "cumulus ${VOLRES}³ .vol" "$setting" "$(sort -n "$out/gpumem" | tail -1)" MB
+  fi
+  if [ "$rc" != 0 ]; then
+    echo "bench/device.sh: '$setting' failed (exit $rc); its output is in $out/scale.log" >&2
+    exit "$rc"
+  fi
+  row scale_wall_s "cumulus ${VOLRES}³ .vol" "$setting" "$(awk -v a="$t0" -v b="$t1" 'BEGIN { printf "%.1f", b - a }')" s
+  row scale_peak_rss "cumulus ${VOLRES}³ .vol" "$setting" "$(cat "$out/rss" 2> /dev/null || echo "-")" MB
+  if [ -n "$gpid" ]; then
+    # The most of the numeric samples; "-" when the command ended before the first one.
+    row scale_gpu_memory "cumulus ${VOLRES}³ .vol" "$setting" \
+      "$(awk '$1 + 0 == $1 { n++; if ($1 > m) m = $1 } END { if (n) print m; else print "-" }' "$out/gpumem")" MB
   fi
 }
-scale_row "generate + write .vol" "$nimbus" generate cumulus --seed 7 --res "$VOLRES,$VOLRES,$VOLRES" \
+rm -f "$out/scale.log"
+scale_row 0 "generate + write .vol" "$nimbus" generate cumulus --seed 7 --res "$VOLRES,$VOLRES,$VOLRES" \
   -o "$out/scale.vol"
 sed -e "s|^file = .*|file = \"$(realpath "$out/scale.vol")\"|" scenes/bench/scale.toml > "$out/scenes/scale.toml"
-for m in "--method pt" "--device gpu" "--method pm" "--method rpnn --spp 2"; do
+for m in "0 --method pt" "1 --device gpu" "1 --method pm" "1 --method rpnn --spp 2"; do
   # shellcheck disable=SC2086
-  scale_row "$m" "$nimbus" render "$out/scenes/scale.toml" $m -q -o "$out/scale_img"
+  scale_row "${m%% *}" "${m#* }" "$nimbus" render "$out/scenes/scale.toml" ${m#* } -o "$out/scale_img"
 done
 rm -f "$out/scale.vol"
 

@@ -5,6 +5,7 @@
 peak() {
   local f=$1 rc
   shift
+  rm -f "$f"
   if [ -x /usr/bin/time ]; then
     rc=0
     /usr/bin/time -f "%M" -o "$f" "$@" || rc=$?

@@ -19,10 +19,9 @@ from pathlib import Path
 
 root = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(root / "training"))
-sys.path.insert(0, str(root / "training" / "tests"))
 
-from conftest import write_set  # noqa: E402
 from rpnn.data import split_indices  # noqa: E402
+from rpnn.synthetic import write_set  # noqa: E402
 
 VAL_FRACTION = 0.02
 

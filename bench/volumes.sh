@@ -55,9 +55,9 @@ measure() {
   set -e
   t1=$(date +%s.%N)
   local rss result
-  rss=$(cat "$d/rss")
+  rss=$(cat "$d/rss" 2> /dev/null || echo "-")
   if [ $rc -eq 0 ]; then result="ok"; else result="exit $rc: $(grep -m1 error "$log" | cut -c1-140)"; fi
-  printf "| %s | %s | %s | %.1f | %d | %s |\n" "$label" "$voxels" "$step" "$(awk "BEGIN { print $t1 - $t0 }")" "$rss" "$result" >> "$md"
+  printf "| %s | %s | %s | %.1f | %s | %s |\n" "$label" "$voxels" "$step" "$(awk "BEGIN { print $t1 - $t0 }")" "$rss" "$result" >> "$md"
   echo "$label / $step: $result"
 }
 
@@ -105,7 +105,9 @@ estimators() {
 # 1. The 128×96×128 cumulus, dense and sparse.
 "$nimbus" generate cumulus --seed 7 --res 128,96,128 -o "$d/c128.npy" > /dev/null
 "$nimbus" generate cumulus --seed 7 --res 128,96,128 -o "$d/c128.vol" > /dev/null
-[ -f "$d/c128.vdb" ] || /usr/bin/python3 - "$d/c128.npy" "$d/c128.vdb" <<'PY'
+# Written with pyopenvdb where it is installed; elsewhere a copy already in DIR/data is used.
+if /usr/bin/python3 -c "import pyopenvdb" 2> /dev/null || [ ! -f "$d/c128.vdb" ]; then
+/usr/bin/python3 - "$d/c128.npy" "$d/c128.vdb" <<'PY'
 import sys
 import numpy as np
 import pyopenvdb as vdb
@@ -116,6 +118,7 @@ g.name = "density"
 g.transform = vdb.createLinearTransform(voxelSize=2.0 / 128)
 vdb.write(sys.argv[2], grids=[g])
 PY
+fi
 cam_o="[0.5, 0.35, 3.4]"; cam_t="[0.0, 0.05, 0.0]"
 scene "$(realpath "$d/c128.vol")" "$d/c128_vol.toml" "" "$cam_o" "$cam_t" 60.0
 # The .vdb's box is its active voxels' (index (18..111, 10..77, 28..109) at 2/128 per voxel):
@@ -137,7 +140,7 @@ elif [ ! -f "$d/spheres.nvdb" ]; then
 fi
 for f in spheres32.vdb spheres16.vdb spheres.nvdb; do
   if [ ! -f "$d/$f" ]; then
-    echo "| three spheres $f | 6.6 G | all | – | – | not measured: no vdb_tool here to write it |" >> "$md"
+    echo "| three spheres $f | 6.6 G | all | – | – | not measured: the file is not in $d (no vdb_tool here to write it) |" >> "$md"
     continue
   fi
   scene "$(realpath "$d/$f")" "$d/$f.toml" "" "[5.0, 1.0, -2.0]" "[1.0, 0.675, 1.225]" 50.0

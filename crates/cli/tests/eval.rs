@@ -361,8 +361,16 @@ fn device_benchmark_script_small() {
     if !nimbus_gpu::testing::has_adapter("eval::device_benchmark_script_small") {
         return;
     }
-    let d = tmp("device");
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    // Step 5 trains with torch: the training environment of `training/setup.sh` (which the
+    // test script sets up before the Rust tests).
+    if !root.join("training/.venv/bin/python").exists() {
+        eprintln!(
+            "eval::device_benchmark_script_small: skipped, no training/.venv (bash training/setup.sh)"
+        );
+        return;
+    }
+    let d = tmp("device");
     let o = std::process::Command::new("bash")
         .current_dir(&root)
         .arg("bench/device.sh")

@@ -519,6 +519,9 @@ mod build_tests {
                 }
             }
         }
+        // A −0 beside the first blob, in a stored brick but outside its plane's non-zero bound:
+        // recycled plane buffers must not carry its sign into later planes.
+        data[(15 * res[1] + 13) * res[0] + 8] = -0.0;
         let aabb = Aabb::new(DVec3::ZERO, DVec3::new(0.7, 0.45, 0.83)).unwrap();
         let dense = DensityGrid::new(res, data.clone()).unwrap();
         let bricks = DensityGrid::from_bricks(brick::from_dense(res, &data, [0, 0, 0]).unwrap());
@@ -526,7 +529,18 @@ mod build_tests {
             let vol = Volume::new(grid, aabb, 30.0).unwrap();
             let (sum, count) = Pyramid::nonzero(&vol);
             let ms = vol.density_scale() * sum / count as f64;
+            // The whole-grid blur of level 0 (the build's scaling): the reference for the bits.
+            let scale = (vol.density_scale() / ms) as f32;
+            let scaled: Vec<f32> = data.iter().map(|v| v * scale).collect();
+            let level0 = whole_grid::blur(&scaled, res, 1.0);
             let want = Pyramid::build_levels(&vol, ms, true, usize::MAX).unwrap();
+            let w0 = want.levels[0].dense().expect("level 0 stored dense");
+            assert!(
+                w0.iter()
+                    .zip(&level0)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "level 0 differs in its bits from the whole-grid blur"
+            );
             // Every level with more than 1 000 cells as bricks: levels 0–2.
             let got = Pyramid::build_levels(&vol, ms, true, 1000).unwrap();
             let mut sparse = 0;

@@ -88,13 +88,17 @@ pub(super) struct Plane {
     pub(super) data: Vec<f32>,
     rect: Option<Rect>,
     nx: usize,
+    /// A bound of the values whose bits may differ from +0 (`rect` and any −0 the input held
+    /// outside it): what a recycled buffer must clear.
+    dirty: Option<Rect>,
 }
 
 // Recycled plane buffers. A level's planes are all one size; a dropped plane's buffer is
-// zeroed again only within its bound (where it can hold non-zero values), so a mostly empty
-// plane of a large sparse box is not cleared whole for every z. Planes are made and dropped
-// on the thread that drives the stream; `release_planes` empties the pool when a build ends.
-/// A recycled buffer: its values, the plane's width and the bound of its non-zero values.
+// zeroed again only within its `dirty` bound (where its bits can differ from +0), so a mostly
+// empty plane of a large sparse box is not cleared whole for every z. Planes are made and
+// dropped on the thread that drives the stream (never inside the rayon closures, which only
+// fill rows), so one pool serves a build; `release_planes` empties it when the build ends.
+/// A recycled buffer: its values, the plane's width and its `dirty` bound.
 type Recycled = (Vec<f32>, usize, Option<Rect>);
 
 thread_local! {
@@ -140,27 +144,43 @@ impl Drop for Plane {
         if data.is_empty() || self.nx == 0 {
             return;
         }
-        let rect = self.rect;
+        let dirty = self.dirty;
         POOL.with(|p| {
             let mut p = p.borrow_mut();
             if p.len() < POOL_MAX {
-                p.push((data, self.nx, rect));
+                p.push((data, self.nx, dirty));
             }
         });
     }
 }
 
 impl Plane {
+    /// A plane of any values (−0 included): the whole plane is dirty.
     pub(super) fn new(data: Vec<f32>, nx: usize) -> Self {
         let rect = Rect::of(&data, nx);
-        Self { data, rect, nx }
+        let dirty = (!data.is_empty()).then(|| Rect {
+            x: [0, nx - 1],
+            y: [0, data.len() / nx - 1],
+        });
+        Self {
+            data,
+            rect,
+            nx,
+            dirty,
+        }
     }
 
     /// A plane whose values are zero outside `bound` (inclusive x, y ranges; None: all zero):
     /// its exact bounds are found within `bound` only.
     fn within(data: Vec<f32>, nx: usize, bound: Option<([usize; 2], [usize; 2])>) -> Self {
         let rect = bound.and_then(|(bx, by)| Rect::of_within(&data, nx, bx, by));
-        Self { data, rect, nx }
+        let dirty = bound.map(|(x, y)| Rect { x, y });
+        Self {
+            data,
+            rect,
+            nx,
+            dirty,
+        }
     }
 }
 
@@ -211,8 +231,9 @@ pub(super) fn blur_plane_xy(plane: &mut Plane, nx: usize, ny: usize, k: &[f32]) 
         plane.data[y * nx + x0..y * nx + x0 + w].copy_from_slice(row);
     }
     // Rows of rc outside g cannot exist (g contains rc); rows of g outside rc were zero and
-    // now hold the blur.
+    // now hold the blur. Values the plane held outside g (−0 at most) stay dirty.
     plane.rect = Some(g);
+    plane.dirty = Rect::union(plane.dirty, Some(g));
 }
 
 /// Blurs a line `n` long, zero outside `src` (which starts at `at`), with kernel `k` and zero
@@ -450,7 +471,13 @@ impl<'a> XyWindow<'a> {
                     }
                 });
         }
-        Plane { data, rect, nx }
+        // Sums from +0 in a clean buffer: +0 or positive, written within `rect` only.
+        Plane {
+            data,
+            rect,
+            nx,
+            dirty: rect,
+        }
     }
 }
 
@@ -533,6 +560,7 @@ impl Planes for Down<'_> {
                 data: out,
                 rect: None,
                 nx: nr[0],
+                dirty: None,
             };
         };
         // The new cells whose footprint meets the input's non-zero bound.
@@ -576,6 +604,7 @@ impl Planes for Down<'_> {
             data: out,
             rect: Some(rect),
             nx: nr[0],
+            dirty: Some(rect),
         }
     }
 }
