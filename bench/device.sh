@@ -18,8 +18,12 @@
 #
 # On an H200 the full run took 134 s (2026-12-04). `--small` runs the same steps at reduced
 # sizes (1/8 of the pixels, fewer frames and records) so lavapipe finishes in about a minute;
-# the tests run it that way. The binary is ./target/release/nimbus (or $NIMBUS). Writes
-# DIR/device.csv and DIR/device.md (default DIR: out/device).
+# the tests run it that way. The binary is ./target/release/nimbus (or $NIMBUS: the release
+# profile keeps debug info for profiling, ≈ 110 MB; `strip -o` makes a 15 MB copy to carry to
+# another machine). Needs the shared references' cumulus.vol where scenes/refs/cumulus_side.toml
+# points (step 3) and a python with torch ($PYTHON, else training/.venv, else python3; step 5).
+# Writes DIR/device.csv, DIR/device.md and the scale renders' output DIR/scale.log (default
+# DIR: out/device).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 small=0
@@ -28,7 +32,7 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --small) small=1 ;;
     --out) out="$2"; shift ;;
-    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,26p' "$0"; exit 0 ;;
     *) echo "bench/device.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
   shift
