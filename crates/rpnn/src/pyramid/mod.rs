@@ -76,6 +76,32 @@ impl Level {
         }
     }
 
+    /// The eight cells of a trilinear lookup between corners `a` and `b` (per axis the lower
+    /// and upper index, equal at a clamped edge), x fastest: `[a.x a.y a.z, b.x a.y a.z,
+    /// a.x b.y a.z, b.x b.y a.z, a.x a.y b.z, …]`. One dispatch on the storage for all eight
+    /// (the descriptor's inner loop reads them 2 250 times per query).
+    #[inline]
+    fn corners(&self, a: [usize; 3], b: [usize; 3]) -> [f32; 8] {
+        match &self.cells {
+            Cells::Dense(d) => {
+                let (nx, ny) = (self.res[0], self.res[1]);
+                let row = |y: usize, z: usize| (z * ny + y) * nx;
+                let rows = [
+                    row(a[1], a[2]),
+                    row(b[1], a[2]),
+                    row(a[1], b[2]),
+                    row(b[1], b[2]),
+                ];
+                std::array::from_fn(|k| d[rows[k / 2] + if k % 2 == 0 { a[0] } else { b[0] }])
+            }
+            Cells::Sparse(g) => std::array::from_fn(|k| {
+                let pick = |bit: usize, axis: usize| if k & bit == 0 { a[axis] } else { b[axis] };
+                g.get(pick(1, 0), pick(2, 1), pick(4, 2))
+            }),
+            Cells::Absent => panic!("pyramid level {:?} is not stored", self.res),
+        }
+    }
+
     /// Bytes held.
     pub fn bytes(&self) -> usize {
         match &self.cells {
@@ -324,12 +350,13 @@ impl Pyramid {
         let hi = resf.as_vec3() - glam::Vec3::ONE;
         let i0 = b.clamp(glam::Vec3::ZERO, hi);
         let i1 = (b + glam::Vec3::ONE).clamp(glam::Vec3::ZERO, hi);
-        let at = |x: f32, y: f32, z: f32| l.get(x as usize, y as usize, z as usize);
+        let idx = |v: glam::Vec3| [v.x as usize, v.y as usize, v.z as usize];
+        let c = l.corners(idx(i0), idx(i1));
         let mix = |a: f32, b: f32, t: f32| a * (1.0 - t) + b * t;
-        let c00 = mix(at(i0.x, i0.y, i0.z), at(i1.x, i0.y, i0.z), f.x);
-        let c10 = mix(at(i0.x, i1.y, i0.z), at(i1.x, i1.y, i0.z), f.x);
-        let c01 = mix(at(i0.x, i0.y, i1.z), at(i1.x, i0.y, i1.z), f.x);
-        let c11 = mix(at(i0.x, i1.y, i1.z), at(i1.x, i1.y, i1.z), f.x);
+        let c00 = mix(c[0], c[1], f.x);
+        let c10 = mix(c[2], c[3], f.x);
+        let c01 = mix(c[4], c[5], f.x);
+        let c11 = mix(c[6], c[7], f.x);
         mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z)
     }
 
@@ -495,6 +522,29 @@ mod build_tests {
         assert_eq!(level_resolutions([1, 1, 1]).len(), 1);
     }
 
+    /// `Pyramid::lookup` as eight separate `Level::get` reads (the arithmetic of the shader).
+    fn per_cell_lookup(pyr: &Pyramid, i: usize, p: glam::Vec3) -> f32 {
+        let (lo, hi) = (pyr.aabb_min.as_vec3(), pyr.aabb_max.as_vec3());
+        if !(p.cmpge(lo).all() && p.cmple(hi).all()) {
+            return 0.0;
+        }
+        let l = &pyr.levels[i];
+        let res = glam::Vec3::new(l.res[0] as f32, l.res[1] as f32, l.res[2] as f32);
+        let u = (p - lo) / (hi - lo) * res - glam::Vec3::splat(0.5);
+        let b = u.floor();
+        let f = u - b;
+        let top = res - glam::Vec3::ONE;
+        let i0 = b.clamp(glam::Vec3::ZERO, top);
+        let i1 = (b + glam::Vec3::ONE).clamp(glam::Vec3::ZERO, top);
+        let at = |x: f32, y: f32, z: f32| l.get(x as usize, y as usize, z as usize);
+        let mix = |a: f32, b: f32, t: f32| a * (1.0 - t) + b * t;
+        let c00 = mix(at(i0.x, i0.y, i0.z), at(i1.x, i0.y, i0.z), f.x);
+        let c10 = mix(at(i0.x, i1.y, i0.z), at(i1.x, i1.y, i0.z), f.x);
+        let c01 = mix(at(i0.x, i0.y, i1.z), at(i1.x, i0.y, i1.z), f.x);
+        let c11 = mix(at(i0.x, i1.y, i1.z), at(i1.x, i1.y, i1.z), f.x);
+        mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z)
+    }
+
     /// Levels stored as bricks hold the dense levels' values bit for bit (every cell, the
     /// lookups, the masses to rounding), from a dense grid and from bricks, and a small cloud in
     /// a large box stores a fraction of the dense bytes.
@@ -571,6 +621,9 @@ mod build_tests {
                 let p = glam::Vec3::new(0.7 * t, 0.45 * (1.0 - t), 0.83 * (t * 7.0).fract());
                 for i in 0..3 {
                     assert_eq!(got.lookup(i, p).to_bits(), want.lookup(i, p).to_bits());
+                    // The eight-corner fetch against eight single reads, edges included.
+                    let r = per_cell_lookup(&got, i, p);
+                    assert_eq!(got.lookup(i, p).to_bits(), r.to_bits(), "level {i} at {p}");
                 }
             }
         }
