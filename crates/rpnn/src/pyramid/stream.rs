@@ -124,8 +124,8 @@ fn zeroed(nx: usize, ny: usize) -> Vec<f32> {
                 }
             }
             debug_assert!(
-                b.iter().all(|&v| v == 0.0),
-                "a plane held values outside its bound"
+                b.iter().all(|&v| v.to_bits() == 0),
+                "a plane held values outside its dirty bound"
             );
             b
         }
@@ -606,5 +606,49 @@ impl Planes for Down<'_> {
             nx: nr[0],
             dirty: Some(rect),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A recycled buffer comes back with every bit zero: a −0 the plane held inside what it
+    /// wrote but outside its non-zero values is cleared too (the pool clears `dirty`, not
+    /// `rect`).
+    #[test]
+    fn recycled_planes_come_back_all_zero_bits() {
+        release_planes();
+        let (nx, ny) = (16, 12);
+        let mut data = zeroed(nx, ny);
+        data[3 * nx + 4] = 2.0; // the plane's only non-zero value
+        data[10 * nx + 14] = -0.0; // written, but not a non-zero value
+        let ptr = data.as_ptr();
+        let p = Plane::within(data, nx, Some(([2, 15], [1, 11])));
+        assert_eq!(
+            p.rect,
+            Some(Rect {
+                x: [4, 4],
+                y: [3, 3]
+            })
+        );
+        drop(p);
+        let b = zeroed(nx, ny);
+        assert_eq!(b.as_ptr(), ptr, "the dropped plane's buffer is reused");
+        assert!(b.iter().all(|v| v.to_bits() == 0));
+        // A blurred plane keeps what it held outside its new bound dirty as well.
+        let mut data = b;
+        data[5 * nx + 6] = 1.0;
+        data[0] = -0.0;
+        let mut p = Plane::within(data, nx, Some(([0, 15], [0, 11])));
+        blur_plane_xy(&mut p, nx, ny, &gauss_kernel(1.0));
+        assert!(
+            p.rect.is_some_and(|r| r.x[0] > 0 && r.y[0] > 0),
+            "{:?}",
+            p.rect
+        );
+        drop(p);
+        assert!(zeroed(nx, ny).iter().all(|v| v.to_bits() == 0));
+        release_planes();
     }
 }
