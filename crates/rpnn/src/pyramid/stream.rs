@@ -206,7 +206,7 @@ pub(super) fn blur_plane_xy(plane: &mut Plane, nx: usize, ny: usize, k: &[f32]) 
             let src = &row[rc.x[0]..=rc.x[1]];
             if src.iter().any(|&v| v != 0.0) {
                 let src = src.to_vec();
-                blur_span(&src, rc.x[0], nx, k, row, g.x[0], g.x[1]);
+                blur_span(&src, rc.x[0], k, row, g.x[0], g.x[1]);
             }
         });
     // y pass: rows g.y of the result from rows rc.y of the x-blurred plane, columns g.x.
@@ -220,10 +220,11 @@ pub(super) fn blur_plane_xy(plane: &mut Plane, nx: usize, ny: usize, k: &[f32]) 
             if o < rc.y[0] as i64 || o > rc.y[1] as i64 {
                 continue; // a zero row (or outside the plane): every term +0
             }
-            let src = &plane_ro[o as usize * nx + x0..o as usize * nx + x0 + w];
-            for (a, s) in acc.iter_mut().zip(src) {
-                *a += wgt * s;
-            }
+            add_tap(
+                acc,
+                *wgt,
+                &plane_ro[o as usize * nx + x0..o as usize * nx + x0 + w],
+            );
         }
     });
     for (i, row) in out.chunks(w).enumerate() {
@@ -236,16 +237,24 @@ pub(super) fn blur_plane_xy(plane: &mut Plane, nx: usize, ny: usize, k: &[f32]) 
     plane.dirty = Rect::union(plane.dirty, Some(g));
 }
 
-/// Blurs a line `n` long, zero outside `src` (which starts at `at`), with kernel `k` and zero
+/// `acc[i] += w · src[i]`: one tap of a blur over a contiguous run of outputs (vectorisable;
+/// each output still adds its taps in the order the caller takes them).
+#[inline]
+fn add_tap(acc: &mut [f32], w: f32, src: &[f32]) {
+    for (a, v) in acc.iter_mut().zip(src) {
+        *a += w * v;
+    }
+}
+
+/// Blurs a line, zero outside `src` (which starts at `at`), with kernel `k` and zero
 /// padding into `dst[lo..=hi]` (the rest of `dst` is untouched). Taps in kernel order: the
 /// accumulation order of every blur in this module; the zero taps are skipped (+0 changes no
 /// sum of non-negative terms), so computing only where the result can be non-zero changes no
 /// value.
 #[inline]
-fn blur_span(src: &[f32], at: usize, n: usize, k: &[f32], dst: &mut [f32], lo: usize, hi: usize) {
+fn blur_span(src: &[f32], at: usize, k: &[f32], dst: &mut [f32], lo: usize, hi: usize) {
     let r = k.len() as i64 / 2;
     let (a, b) = (at as i64, (at + src.len()) as i64);
-    debug_assert!(b <= n as i64);
     let out = &mut dst[lo..=hi];
     out.fill(0.0);
     // Tap by tap over the outputs it reaches (contiguous, vectorisable): every output still
@@ -260,9 +269,7 @@ fn blur_span(src: &[f32], at: usize, n: usize, k: &[f32], dst: &mut [f32], lo: u
         let s0 = (c0 + shift - a) as usize;
         let len = (c1 - c0 + 1) as usize;
         let o0 = (c0 - lo as i64) as usize;
-        for (o, v) in out[o0..o0 + len].iter_mut().zip(&src[s0..s0 + len]) {
-            *o += w * v;
-        }
+        add_tap(&mut out[o0..o0 + len], w, &src[s0..s0 + len]);
     }
 }
 
@@ -464,10 +471,7 @@ impl<'a> XyWindow<'a> {
                     // Tap by tap over the row (contiguous): each value sums its taps in order.
                     let acc = &mut row[u.x[0]..=u.x[1]];
                     for (w, t) in &taps {
-                        let src = &t.data[y * nx + u.x[0]..=y * nx + u.x[1]];
-                        for (a, v) in acc.iter_mut().zip(src) {
-                            *a += w * v;
-                        }
+                        add_tap(acc, *w, &t.data[y * nx + u.x[0]..=y * nx + u.x[1]]);
                     }
                 });
         }
