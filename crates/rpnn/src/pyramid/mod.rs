@@ -247,7 +247,8 @@ impl Pyramid {
         // input, r = 3σ: 8 planes of level 0 for its blur, then 17 for each halving, each a
         // quarter the size of the one before): no whole-grid temporaries, no dense copy of a
         // sparse grid. A sparse level counts its brick index here; its bricks are checked
-        // against the budget as they are stored.
+        // against the budget as they are stored. The windows come to ≈ 14 level-0 planes; the
+        // 40 counted also cover the recycled planes the stream keeps (`stream::POOL_MAX`, 16).
         let level_bytes: u128 = resolutions[first..]
             .iter()
             .map(|r| {
@@ -259,7 +260,9 @@ impl Pyramid {
                 }
             })
             .sum();
-        let window_bytes = 40 * (x * y) as u128 * 4;
+        const WINDOW_PLANES: usize = 40;
+        const _: () = assert!(14 + stream::POOL_MAX <= WINDOW_PLANES);
+        let window_bytes = (WINDOW_PLANES * x * y) as u128 * 4;
         let what = format!("the RPNN density pyramid of a {x}×{y}×{z} grid");
         nimbus_scene::memory::check(level_bytes + window_bytes, "volume", &what)?;
         let store = |p: &mut dyn Planes| -> Result<Cells, PyramidError> {

@@ -106,7 +106,7 @@ thread_local! {
 }
 
 /// Most buffers the pool keeps (a few planes' worth beyond the filters' windows).
-const POOL_MAX: usize = 16;
+pub(super) const POOL_MAX: usize = 16;
 
 /// A buffer of `nx × ny` zeros, recycled when the pool has one of that shape.
 fn zeroed(nx: usize, ny: usize) -> Vec<f32> {
