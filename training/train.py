@@ -15,6 +15,11 @@ records and export it to ONNX.
   after every step; it is what is validated, kept and exported. With noisy labels the iterates
   scatter about the minimiser and their average lies closer to it than any one of them. 0 (the
   default) is off, as the paper trains.
+- ``--blend-init W`` (with ``--init``): exports (1 - W) x the starting weights + W x the trained
+  ones, weight-space interpolation between a model and its fine-tuning (WiSE-FT, Wortsman et al.
+  2022): a fine-tuning set that differs from the first one moves the network towards it, and
+  the blend keeps part of what the first set taught. The card's per-record errors are the
+  blend's.
 - ``--mirror`` (default): each minibatch mirrors a random half of its rows across the plane of
   the view and light directions (stencil ix -> 4 - ix): a free second record.
 - ``--axis-turns DEG``: rows within DEG degrees of gamma = 0 or 180 (view parallel to the light,
@@ -116,6 +121,11 @@ def parse_args(argv=None):
     p.add_argument("--ema", type=float, default=0.0, metavar="DECAY",
                    help="validate, keep and export an exponential moving average of the weights "
                         "with this decay per step (e.g. 0.999; 0: off)")
+    p.add_argument("--blend-init", type=float, default=1.0, metavar="W",
+                   help="export (1 - W) x the starting weights (--init) + W x the trained ones: "
+                        "weight-space interpolation between a model and its fine-tuning "
+                        "(WiSE-FT, Wortsman et al. 2022), which keeps what the starting weights "
+                        "learnt of clouds the new set under-represents (1: the trained weights)")
     p.add_argument("--resume", action="store_true", help="continue from <run>/last.pt")
     p.add_argument("--preload", default="auto", choices=["auto", "yes", "no"],
                    help="copy the records into memory (GPU memory on CUDA) instead of reading "
@@ -141,6 +151,8 @@ def parse_args(argv=None):
         p.error(f"--rel-eps must be positive, got {args.rel_eps}")
     if args.init is not None and not args.init.is_file():
         p.error(f"--init {args.init}: no such file")
+    if not 0.0 <= args.blend_init <= 1.0:
+        p.error(f"--blend-init must lie in [0, 1], got {args.blend_init}")
     return args
 
 
@@ -628,6 +640,17 @@ def _train(args, dist: Dist, device) -> dict:
     return result
 
 
+def blend_with_init(model: RPNN, state: dict, w: float) -> dict:
+    """(1 - w) x the run's starting weights + w x ``model``'s (``--blend-init``)."""
+    init = (state.get("init") or {}).get("path")
+    if not init:
+        raise SystemExit("--blend-init needs a run that started from --init weights")
+    start = RPNN(**model.config())
+    load_init(start, Path(init))
+    a, b = start.state_dict(), model.state_dict()
+    return {k: (1.0 - w) * a[k] + w * b[k] if b[k].is_floating_point() else b[k] for k in b}
+
+
 def export(args, result, val_source, val_idx, test_recs, device) -> dict:
     best = args.run / "best.pt"
     if not best.exists():
@@ -635,6 +658,9 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
     ck = torch.load(best, map_location="cpu", weights_only=False)
     model = RPNN(**ck["config"])
     model.load_state_dict(ck["model"])
+    if args.blend_init < 1.0:
+        ck["model"] = blend_with_init(model, result["state"], args.blend_init)
+        model.load_state_dict(ck["model"])
     m = result["manifest"]
     rexport.export_onnx(model, args.export, {
         "nimbus.rpnn.phase": m.get("settings", {}).get("phase", "unknown"),
@@ -698,7 +724,8 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
                  "convergence_rate": m.get("convergence_rate")},
         "training": {"loss": args.loss,
                      "rel_eps": args.rel_eps if args.loss == "rel-l2" else None,
-                     "init": s.get("init"), "mirror": args.mirror, "ema": args.ema,
+                     "init": s.get("init"), "blend_init": args.blend_init,
+                     "mirror": args.mirror, "ema": args.ema,
                      "axis_turns_deg": args.axis_turns, "schedule": args.schedule,
                      "steps": s["epoch"] * -(-result["fit"] // args.batch),
                      "epochs": s["epoch"], "best_epoch": s["best_epoch"],

@@ -143,7 +143,11 @@ def import_onnx(model: torch.nn.Module, path: Path) -> None:
                            weights.items()})
     x = np.random.default_rng(0).random((64, model.input_len), dtype=np.float32)
     check = verify(model, path, x)
-    if not check["passed"]:
+    # Random rows are no cloud's descriptor: the network's outputs there are near 0 (0 … 0.01
+    # against ≈ 0.05 on real records), left by cancellation, where fp32 summation order alone
+    # moves them by up to ≈ 2e-5 relative (seen on a weight-space blend); a weight imported
+    # wrongly moves them by O(1). The export check (`verify` on real records) keeps 1e-5.
+    if check["max_relative_difference"] >= 1e-4:
         raise ValueError(f"{path}: imported weights differ from onnxruntime by "
                          f"{check['max_relative_difference']:.2e}")
 
@@ -260,6 +264,10 @@ def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
         + f", seed {t['seed']}, device {t['device']}, "
         f"{t['seconds']:.0f} s.",
         *init_lines(t.get("init")),
+        *([f"- Exported weights: {1 - t['blend_init']:g} × the starting weights + "
+           f"{t['blend_init']:g} × the trained ones (`--blend-init`, WiSE-FT); the losses below "
+           f"are the trained weights', the per-record errors the exported ones'."]
+          if t.get("blend_init", 1.0) < 1.0 else []),
         (f"- Exported: the last epoch (`--select last`), validation loss "
          f"{t['best_val_loss']:.4g} (epoch {t['best_epoch']}); "
          if t.get("select") == "last" else

@@ -128,6 +128,58 @@ def test_fine_tuning_stage_starts_from_the_exported_model(record_set, tmp_path):
     assert "Fine-tuned from" in md and "3 epochs" in md and "+ 0.003)²" in md
 
 
+def test_blend_init_exports_the_interpolated_weights(record_set, tmp_path):
+    common = ["--data", str(record_set), "--width", "16", "--batch", "200", "--device", "cpu",
+              "--quiet", "--select", "last"]
+    start = tmp_path / "start.onnx"
+    train.train(train.parse_args([*common, "--run", str(tmp_path / "s"), "--epochs", "2",
+                                  "--export", str(start)]))
+    blended = tmp_path / "blended.onnx"
+    train.train(train.parse_args([*common, "--epochs", "2", "--init", str(start),
+                                  "--run", str(tmp_path / "b"), "--export", str(blended),
+                                  "--blend-init", "0.25"]))
+    w = {"tuned": RPNN(width=16)}
+    w["tuned"].load_state_dict(torch.load(tmp_path / "b" / "best.pt", weights_only=False)["model"])
+    for name, path in (("start", start), ("blended", blended)):
+        w[name] = RPNN(width=16)
+        rexport.import_onnx(w[name], path)
+    a, b, c = (w[k].state_dict() for k in ("start", "tuned", "blended"))
+    moved = 0
+    for k in a:
+        # 0.75 a + 0.25 b in float32: a few ulps of the larger term.
+        np.testing.assert_allclose(c[k], 0.75 * a[k] + 0.25 * b[k], rtol=1e-5, atol=1e-6)
+        moved += int(not torch.allclose(a[k], b[k]))
+    assert moved > 0  # the fine-tuning changed the weights, so the blend is a real mixture
+    card = json.loads(blended.with_suffix(".json").read_text())
+    assert card["training"]["blend_init"] == 0.25
+    assert "0.75 × the starting weights + 0.25 × the trained ones" in \
+        blended.with_suffix(".md").read_text()
+    # Without a starting point there is nothing to blend with; out of range is refused.
+    with pytest.raises(SystemExit, match="--blend-init needs a run that started from --init"):
+        train.train(train.parse_args([*common, "--run", str(tmp_path / "n"), "--epochs", "1",
+                                      "--export", str(tmp_path / "n.onnx"),
+                                      "--blend-init", "0.5"]))
+    for bad in ("1.5", "-0.1", "nan"):
+        with pytest.raises(SystemExit):
+            train.parse_args([*common, "--run", str(tmp_path / "x"), "--blend-init", bad])
+
+
+def test_import_check_refuses_a_real_mismatch(tmp_path, monkeypatch):
+    m = RPNN(width=24)
+    path = tmp_path / "m.onnx"
+    rexport.export_onnx(m, path)
+    # A weight imported wrongly moves the outputs by O(1): simulate it by a check that sees
+    # 1e-3, refused; 5e-5 (float32 order on near-zero outputs) passes.
+    for seen, refused in ((1e-3, True), (5e-5, False)):
+        monkeypatch.setattr(rexport, "verify", lambda *a, d=seen: {
+            "rows": 64, "max_relative_difference": d, "passed": d < 1e-5})
+        if refused:
+            with pytest.raises(ValueError, match="m.onnx: imported weights differ"):
+                rexport.import_onnx(RPNN(width=24), path)
+        else:
+            rexport.import_onnx(RPNN(width=24), path)
+
+
 def test_evaluate_reports_the_card_errors_and_the_label_noise(record_set, tmp_path):
     import evaluate
     onnx_path = tmp_path / "m.onnx"
