@@ -11,7 +11,8 @@
 //!   finer octaves of cellular billows (cauliflower tops), eroded at the edges by fine cellular
 //!   detail that is wispy near the flat base and billowy above — the production recipe of
 //!   Schneider & Vos 2015 applied to a shape (see [`cellular`]). `cumulus` keeps the smooth heap
-//!   that the shipped network's training set and the bench clouds were generated with.
+//!   that the shipped network's first training set and the bench clouds were generated with
+//!   (the network's last stage adds a set of a third congestus).
 //!
 //! All grids are normalised so that their maximum is 1 (the scene's `density_scale` then sets
 //! σ_t), and the outermost voxel layer is zero so the cloud never touches its box. Generation is
