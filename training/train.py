@@ -646,7 +646,13 @@ def blend_with_init(model: RPNN, state: dict, w: float) -> dict:
     if not init:
         raise SystemExit("--blend-init needs a run that started from --init weights")
     start = RPNN(**model.config())
-    load_init(start, Path(init))
+    info = load_init(start, Path(init))
+    if info["sha256"] != state["init"].get("sha256"):
+        # e.g. the export replaced the model the run started from: blending with the new file
+        # would silently blend the wrong weights.
+        was = state["init"].get("sha256") or "?"
+        raise SystemExit(f"--blend-init: {init} is no longer the file this run started from "
+                         f"(sha256 {info['sha256'][:16]}…, the run's {was[:16]}…)")
     a, b = start.state_dict(), model.state_dict()
     return {k: (1.0 - w) * a[k] + w * b[k] if b[k].is_floating_point() else b[k] for k in b}
 

@@ -154,6 +154,13 @@ def test_blend_init_exports_the_interpolated_weights(record_set, tmp_path):
     assert card["training"]["blend_init"] == 0.25
     assert "0.75 × the starting weights + 0.25 × the trained ones" in \
         blended.with_suffix(".md").read_text()
+    # A starting file replaced since the run began is refused, not blended.
+    train.train(train.parse_args([*common, "--run", str(tmp_path / "s"), "--epochs", "3",
+                                  "--export", str(start), "--resume"]))
+    with pytest.raises(SystemExit, match="no longer the file this run started from"):
+        train.train(train.parse_args([*common, "--epochs", "2", "--init", str(start), "--resume",
+                                      "--run", str(tmp_path / "b"), "--export", str(blended),
+                                      "--blend-init", "0.25"]))
     # Without a starting point there is nothing to blend with; out of range is refused.
     with pytest.raises(SystemExit, match="--blend-init needs a run that started from --init"):
         train.train(train.parse_args([*common, "--run", str(tmp_path / "n"), "--epochs", "1",
