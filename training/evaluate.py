@@ -40,7 +40,14 @@ def main(argv=None) -> dict:
                         "the fixed-count records of one cloud read from a folder (`nimbus "
                         "datagen --clouds DIR --samples 4096 …`), whose per-gamma mean ratio "
                         "is the network's bias on that cloud")
+    p.add_argument("--card", action="store_true",
+                   help="add the test split's errors to the model's card (<model>.json and .md) "
+                        "as a further held-out set, replacing an entry for the same set: the "
+                        "card then shows held-out clouds beyond its own test set (e.g. sets no "
+                        "stage selected on)")
     args = p.parse_args(argv)
+    if args.card and args.split and args.split != ["test"]:
+        p.error("--card records the test split only (drop --split or give --split test)")
     meta = {m.key: m.value for m in __import__("onnx").load(str(args.model)).metadata_props}
     config = json.loads(meta.get("nimbus.rpnn.config", "{}")) or {}
     try:
@@ -72,9 +79,38 @@ def main(argv=None) -> dict:
         for line in rexport.record_error_lines({name: err})[1:]:
             if line.strip():
                 print(line)
+    if args.card:
+        add_to_card(args.model, args.data, result.get("test"))
     if args.json:
         args.json.write_text(json.dumps(result, indent=1))
     return result
+
+
+def add_to_card(model: Path, root: Path, err: dict | None) -> None:
+    """Records ``err`` (a test split's errors) in the model's card as a further held-out set,
+    named by its folder, manifest hash, seed and label settings; the same set (manifest hash)
+    replaces its earlier entry."""
+    card_path = model.with_suffix(".json")
+    if not card_path.exists():
+        raise SystemExit(f"error: {card_path}: no model card next to {model} (--card)")
+    if not err:
+        raise SystemExit(f"error: {root}: no test records to add to the card")
+    card = json.loads(card_path.read_text())
+    m = rdata.read_manifest(root)
+    # The same check as train.py --test-data: same phase function and albedo, no shared cloud.
+    train.check_test_set({"settings": {k: card["data"].get(k) for k in ("phase", "albedo")},
+                          "clouds": card["data"].get("clouds", [])}, m, root)
+    st = m.get("settings", {})
+    entry = {"root": str(root), "manifest_sha256": rdata.manifest_hash(root),
+             "seed": st.get("seed"), "eval_samples": st.get("eval_samples"),
+             "eval_noise": st.get("eval_noise"), "gpu": st.get("gpu", False),
+             "test_clouds": [c.get("split") for c in m.get("clouds", [])].count("test"),
+             "errors": err}
+    sets = [e for e in card.get("further_test_sets", [])
+            if e.get("manifest_sha256") != entry["manifest_sha256"]]
+    card["further_test_sets"] = sets + [entry]
+    rexport.write_card(model, card)
+    print(f"added to {card_path} and {model.with_suffix('.md')}")
 
 
 if __name__ == "__main__":

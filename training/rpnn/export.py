@@ -181,7 +181,21 @@ def record_error_lines(errors: dict | None) -> list[str]:
     return out
 
 
-def test_set_lines(ts: dict | None) -> list[str]:
+def further_test_set_lines(sets: list | None) -> list[str]:
+    """The card's section on held-out sets scored after training (``evaluate.py --card``)."""
+    if not sets:
+        return []
+    out = ["## Per-record error on further held-out sets (`evaluate.py --card`)", ""]
+    for ts in sets:
+        out.extend(test_set_lines(ts, "none of them a training cloud of this stage's set "
+                                      "(checked)"))
+        out.extend("  " + line for line in record_error_lines({"test": ts["errors"]})[2:]
+                   if line.strip())
+    out.append("")
+    return out
+
+
+def test_set_lines(ts: dict | None, held_out: str = "none of them a training cloud") -> list[str]:
     """The card's line on a separate test set (``train.py --test-data``; none without one)."""
     if not ts:
         return []
@@ -189,9 +203,11 @@ def test_set_lines(ts: dict | None) -> list[str]:
               f"relative standard error of {ts['eval_noise']:g} (capped), the label is their "
               f"mean (unbiased)" if ts.get("eval_noise") else
               f"{ts.get('eval_samples') or 'converged'} samples each")
+    if ts.get("gpu"):
+        labels += ", by the GPU path tracer"
     return [f"- Test records from `{ts['root']}` (manifest sha256 `{ts['manifest_sha256']}`, "
-            f"seed {ts.get('seed')}): {ts.get('test_clouds')} held-out clouds, none of them a "
-            f"training cloud; labels: {labels}."]
+            f"seed {ts.get('seed')}): {ts.get('test_clouds')} held-out clouds, {held_out}; "
+            f"labels: {labels}."]
 
 
 def init_lines(init: dict | None) -> list[str]:
@@ -276,6 +292,7 @@ def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
         *test_set_lines(d.get("test_set")),
         "",
         *record_error_lines(card.get("record_errors")),
+        *further_test_set_lines(card.get("further_test_sets")),
         "## Export check",
         f"- onnxruntime vs torch on {e['rows']} real records: max relative difference "
         f"{e['max_relative_difference']:.2e} ({'passed' if e['passed'] else 'FAILED'}, bound 1e-5).",

@@ -221,6 +221,52 @@ def test_evaluate_reports_the_card_errors_and_the_label_noise(record_set, tmp_pa
         evaluate.main(["--data", str(tmp_path / "none"), "--model", str(onnx_path)])
 
 
+def test_evaluate_card_adds_further_held_out_sets(record_set, tmp_path):
+    import evaluate
+    from rpnn.synthetic import write_set
+    onnx_path = tmp_path / "m.onnx"
+    train.train(train.parse_args([
+        "--data", str(record_set), "--run", str(tmp_path / "run"), "--width", "16",
+        "--epochs", "1", "--batch", "200", "--device", "cpu", "--quiet",
+        "--export", str(onnx_path)]))
+    own = json.loads(onnx_path.with_suffix(".json").read_text())["record_errors"]
+
+    def further(name, seed, cloud):
+        root = write_set(tmp_path / name, 0, 300, seed=seed)
+        m = json.loads((root / "manifest.json").read_text())
+        m["clouds"] = [cloud]
+        m["settings"]["gpu"] = True
+        (root / "manifest.json").write_text(json.dumps(m))
+        return root
+
+    other = further("other", 4, {"name": "c", "split": "test", "seed": 9})
+    res = evaluate.main(["--data", str(other), "--model", str(onnx_path), "--card"])
+    card = json.loads(onnx_path.with_suffix(".json").read_text())
+    (entry,) = card["further_test_sets"]
+    assert entry["errors"]["median_rel_error"] == res["test"]["median_rel_error"]
+    assert (entry["seed"], entry["test_clouds"], entry["gpu"]) == (4, 1, True)
+    assert card["record_errors"] == own  # the run's own figures stay
+    md = onnx_path.with_suffix(".md").read_text()
+    assert "## Per-record error on further held-out sets" in md
+    assert (f"test: 300 records, median relative error "
+            f"{100 * res['test']['median_rel_error']:.1f} %") in md
+    assert "seed 4): 1 held-out clouds" in md and "by the GPU path tracer" in md
+    # The same set again replaces its entry; another set is added beside it.
+    evaluate.main(["--data", str(other), "--model", str(onnx_path), "--card"])
+    evaluate.main(["--data", str(further("more", 7, {"name": "d", "split": "test", "seed": 11})),
+                   "--model", str(onnx_path), "--card"])
+    card = json.loads(onnx_path.with_suffix(".json").read_text())
+    assert [e["seed"] for e in card["further_test_sets"]] == [4, 7]
+    # A set whose test cloud is a training cloud of the model's set: refused, named.
+    shared = further("shared", 5, {"name": "b", "split": "test"})
+    with pytest.raises(SystemExit, match=r"test clouds \['b'\] are training clouds"):
+        evaluate.main(["--data", str(shared), "--model", str(onnx_path), "--card"])
+    with pytest.raises(SystemExit):
+        evaluate.main(["--data", str(other), "--model", str(onnx_path), "--card", "--split",
+                       "val"])
+    assert len(json.loads(onnx_path.with_suffix(".json").read_text())["further_test_sets"]) == 2
+
+
 def test_mean_ratio_by_gamma_is_the_bias_at_that_angle(record_set):
     # A "model" that is the synthetic truth times 1.1 below gamma = 90° and 0.9 above: every
     # 30° bin reports exactly its factor (the bins split at 90°), with a small standard error.
