@@ -48,7 +48,7 @@ TRAIN_DEVICE=${TRAIN_DEVICE:-cuda}
 if [ "$small" = 1 ]; then
   CLOUDS=gen:12:congestus,cumulus,stratus,congestus,cirrus,mixture; SAMPLES=16; VAL_RECORDS=40
   RECORDS_STEP=200; MAX_RECORDS=400; TEST_RECORDS=10; TRAIN_DEVICE=cpu; TRAIN_RATE=2000
-  PRECISE_NOISE=0.5; BLENDS="1 0.5"; TEST_CLOUDS=gen:10; MAX_SAMPLES=4096
+  PRECISE_NOISE=0.5; BLENDS=0.5; TEST_CLOUDS=gen:10; MAX_SAMPLES=4096
   # The card's test figures from this run's own test set (no seed-0 set on a fresh machine).
   TEST_PRECISE=$out/seed$(echo "$TEST_SEEDS" | cut -d' ' -f1)-test-precise
 fi
