@@ -187,13 +187,18 @@ def test_import_check_refuses_a_real_mismatch(tmp_path, monkeypatch):
             rexport.import_onnx(RPNN(width=24), path)
 
 
-def test_evaluate_reports_the_card_errors_and_the_label_noise(record_set, tmp_path):
-    import evaluate
-    onnx_path = tmp_path / "m.onnx"
+def small_model(record_set, tmp_path, onnx_path):
+    """One epoch of a width-16 network on the synthetic set, exported with its card."""
     train.train(train.parse_args([
         "--data", str(record_set), "--run", str(tmp_path / "run"), "--width", "16",
         "--epochs", "1", "--batch", "200", "--device", "cpu", "--quiet",
         "--export", str(onnx_path)]))
+
+
+def test_evaluate_reports_the_card_errors_and_the_label_noise(record_set, tmp_path):
+    import evaluate
+    onnx_path = tmp_path / "m.onnx"
+    small_model(record_set, tmp_path, onnx_path)
     # Labels with a known relative noise of 4 %: variance of the mean = (0.04 y)².
     m = json.loads((record_set / "manifest.json").read_text())
     for s in m["shards"]:
@@ -225,10 +230,7 @@ def test_evaluate_card_adds_further_held_out_sets(record_set, tmp_path):
     import evaluate
     from rpnn.synthetic import write_set
     onnx_path = tmp_path / "m.onnx"
-    train.train(train.parse_args([
-        "--data", str(record_set), "--run", str(tmp_path / "run"), "--width", "16",
-        "--epochs", "1", "--batch", "200", "--device", "cpu", "--quiet",
-        "--export", str(onnx_path)]))
+    small_model(record_set, tmp_path, onnx_path)
     own = json.loads(onnx_path.with_suffix(".json").read_text())["record_errors"]
 
     def further(name, seed, cloud):
