@@ -13,9 +13,12 @@
 # log, curves) and OUTDIR/w<W>/rpnn-hg.onnx + card for each blend W in BLENDS, and scores the
 # starting model and each export on those records (evaluate.py). The record count grows in
 # steps of RECORDS_STEP while the data generation stays within DATAGEN_SECONDS (each step resumes
-# the last: records are a prefix of any longer run); the epochs follow from the count and
-# TRAIN_SECONDS at TRAIN_RATE records/s. `--small`: a few records on any adapter (lavapipe, CPU
-# training), to test the script.
+# the last: records are a prefix of any longer run, and the shards are at most RECORDS_STEP
+# long, so a step never recomputes one); the epochs follow from the count and TRAIN_SECONDS at
+# TRAIN_RATE records/s. RECORDS=N and EPOCHS=E fix both instead (the card's reproduce line
+# records them, and every other setting). A finished OUTDIR/run is refused unless RESUME=1
+# (then it continues). `--small`: a few records on any adapter (lavapipe, CPU training), to
+# test the script.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 small=0
@@ -52,6 +55,21 @@ if [ "$small" = 1 ]; then
   # The card's test figures from this run's own test set (no seed-0 set on a fresh machine).
   TEST_PRECISE=$out/seed$(echo "$TEST_SEEDS" | cut -d' ' -f1)-test-precise
 fi
+RECORDS=${RECORDS:-}
+EPOCHS=${EPOCHS:-}
+for v in RECORDS_STEP MAX_RECORDS DATAGEN_SECONDS TRAIN_SECONDS TRAIN_RATE MAX_EPOCHS \
+         TEST_RECORDS VAL_RECORDS SAMPLES MAX_SAMPLES ${RECORDS:+RECORDS} ${EPOCHS:+EPOCHS}; do
+  [[ "${!v}" =~ ^[1-9][0-9]*$ ]] ||
+    { echo "training/device_stage.sh: $v=${!v}: expected a positive integer" >&2; exit 2; }
+done
+[ -f "$INIT" ] || { echo "training/device_stage.sh: INIT=$INIT: no such model" >&2; exit 2; }
+if [ -e "$out/run/last.pt" ] && [ "${RESUME:-0}" != 1 ]; then
+  echo "training/device_stage.sh: $out/run already holds a run (RESUME=1 continues it)" >&2
+  exit 2
+fi
+shard=$((RECORDS_STEP < 100000 ? RECORDS_STEP : 100000))
+[ $((RECORDS_STEP % shard)) = 0 ] || { echo "training/device_stage.sh: RECORDS_STEP=$RECORDS_STEP:" \
+  "expected a multiple of 100000 (shards of 100 000 records)" >&2; exit 2; }
 export XDG_RUNTIME_DIR=${XDG_RUNTIME_DIR:-/tmp}
 mkdir -p "$out"
 t0=$(date +%s)
@@ -70,16 +88,24 @@ for t in $TEST_SEEDS; do
     --f16 --device gpu -q -o "$out/seed$t-test-precise"
 done
 
-# The training set, grown while the time allows.
+# The card's test set: the seed-0 set (carried into the checkout) or, with --small, this run's.
+[ -f "$TEST_PRECISE/manifest.json" ] || { echo "training/device_stage.sh: TEST_PRECISE=$TEST_PRECISE:" \
+  "no record set (training/reproduce.sh's \$DATA-test-precise)" >&2; exit 2; }
+
+# The training set, grown while the time allows (or RECORDS of it).
 data() {
   "$nimbus" datagen --clouds "$CLOUDS" --density-range 10,300 --phase hg --seed "$SEED" \
-    --shard-size 100000 --light uniform-gamma --samples "$SAMPLES" --eval-samples 16384 \
+    --shard-size "$shard" --light uniform-gamma --samples "$SAMPLES" --eval-samples 16384 \
     --records "$1" --val-records "$VAL_RECORDS" --test-records 0 --f16 --device gpu -q \
     -o "$out/data"
 }
 records=0
 d0=$(date +%s)
-while [ "$records" -lt "$MAX_RECORDS" ]; do
+if [ -n "$RECORDS" ]; then
+  data "$RECORDS"
+  records=$RECORDS
+fi
+while [ -z "$RECORDS" ] && [ "$records" -lt "$MAX_RECORDS" ]; do
   s=$(date +%s)
   data $((records + RECORDS_STEP))
   records=$((records + RECORDS_STEP))
@@ -88,12 +114,12 @@ while [ "$records" -lt "$MAX_RECORDS" ]; do
   # Stop when one more step would overrun the budget.
   [ $((now - d0 + now - s)) -le "$DATAGEN_SECONDS" ] || break
 done
-epochs=$((TRAIN_SECONDS * TRAIN_RATE / records))
+epochs=${EPOCHS:-$((TRAIN_SECONDS * TRAIN_RATE / records))}
 [ "$epochs" -ge 1 ] || epochs=1
-[ "$epochs" -le "$MAX_EPOCHS" ] || epochs=$MAX_EPOCHS
+[ -n "$EPOCHS" ] || [ "$epochs" -le "$MAX_EPOCHS" ] || epochs=$MAX_EPOCHS
 say "training $epochs epochs on $records records"
 
-settings="SEED=$SEED CLOUDS=$CLOUDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS RECORDS=$records EPOCHS=$epochs LR=$LR EMA=$EMA"
+settings="INIT=$INIT TEST_PRECISE=$TEST_PRECISE TEST_SEEDS='$TEST_SEEDS' TEST_CLOUDS=$TEST_CLOUDS TEST_RECORDS=$TEST_RECORDS PRECISE_NOISE=$PRECISE_NOISE MAX_SAMPLES=$MAX_SAMPLES SEED=$SEED CLOUDS=$CLOUDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS RECORDS=$records EPOCHS=$epochs LR=$LR EMA=$EMA TRAIN_CAP_MINUTES=$TRAIN_CAP_MINUTES"
 train() { # W EXTRA...: a run's export at blend W
   local w=$1
   shift
@@ -101,16 +127,17 @@ train() { # W EXTRA...: a run's export at blend W
   "$py" training/train.py --data "$out/data" --test-data "$TEST_PRECISE" --run "$out/run" \
     --init "$INIT" --epochs "$epochs" --lr "$LR" --schedule cosine --loss rel-l2 --rel-eps 0.01 \
     --ema "$EMA" --select last --seed 0 --device "$TRAIN_DEVICE" --resume --blend-init "$w" \
-    --export "$out/w$w/rpnn-hg.onnx" \
-    --reproduce "$settings BLENDS=$w bash training/device_stage.sh OUTDIR" "$@"
+    --export "$out/w$w/rpnn-hg.onnx" --max-minutes "$TRAIN_CAP_MINUTES" \
+    --reproduce "$settings BLENDS=$w bash training/device_stage.sh$([ "$small" = 1 ] && echo ' --small') OUTDIR" "$@"
 }
 first=1
 for w in $BLENDS; do
   if [ "$first" = 1 ]; then
-    train "$w" --preload yes --max-minutes "$TRAIN_CAP_MINUTES"
+    train "$w" --preload yes
     first=0
   else
-    # The finished run again: no epoch left, only the export at another blend.
+    # The finished run again: no epoch left (a run stopped by the cap stays stopped: the time
+    # spent is in its checkpoint), only the export at another blend.
     train "$w" --preload no --no-check --quiet
   fi
   say "exported w$w"

@@ -46,8 +46,11 @@ def main(argv=None) -> dict:
                         "card then shows held-out clouds beyond its own test set (e.g. sets no "
                         "stage selected on)")
     args = p.parse_args(argv)
-    if args.card and args.split and args.split != ["test"]:
-        p.error("--card records the test split only (drop --split or give --split test)")
+    if args.card:
+        if args.split and args.split != ["test"]:
+            p.error("--card records the test split only (drop --split or give --split test)")
+        args.split = ["test"]
+        card = card_entry(args.model, args.data)
     meta = {m.key: m.value for m in __import__("onnx").load(str(args.model)).metadata_props}
     config = json.loads(meta.get("nimbus.rpnn.config", "{}")) or {}
     try:
@@ -80,35 +83,42 @@ def main(argv=None) -> dict:
             if line.strip():
                 print(line)
     if args.card:
-        add_to_card(args.model, args.data, result.get("test"))
+        add_to_card(args.model, card, result["test"])
     if args.json:
         args.json.write_text(json.dumps(result, indent=1))
     return result
 
 
-def add_to_card(model: Path, root: Path, err: dict | None) -> None:
-    """Records ``err`` (a test split's errors) in the model's card as a further held-out set,
-    named by its folder, manifest hash, seed and label settings; the same set (manifest hash)
-    replaces its earlier entry."""
+def card_entry(model: Path, root: Path) -> dict:
+    """Before scoring (``--card``): the model's card must exist, and ``root`` must measure the
+    same thing as its training set and share no cloud with it (train.py's ``--test-data``
+    check). Returns the card's entry for ``root``, without the errors."""
     card_path = model.with_suffix(".json")
     if not card_path.exists():
         raise SystemExit(f"error: {card_path}: no model card next to {model} (--card)")
-    if not err:
-        raise SystemExit(f"error: {root}: no test records to add to the card")
     card = json.loads(card_path.read_text())
-    m = rdata.read_manifest(root)
-    # The same check as train.py --test-data: same phase function and albedo, no shared cloud.
+    try:
+        m = rdata.read_manifest(root)
+    except rdata.DataError as e:
+        raise SystemExit(f"error: {e}") from None
     train.check_test_set({"settings": {k: card["data"].get(k) for k in ("phase", "albedo")},
-                          "clouds": card["data"].get("clouds", [])}, m, root)
+                          "clouds": card["data"].get("clouds", [])}, m, root, "--card --data")
     st = m.get("settings", {})
-    entry = {"root": str(root), "manifest_sha256": rdata.manifest_hash(root),
-             "seed": st.get("seed"), "eval_samples": st.get("eval_samples"),
-             "eval_noise": st.get("eval_noise"), "gpu": st.get("gpu", False),
-             "test_clouds": [c.get("split") for c in m.get("clouds", [])].count("test"),
-             "errors": err}
+    return {"root": str(root), "manifest_sha256": rdata.manifest_hash(root),
+            "seed": st.get("seed"), "eval_samples": st.get("eval_samples"),
+            "eval_noise": st.get("eval_noise"), "gpu": st.get("gpu", False),
+            "test_clouds": [c.get("split") for c in m.get("clouds", [])].count("test")}
+
+
+def add_to_card(model: Path, entry: dict, err: dict) -> None:
+    """Records ``err`` (the test split's errors) in the model's card as a further held-out set,
+    named by its folder, manifest hash, seed and label settings; the same set (manifest hash)
+    replaces its earlier entry."""
+    card_path = model.with_suffix(".json")
+    card = json.loads(card_path.read_text())
     sets = [e for e in card.get("further_test_sets", [])
             if e.get("manifest_sha256") != entry["manifest_sha256"]]
-    card["further_test_sets"] = sets + [entry]
+    card["further_test_sets"] = sets + [{**entry, "errors": err}]
     rexport.write_card(model, card)
     print(f"added to {card_path} and {model.with_suffix('.md')}")
 

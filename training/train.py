@@ -381,14 +381,15 @@ def merged_manifest(roots: list[Path]) -> dict:
             "convergence_rate": None}
 
 
-def check_test_set(manifest: dict, test_manifest: dict, root: Path) -> None:
+def check_test_set(manifest: dict, test_manifest: dict, root: Path,
+                   option: str = "--test-data") -> None:
     """Refuses a separate test set that does not measure the same thing (another phase
     function or albedo) or that shares a cloud with the training set (same generator, kind,
     seed and size)."""
     a, b = manifest.get("settings", {}), test_manifest.get("settings", {})
     for key in ("phase", "albedo"):
         if a.get(key) != b.get(key):
-            raise SystemExit(f"--test-data {root}: its {key} is {b.get(key)}, the training "
+            raise SystemExit(f"{option} {root}: its {key} is {b.get(key)}, the training "
                              f"set's {a.get(key)}")
 
     def key(c):
@@ -400,8 +401,8 @@ def check_test_set(manifest: dict, test_manifest: dict, root: Path) -> None:
     shared = [c.get("name") for c in test_manifest.get("clouds", [])
               if c.get("split") == "test" and key(c) in train]
     if shared:
-        raise SystemExit(f"--test-data {root}: test clouds {shared} are training clouds of "
-                         f"--data")
+        raise SystemExit(f"{option} {root}: test clouds {shared} are training clouds of "
+                         f"the training set")
 
 
 def build_model(args) -> RPNN:

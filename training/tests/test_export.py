@@ -243,6 +243,7 @@ def test_evaluate_card_adds_further_held_out_sets(record_set, tmp_path):
 
     other = further("other", 4, {"name": "c", "split": "test", "seed": 9})
     res = evaluate.main(["--data", str(other), "--model", str(onnx_path), "--card"])
+    assert set(res) == {"model", "data", "test"}  # --card scores the test split alone
     card = json.loads(onnx_path.with_suffix(".json").read_text())
     (entry,) = card["further_test_sets"]
     assert entry["errors"]["median_rel_error"] == res["test"]["median_rel_error"]
@@ -267,6 +268,11 @@ def test_evaluate_card_adds_further_held_out_sets(record_set, tmp_path):
         evaluate.main(["--data", str(other), "--model", str(onnx_path), "--card", "--split",
                        "val"])
     assert len(json.loads(onnx_path.with_suffix(".json").read_text())["further_test_sets"]) == 2
+    # A model without its card: refused before anything is scored, the card's path named.
+    bare = tmp_path / "bare.onnx"
+    bare.write_bytes(onnx_path.read_bytes())
+    with pytest.raises(SystemExit, match="bare.json: no model card"):
+        evaluate.main(["--data", str(other), "--model", str(bare), "--card"])
 
 
 def test_mean_ratio_by_gamma_is_the_bias_at_that_angle(record_set):
