@@ -14,6 +14,7 @@ floor" is the median relative error a perfect model would show against such labe
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 from pathlib import Path
@@ -97,6 +98,11 @@ def card_entry(model: Path, root: Path) -> dict:
     if not card_path.exists():
         raise SystemExit(f"error: {card_path}: no model card next to {model} (--card)")
     card = json.loads(card_path.read_text())
+    sha = hashlib.sha256(model.read_bytes()).hexdigest()
+    if card.get("model_sha256", sha) != sha:
+        raise SystemExit(f"error: {card_path} describes another file (sha256 "
+                         f"{card['model_sha256'][:16]}…) than {model} ({sha[:16]}…): --card "
+                         f"would attach these errors to the wrong model")
     try:
         m = rdata.read_manifest(root)
     except rdata.DataError as e:
@@ -113,12 +119,19 @@ def card_entry(model: Path, root: Path) -> dict:
 def add_to_card(model: Path, entry: dict, err: dict) -> None:
     """Records ``err`` (the test split's errors) in the model's card as a further held-out set,
     named by its folder, manifest hash, seed and label settings; the same set (manifest hash)
-    replaces its earlier entry."""
+    replaces its earlier entry in place."""
     card_path = model.with_suffix(".json")
     card = json.loads(card_path.read_text())
-    sets = [e for e in card.get("further_test_sets", [])
-            if e.get("manifest_sha256") != entry["manifest_sha256"]]
-    card["further_test_sets"] = sets + [{**entry, "errors": err}]
+    # A card written before cards named their file: it describes this one from now on.
+    card.setdefault("model_sha256", hashlib.sha256(model.read_bytes()).hexdigest())
+    new = {**entry, "errors": err}
+    sets = card.get("further_test_sets", [])
+    same = [i for i, e in enumerate(sets) if e.get("manifest_sha256") == entry["manifest_sha256"]]
+    if same:
+        sets[same[0]] = new  # in its place: the card's order stays the order sets were added
+    else:
+        sets.append(new)
+    card["further_test_sets"] = sets
     rexport.write_card(model, card)
     print(f"added to {card_path} and {model.with_suffix('.md')}")
 

@@ -48,6 +48,7 @@ import argparse
 import csv
 import functools
 import gc
+import hashlib
 import json
 import os
 import sys
@@ -413,7 +414,6 @@ def build_model(args) -> RPNN:
 
 def load_init(model: RPNN, path: Path) -> dict:
     """Loads the starting weights of a fine-tuning stage; returns what the card records."""
-    import hashlib
 
     if path.suffix == ".onnx":
         rexport.import_onnx(model, path)
@@ -747,6 +747,8 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
                      "torch": torch.__version__},
         "record_errors": errors,
         "export_check": check,
+        # The file this card describes (evaluate.py --card refuses a card whose file changed).
+        "model_sha256": hashlib.sha256(Path(args.export).read_bytes()).hexdigest(),
         "reproduce": args.reproduce or " ".join(["python"] + sys.argv),
     }
     rexport.write_card(args.export, card)

@@ -296,6 +296,8 @@ def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
         "## Export check",
         f"- onnxruntime vs torch on {e['rows']} real records: max relative difference "
         f"{e['max_relative_difference']:.2e} ({'passed' if e['passed'] else 'FAILED'}, bound 1e-5).",
+        *([f"- `{path_onnx.name}` sha256 `{card['model_sha256']}`."]
+          if card.get("model_sha256") else []),
         "",
         "## Reproduce",
         "```",

@@ -1,5 +1,6 @@
 """ONNX export: onnxruntime agrees with torch; the graph carries the architecture."""
 
+import hashlib
 import json
 
 import numpy as np
@@ -254,10 +255,10 @@ def test_evaluate_card_adds_further_held_out_sets(record_set, tmp_path):
     assert (f"test: 300 records, median relative error "
             f"{100 * res['test']['median_rel_error']:.1f} %") in md
     assert "seed 4): 1 held-out clouds" in md and "by the GPU path tracer" in md
-    # The same set again replaces its entry; another set is added beside it.
-    evaluate.main(["--data", str(other), "--model", str(onnx_path), "--card"])
+    # Another set is added after it; the same set again replaces its entry in place.
     evaluate.main(["--data", str(further("more", 7, {"name": "d", "split": "test", "seed": 11})),
                    "--model", str(onnx_path), "--card"])
+    evaluate.main(["--data", str(other), "--model", str(onnx_path), "--card"])
     card = json.loads(onnx_path.with_suffix(".json").read_text())
     assert [e["seed"] for e in card["further_test_sets"]] == [4, 7]
     # A set whose test cloud is a training cloud of the model's set: refused, named.
@@ -268,6 +269,14 @@ def test_evaluate_card_adds_further_held_out_sets(record_set, tmp_path):
         evaluate.main(["--data", str(other), "--model", str(onnx_path), "--card", "--split",
                        "val"])
     assert len(json.loads(onnx_path.with_suffix(".json").read_text())["further_test_sets"]) == 2
+    # A card and a model file that no longer belong together: refused, both named.
+    assert card["model_sha256"] == hashlib.sha256(onnx_path.read_bytes()).hexdigest()
+    assert f"sha256 `{card['model_sha256']}`" in onnx_path.with_suffix(".md").read_text()
+    moved = tmp_path / "moved.onnx"
+    moved.write_bytes(onnx_path.read_bytes() + b"\0")
+    moved.with_suffix(".json").write_text(onnx_path.with_suffix(".json").read_text())
+    with pytest.raises(SystemExit, match="moved.json describes another file"):
+        evaluate.main(["--data", str(other), "--model", str(moved), "--card"])
     # A model without its card: refused before anything is scored, the card's path named.
     bare = tmp_path / "bare.onnx"
     bare.write_bytes(onnx_path.read_bytes())
