@@ -354,22 +354,30 @@ fn stress_subset_passes_and_rejects_invalid_voxels() {
     assert!(text(&o).contains("no case `nope`"), "{}", text(&o));
 }
 
+/// The checkout's root and the python of `training/setup.sh` (which the test script sets up
+/// before the Rust tests) for a test that runs a GPU script with torch; None (the test skipped,
+/// with a line saying why) without an adapter or without that environment.
+fn gpu_script_setup(test: &str) -> Option<(PathBuf, PathBuf)> {
+    if !nimbus_gpu::testing::has_adapter(test) {
+        return None;
+    }
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let py = root.join("training/.venv/bin/python");
+    if !py.exists() {
+        eprintln!("{test}: skipped, no training/.venv (bash training/setup.sh)");
+        return None;
+    }
+    Some((root, py))
+}
+
 /// `bench/device.sh --small`: the GPU benchmark script runs end to end on this machine's
 /// adapter (lavapipe in CI) and writes every measure with a positive, finite value.
 #[test]
 fn device_benchmark_script_small() {
-    if !nimbus_gpu::testing::has_adapter("eval::device_benchmark_script_small") {
+    // Step 5 trains with torch.
+    let Some((root, _)) = gpu_script_setup("eval::device_benchmark_script_small") else {
         return;
-    }
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    // Step 5 trains with torch: the training environment of `training/setup.sh` (which the
-    // test script sets up before the Rust tests).
-    if !root.join("training/.venv/bin/python").exists() {
-        eprintln!(
-            "eval::device_benchmark_script_small: skipped, no training/.venv (bash training/setup.sh)"
-        );
-        return;
-    }
+    };
     let d = tmp("device");
     let o = std::process::Command::new("bash")
         .current_dir(&root)
@@ -414,17 +422,9 @@ fn device_benchmark_script_small() {
 /// scores of the starting model and of the export on the test set.
 #[test]
 fn device_stage_script_small() {
-    if !nimbus_gpu::testing::has_adapter("eval::device_stage_script_small") {
+    let Some((root, py)) = gpu_script_setup("eval::device_stage_script_small") else {
         return;
-    }
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let py = root.join("training/.venv/bin/python");
-    if !py.exists() {
-        eprintln!(
-            "eval::device_stage_script_small: skipped, no training/.venv (bash training/setup.sh)"
-        );
-        return;
-    }
+    };
     let d = tmp("device-stage");
     let o = std::process::Command::new("bash")
         .current_dir(&root)
