@@ -51,7 +51,7 @@ def main(argv=None) -> dict:
         if args.split and args.split != ["test"]:
             p.error("--card records the test split only (drop --split or give --split test)")
         args.split = ["test"]
-        card = card_entry(args.model, args.data)
+        card, model_sha = card_entry(args.model, args.data)
     meta = {m.key: m.value for m in __import__("onnx").load(str(args.model)).metadata_props}
     config = json.loads(meta.get("nimbus.rpnn.config", "{}")) or {}
     try:
@@ -84,16 +84,17 @@ def main(argv=None) -> dict:
             if line.strip():
                 print(line)
     if args.card:
-        add_to_card(args.model, card, result["test"])
+        add_to_card(args.model, model_sha, card, result["test"])
     if args.json:
         args.json.write_text(json.dumps(result, indent=1))
     return result
 
 
-def card_entry(model: Path, root: Path) -> dict:
+def card_entry(model: Path, root: Path) -> tuple[dict, str]:
     """Before scoring (``--card``): the model's card must exist, and ``root`` must measure the
     same thing as its training set and share no cloud with it (train.py's ``--test-data``
-    check). Returns the card's entry for ``root``, without the errors."""
+    check). Returns the card's entry for ``root`` without the errors, and the model file's
+    sha256."""
     card_path = model.with_suffix(".json")
     if not card_path.exists():
         raise SystemExit(f"error: {card_path}: no model card next to {model} (--card)")
@@ -113,17 +114,17 @@ def card_entry(model: Path, root: Path) -> dict:
     return {"root": str(root), "manifest_sha256": rdata.manifest_hash(root),
             "seed": st.get("seed"), "eval_samples": st.get("eval_samples"),
             "eval_noise": st.get("eval_noise"), "gpu": st.get("gpu", False),
-            "test_clouds": [c.get("split") for c in m.get("clouds", [])].count("test")}
+            "test_clouds": [c.get("split") for c in m.get("clouds", [])].count("test")}, sha
 
 
-def add_to_card(model: Path, entry: dict, err: dict) -> None:
+def add_to_card(model: Path, model_sha: str, entry: dict, err: dict) -> None:
     """Records ``err`` (the test split's errors) in the model's card as a further held-out set,
     named by its folder, manifest hash, seed and label settings; the same set (manifest hash)
     replaces its earlier entry in place."""
     card_path = model.with_suffix(".json")
     card = json.loads(card_path.read_text())
     # A card written before cards named their file: it describes this one from now on.
-    card.setdefault("model_sha256", hashlib.sha256(model.read_bytes()).hexdigest())
+    card.setdefault("model_sha256", model_sha)
     new = {**entry, "errors": err}
     sets = card.get("further_test_sets", [])
     same = [i for i, e in enumerate(sets) if e.get("manifest_sha256") == entry["manifest_sha256"]]

@@ -414,7 +414,6 @@ def build_model(args) -> RPNN:
 
 def load_init(model: RPNN, path: Path) -> dict:
     """Loads the starting weights of a fine-tuning stage; returns what the card records."""
-
     if path.suffix == ".onnx":
         rexport.import_onnx(model, path)
     else:
