@@ -108,6 +108,18 @@ export XDG_RUNTIME_DIR=${XDG_RUNTIME_DIR:-/tmp}
 # (a plain `cargo test` on a machine without one skips them with a message).
 export NIMBUS_REQUIRE_GPU=1
 
-bash training/setup.sh
+# The training environment (pip, mostly downloading and unpacking) is made while the Rust tests
+# compile; the tests that run the training scripts start only once it is complete.
+setup_log="$(mktemp)"
+bash training/setup.sh >"$setup_log" 2>&1 &
+setup_pid=$!
+trap 'kill "$setup_pid" 2>/dev/null || true; rm -f "$setup_log"' EXIT
+cargo test --workspace --release --no-run
+if ! wait "$setup_pid"; then
+  cat "$setup_log" >&2
+  echo "error: training/setup.sh failed (output above)" >&2
+  exit 1
+fi
+cat "$setup_log"
 cargo test --workspace --release
 training/.venv/bin/python -m pytest -q training/tests

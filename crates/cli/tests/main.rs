@@ -1,0 +1,9 @@
+//! The nimbus-cli integration tests, one file per topic, compiled as one test binary: the
+//! dependencies (GPU, ONNX) are linked into one executable instead of one per file.
+
+mod bad_inputs;
+mod budget;
+mod cli;
+mod eval;
+mod view;
+mod volumes;

@@ -1,0 +1,7 @@
+//! The nimbus-rpnn integration tests, one file per topic, compiled as one test binary: the
+//! dependencies (GPU, ONNX) are linked into one executable instead of one per file.
+
+mod datagen;
+mod descriptor;
+mod model;
+mod render;

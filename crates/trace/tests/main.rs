@@ -1,0 +1,6 @@
+//! The nimbus-trace integration tests, one file per topic, compiled as one test binary: the
+//! dependencies (GPU, ONNX) are linked into one executable instead of one per file.
+
+mod analytic;
+mod gpu_pt;
+mod sparse;
