@@ -17,10 +17,10 @@
 #   bash bench/device.sh [--small] [--out DIR]
 #
 # On an H200 the full run took 134 s (2026-12-04). `--small` runs the same steps at reduced
-# sizes (1/8 of the pixels, fewer frames and records) so lavapipe finishes in about a minute;
-# the tests run it that way. The binary is ./target/release/nimbus (or $NIMBUS: the release
-# profile keeps debug info for profiling, ≈ 110 MB; `strip -o` makes a 15 MB copy to carry to
-# another machine). Needs the shared references' cumulus.vol where scenes/refs/cumulus_side.toml
+# sizes (1/8 of the pixels or fewer, fewer frames, beams and records) so lavapipe finishes in
+# about a minute; the tests run it that way. The binary is ./target/release/nimbus (or $NIMBUS:
+# the release profile keeps line tables of Nimbus' own code for profiling, ≈ 46 MB; `strip -o`
+# makes a 15 MB copy to carry to another machine). Needs the shared references' cumulus.vol where scenes/refs/cumulus_side.toml
 # points (step 3) and a python with torch ($PYTHON, else training/.venv, else python3; step 5).
 # Writes DIR/device.csv, DIR/device.md and the scale renders' output DIR/scale.log (default
 # DIR: out/device).
@@ -46,12 +46,14 @@ echo "measure,scene,setting,value,unit" > "$csv"
 row() { echo "$1,$2,$3,$4,$5" >> "$csv"; }
 
 if [ "$small" = 1 ]; then
-  W=240; H=150; FRAMES=3; BEAMS=1024; RW=160; RH=90; RSPP=1; PW=128; PH=96; PTSPP=4; GPTSPP=16
+  W=240; H=150; FRAMES=3; BEAMS=1024; RW=64; RH=36; RSPP=1; PW=128; PH=96; PTSPP=4; GPTSPP=16
   DG_RECORDS=16; DG_SAMPLES=256; VOLRES=96; TR_RECORDS=3000; TR_EPOCHS=1; TR_BATCH="1000"
+  SCALE_PM="--method pm --beams 1024 --ring 20"  # the converged ring is 100 × 8 192 beams
 else
   W=1920; H=1200; FRAMES=12; BEAMS=8192; RW=1280; RH=720; RSPP=2; PW=1280; PH=720; PTSPP=4; GPTSPP=64
   DG_RECORDS=2000; DG_SAMPLES=1024; VOLRES=1200; TR_RECORDS=200000; TR_EPOCHS=3
   TR_BATCH="1000 8000"
+  SCALE_PM="--method pm"
 fi
 # The training environment of training/setup.sh where there is one, else python3 (with torch).
 py=${PYTHON:-$([ -x training/.venv/bin/python ] && echo training/.venv/bin/python || echo python3)}
@@ -117,7 +119,8 @@ row datagen_records_per_hour gen:5 "device=gpu samples=$DG_SAMPLES records=$DG_R
   "$(awk -v r="$rps" 'BEGIN { printf "%.0f", r * 3600 }')" records/h
 
 # 5. Training records/s (CUDA where torch sees a GPU).
-"$py" -c "import torch" 2> /dev/null ||
+# (found, not imported: importing torch alone takes seconds)
+"$py" -c "import importlib.util, sys; sys.exit(importlib.util.find_spec('torch') is None)" 2> /dev/null ||
   { echo "bench/device.sh: $py has no torch (bash training/setup.sh, or PYTHON=...)" >&2; exit 1; }
 # shellcheck disable=SC2086
 "$py" bench/train_throughput.py --records "$TR_RECORDS" --epochs "$TR_EPOCHS" --batch $TR_BATCH |
@@ -163,7 +166,7 @@ rm -f "$out/scale.log"
 scale_row 0 "generate + write .vol" "$nimbus" generate cumulus --seed 7 --res "$VOLRES,$VOLRES,$VOLRES" \
   -o "$out/scale.vol"
 sed -e "s|^file = .*|file = \"$(realpath "$out/scale.vol")\"|" scenes/bench/scale.toml > "$out/scenes/scale.toml"
-for m in "0 --method pt" "1 --device gpu" "1 --method pm" "1 --method rpnn --spp 2"; do
+for m in "0 --method pt" "1 --device gpu" "1 $SCALE_PM" "1 --method rpnn --spp 2"; do
   # shellcheck disable=SC2086
   scale_row "${m%% *}" "${m#* }" "$nimbus" render "$out/scenes/scale.toml" ${m#* } -o "$out/scale_img"
 done
