@@ -20,8 +20,9 @@
 # sizes (1/8 of the pixels or fewer, fewer frames, beams and records) so lavapipe finishes in
 # about a minute; the tests run it that way. The binary is ./target/release/nimbus (or $NIMBUS:
 # the release profile keeps line tables of Nimbus' own code for profiling, ≈ 46 MB; `strip -o`
-# makes a 15 MB copy to carry to another machine). Needs the shared references' cumulus.vol where scenes/refs/cumulus_side.toml
-# points (step 3) and a python with torch ($PYTHON, else training/.venv, else python3; step 5).
+# makes a 15 MB copy to carry to another machine). Needs the shared references' cumulus.vol
+# where scenes/refs/cumulus_side.toml points (step 3) and a python with torch ($PYTHON, else
+# training/.venv, else python3; step 5).
 # Writes DIR/device.csv, DIR/device.md and the scale renders' output DIR/scale.log (default
 # DIR: out/device).
 set -euo pipefail

@@ -113,7 +113,9 @@ export NIMBUS_REQUIRE_GPU=1
 setup_log="$(mktemp)"
 bash training/setup.sh >"$setup_log" 2>&1 &
 setup_pid=$!
-trap 'kill "$setup_pid" 2>/dev/null || true; rm -f "$setup_log"' EXIT
+# On an early exit (a compile error) the set-up is waited for, not killed: killing the shell would
+# leave pip writing into training/.venv behind it.
+trap 'wait "$setup_pid" 2>/dev/null || true; rm -f "$setup_log"' EXIT
 cargo test --workspace --release --no-run
 if ! wait "$setup_pid"; then
   cat "$setup_log" >&2
