@@ -2,40 +2,15 @@
 //! EXR data windows, RPNN's pyramid, the photon map's buffers, datagen's split) is refused with
 //! the field, the bytes and the budget, never an allocator abort.
 
-use std::path::PathBuf;
-use std::process::{Command, Output};
-
-fn nimbus(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_nimbus"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn tmp() -> PathBuf {
-    let d = std::env::temp_dir().join(format!("nimbus-budget-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
-
-fn root() -> PathBuf {
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
+use crate::common::{nimbus, root, text, tmp};
+use std::process::Command;
 
 /// Inputs that size an allocation (a sparse VDB's index box, a generator's resolution, an EXR's
 /// data window) are checked against the memory budget: a clear error naming the field, the bytes
 /// and the budget, never an allocator abort.
 #[test]
 fn memory_budget_refuses_instead_of_aborting() {
-    let d = tmp().join("budget");
+    let d = tmp("budget");
     std::fs::create_dir_all(&d).unwrap();
     // 11 kB written by OpenVDB's own bindings (make_far_tiles.py): two tiles in a 1288³ box,
     // kept sparse — a brick index of 161³ × 4 bytes = 15.9 MiB, checked before it is allocated.

@@ -1,28 +1,8 @@
 //! The `nimbus` binary end to end: generate → info → render, and clear errors on bad input.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn nimbus(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_nimbus"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn tmp() -> PathBuf {
-    let d = std::env::temp_dir().join(format!("nimbus-cli-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
+use crate::common::{nimbus, root, text, tmp};
+use std::path::Path;
+use std::process::Command;
 
 #[test]
 fn info_gpu_lists_the_adapter_in_use() {
@@ -68,7 +48,7 @@ fn no_adapter_is_a_clear_error() {
         text(&o)
     );
     let scene = root().join("scenes/refs/cube_iso.toml");
-    let out = tmp().join("no-adapter");
+    let out = tmp("no-adapter");
     let base = [
         "render",
         scene.to_str().unwrap(),
@@ -98,7 +78,7 @@ fn no_adapter_is_a_clear_error() {
 
 #[test]
 fn generate_info_render() {
-    let d = tmp();
+    let d = tmp("generate");
     let vol = d.join("c.vol");
     let o = nimbus(&[
         "generate",
@@ -166,7 +146,7 @@ height = 10
 
 #[test]
 fn bad_input_is_a_clear_error() {
-    let d = tmp();
+    let d = tmp("bad-input");
     let garbage = d.join("garbage.vol");
     std::fs::write(&garbage, b"VOL\x03garbage").unwrap();
     let o = nimbus(&["info", garbage.to_str().unwrap()]);
@@ -249,10 +229,6 @@ fn bad_input_is_a_clear_error() {
     );
 }
 
-fn root() -> PathBuf {
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
 /// Every estimator and the GPU commands run end to end on the demo scene (tiny budgets), and
 /// their images agree on the sky and show a cloud.
 #[test]
@@ -260,7 +236,7 @@ fn demo_scene_with_every_method() {
     if !nimbus_gpu::testing::has_adapter("cli::demo_scene_with_every_method") {
         return;
     }
-    let d = tmp();
+    let d = tmp("demo");
     let demo = root().join("scenes/demo-cumulus.toml");
     let demo = demo.to_str().unwrap();
     let runs: [(&str, Vec<&str>); 3] = [
@@ -339,7 +315,7 @@ fn demo_scene_with_every_method() {
 /// datagen end to end: a tiny set, the manifest and shards it promises.
 #[test]
 fn datagen_end_to_end() {
-    let d = tmp().join("data");
+    let d = tmp("data");
     let o = nimbus(&[
         "datagen",
         "--clouds",
@@ -398,7 +374,7 @@ fn datagen_end_to_end() {
 /// part specifications and merges are clear errors.
 #[test]
 fn datagen_parts_and_merge() {
-    let d = tmp().join("parts");
+    let d = tmp("parts");
     let args = |out: &Path, shard: Option<&str>| {
         let mut v: Vec<String> = [
             "datagen",
@@ -501,7 +477,7 @@ fn datagen_parts_and_merge() {
 
 #[test]
 fn rpnn_render_and_missing_model() {
-    let d = tmp();
+    let d = tmp("rpnn");
     let out = d.join("rpnn.exr");
     let o = Command::new(env!("CARGO_BIN_EXE_nimbus"))
         .current_dir(root())
@@ -565,7 +541,7 @@ fn rpnn_render_and_missing_model() {
 /// refusal naming the model and both albedos with `--strict`.
 #[test]
 fn rpnn_albedo_guard() {
-    let d = tmp();
+    let d = tmp("albedo");
     let scene = d.join("albedo08.toml");
     std::fs::write(
         &scene,
@@ -637,7 +613,7 @@ spp = 1
 /// tracing NaN rays forever, and an all-black reference is an error, not NaN metrics.
 #[test]
 fn flags_cameras_and_references_that_would_lie() {
-    let d = tmp();
+    let d = tmp("flags");
     let scene = root().join("scenes/refs/cube_iso.toml");
     let s = scene.to_str().unwrap();
     for (args, want) in [
@@ -703,7 +679,7 @@ fn flags_cameras_and_references_that_would_lie() {
 /// (they used to write EXRs full of inf/NaN and say "wrote").
 #[test]
 fn lights_that_overflow_the_image_are_refused() {
-    let d = tmp();
+    let d = tmp("lights");
     let base = "[volume]\ngenerator = { kind = \"cumulus\", resolution = [8, 8, 8] }\n\
                 [camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nvfov_deg = 30\nwidth = 4\nheight = 4\n";
     for (name, extra, field) in [

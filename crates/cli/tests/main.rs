@@ -4,6 +4,7 @@
 mod bad_inputs;
 mod budget;
 mod cli;
+mod common;
 mod eval;
 mod view;
 mod volumes;

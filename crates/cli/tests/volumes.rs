@@ -1,23 +1,8 @@
 //! Volume files written by the official OpenVDB tools render end to end: full- and half-float
 //! OpenVDB, NanoVDB Float and Fp16 (`crates/scene/tests/data/make_codecs.sh`).
 
+use crate::common::{nimbus, text};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn nimbus(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_nimbus"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
 
 fn data(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))

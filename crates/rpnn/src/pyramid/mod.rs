@@ -373,7 +373,7 @@ impl Pyramid {
 /// the reference the build must match to the bit.
 #[cfg(test)]
 mod whole_grid {
-    use super::stream::gauss_kernel;
+    use super::stream::{down_weights, gauss_kernel};
     use rayon::prelude::*;
 
     /// Separable blur with zero padding along one axis.
@@ -413,29 +413,10 @@ mod whole_grid {
         // Each new cell spans two old cells on each axis (the box extent stays the same, so when
         // an axis has an odd count the new cells are 2·old·(n/(2⌈n/2⌉)) wide; we resample by
         // averaging the old cells overlapping each new cell with their overlap weights).
-        let weights = |n: usize, m: usize| -> Vec<Vec<(usize, f32)>> {
-            (0..m)
-                .map(|j| {
-                    let a = j as f64 * n as f64 / m as f64;
-                    let b = (j + 1) as f64 * n as f64 / m as f64;
-                    let mut v = Vec::new();
-                    let mut i = a.floor() as usize;
-                    while (i as f64) < b && i < n {
-                        let lo = (i as f64).max(a);
-                        let hi = ((i + 1) as f64).min(b);
-                        if hi > lo {
-                            v.push((i, ((hi - lo) / (b - a)) as f32));
-                        }
-                        i += 1;
-                    }
-                    v
-                })
-                .collect()
-        };
         let (wx, wy, wz) = (
-            weights(res[0], nr[0]),
-            weights(res[1], nr[1]),
-            weights(res[2], nr[2]),
+            down_weights(res[0], nr[0]),
+            down_weights(res[1], nr[1]),
+            down_weights(res[2], nr[2]),
         );
         for z in 0..nr[2] {
             for y in 0..nr[1] {

@@ -275,7 +275,7 @@ fn blur_span(src: &[f32], at: usize, k: &[f32], dst: &mut [f32], lo: usize, hi: 
 
 /// Overlap weights resampling `n` cells onto `m` cells over the same extent: for each new cell,
 /// the old cells it overlaps and their shares.
-fn down_weights(n: usize, m: usize) -> Vec<Vec<(usize, f32)>> {
+pub(super) fn down_weights(n: usize, m: usize) -> Vec<Vec<(usize, f32)>> {
     (0..m)
         .map(|j| {
             let a = j as f64 * n as f64 / m as f64;
