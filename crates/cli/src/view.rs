@@ -120,6 +120,8 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
             .map_err(|e| anyhow::anyhow!("--size: {e}"))?;
     }
     let method = ViewMode::parse(&method).map_err(|e| anyhow::anyhow!("--method: {e}"))?;
+    // The viewer starts in photon mapping (f32, on the GPU), whatever --method says.
+    nimbus_render::check_f32_scale(&s, nimbus_render::Method::Pm)?;
     if !(sun_speed.is_finite() && density_fps.is_finite() && density_fps > 0.0) {
         bail!("--sun-speed must be finite and --density-fps positive");
     }
@@ -154,6 +156,12 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
         exposure,
         rpnn_model: model.unwrap_or_else(nimbus_rpnn::model::default_model_path),
     };
+    // Asked for on the command line, RPNN without a usable model is an error here (the key's
+    // switch in a running viewer only leaves a note and keeps the method).
+    if method == ViewMode::Rpnn {
+        nimbus_rpnn::model::Rpnn::load(&opts.rpnn_model)
+            .map_err(|e| anyhow::anyhow!("--method rpnn: {e}"))?;
+    }
     // Start in photon mapping and switch, so RPNN mode loads its model the same way as the key.
     let mut script = script;
     if method != ViewMode::Pm {

@@ -101,6 +101,36 @@ fn memory_budget_refuses_instead_of_aborting() {
         !o.status.success() && t.contains("RPNN density pyramid") && t.contains("8.7 MiB"),
         "{t}"
     );
+    // The model file itself is checked before it is read whole (a 6 GiB file named as a model
+    // was once read to the end).
+    let (scene, model) = (
+        root().join("crates/cli/tests/bad-inputs/files/good.toml"),
+        root().join("models/rpnn-hg.onnx"),
+    );
+    let out = d.join("m.exr");
+    let o = nimbus(&[
+        "render",
+        scene.to_str().unwrap(),
+        "--method",
+        "rpnn",
+        "--model",
+        model.to_str().unwrap(),
+        "--spp",
+        "1",
+        "-q",
+        "--max-memory",
+        "4M",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let t = text(&o);
+    assert!(
+        !o.status.success()
+            && t.contains("rpnn-hg.onnx")
+            && t.contains("5.0 MiB")
+            && t.contains("4.0 MiB"),
+        "{t}"
+    );
     let o = nimbus(&["compare", huge.to_str().unwrap(), small.to_str().unwrap()]);
     let t = text(&o);
     assert!(

@@ -1,6 +1,6 @@
 //! The `nimbus` binary end to end: generate → info → render, and clear errors on bad input.
 
-use crate::common::{nimbus, root, text, tmp};
+use crate::common::{nimbus, nimbus_within, root, text, tmp};
 use std::path::Path;
 use std::process::Command;
 
@@ -225,6 +225,40 @@ fn bad_input_is_a_clear_error() {
     let t = text(&o);
     assert!(
         !o.status.success() && t.contains("a_file") && !t.contains("budget"),
+        "{t}"
+    );
+    // Files that are not files: a folder, and a named pipe, which opening would wait on for a
+    // writer forever (once a hang).
+    let o = nimbus(&["info", d.to_str().unwrap()]);
+    assert!(
+        !o.status.success() && text(&o).contains("a folder"),
+        "{}",
+        text(&o)
+    );
+    let fifo = d.join("pipe.vol");
+    if Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .is_ok_and(|s| s.success())
+    {
+        let o = nimbus_within(&["info", fifo.to_str().unwrap()], 20).expect("info on a pipe hung");
+        let t = text(&o);
+        assert!(
+            !o.status.success() && t.contains("pipe.vol") && t.contains("not a regular file"),
+            "{t}"
+        );
+    }
+    // A scene file far larger than any scene (once read whole, and its parse error quoted its
+    // longest line: 200 MB on stderr for a 100 MB file of zero bytes).
+    let big = d.join("big.toml");
+    std::fs::write(&big, vec![0u8; 2 << 20]).unwrap();
+    let o = nimbus(&["render", big.to_str().unwrap()]);
+    let t = text(&o);
+    assert!(
+        !o.status.success()
+            && t.contains("big.toml")
+            && t.contains("at most 1.0 MiB")
+            && t.len() < 1000,
         "{t}"
     );
 }

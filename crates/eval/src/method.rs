@@ -170,6 +170,11 @@ pub fn sweep(
 ) -> Result<Vec<Run>> {
     let gpu: &GpuSlot = gpu;
     let mut est = nimbus_render::prepare(scene, method, &settings.options(), gpu)?;
+    // What the estimator cannot honour (a model trained for another medium, a depth limit):
+    // said, whatever the progress setting.
+    for w in &est.warnings {
+        eprintln!("{w}");
+    }
     let mut runs = Vec::new();
     for &budget in budgets {
         let run = if method.has_variance() {

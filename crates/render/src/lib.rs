@@ -15,5 +15,7 @@ pub mod estimator;
 pub mod method;
 
 pub use backend::{GpuSlot, NetBackend};
-pub use estimator::{Estimator, Options, Rendered, RpnnSettings, prepare, rpnn_backend};
+pub use estimator::{
+    Estimator, Options, Rendered, RpnnSettings, check_f32_scale, prepare, rpnn_backend,
+};
 pub use method::Method;

@@ -75,6 +75,14 @@ pub fn generated_set_of(
     if kinds.is_empty() {
         return Err(err("the list of cloud kinds is empty".into()));
     }
+    // The list itself is sized by N (gen:10¹¹ once aborted on allocating it); each cloud's grid
+    // is checked when its split is built.
+    nimbus_scene::memory::check(
+        n as u128 * std::mem::size_of::<CloudSpec>() as u128,
+        "gen:N",
+        &format!("the list of {n} clouds"),
+    )
+    .map_err(|e| err(e.to_string()))?;
     let mut tall = Vec::with_capacity(kinds.len());
     for k in kinds {
         if *k == "mixture" {

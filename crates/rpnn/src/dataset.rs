@@ -447,20 +447,9 @@ pub fn run(
     if opts.shard_size == 0 {
         return Err(err("shard size must be at least 1".into()));
     }
-    std::fs::create_dir_all(out).map_err(|e| err(e.to_string()))?;
-    let _lock = lock_out(out)?;
-    check_settings(clouds, opts, out)?;
-    let medium = medium(opts)?;
-    let gpu = if opts.gpu {
-        Some(nimbus_gpu::Gpu::new().map_err(|e| err(e.to_string()))?)
-    } else {
-        None
-    };
-    let start = Instant::now();
-    let mut shards = Vec::new();
-    let (mut computed, mut total, mut converged) = (0usize, 0usize, 0usize);
     let counts = [opts.records, opts.val_records, opts.test_records];
-    // Every requested split must have clouds: said before any work.
+    // Every requested split must have clouds: said before any work (and before the folder and
+    // its settings.json exist, so a corrected rerun into it is not refused).
     for (split, &count) in SPLITS.iter().zip(&counts) {
         if count > 0 && !clouds.iter().any(|c| c.split == *split) {
             return Err(err(format!(
@@ -472,6 +461,20 @@ pub fn run(
     if part.index == 0 || part.index > part.count {
         return Err(err(format!("part {part}: needs 1 <= K <= N")));
     }
+    let medium = medium(opts)?;
+    let all: u128 = counts.iter().map(|&c| c as u128).sum();
+    crate::shard_files::check_disk(out, all.div_ceil(part.count as u128), opts.f16_descriptors)?;
+    std::fs::create_dir_all(out).map_err(|e| err(e.to_string()))?;
+    let _lock = lock_out(out)?;
+    check_settings(clouds, opts, out)?;
+    let gpu = if opts.gpu {
+        Some(nimbus_gpu::Gpu::new().map_err(|e| err(e.to_string()))?)
+    } else {
+        None
+    };
+    let start = Instant::now();
+    let mut shards = Vec::new();
+    let (mut computed, mut total, mut converged) = (0usize, 0usize, 0usize);
     // Global index of each split's first shard (train, then validation, then test).
     let mut first_shard = 0usize;
     for (split, count) in SPLITS.into_iter().zip(counts) {

@@ -172,12 +172,25 @@ impl Rpnn {
             file: path.display().to_string(),
             msg,
         };
+        let not_found = || {
+            err("model not found (train one with training/train.py, or use the shipped models/rpnn-hg.onnx)".into())
+        };
+        if !path.exists() {
+            return Err(not_found());
+        }
+        // A regular file whose bytes fit the memory budget, before it is read whole (a 6 GiB
+        // file named as a model was once read to the end before the protobuf parser refused it).
+        nimbus_scene::memory::check_file(path, 1).map_err(|e| {
+            let t = e.to_string();
+            let prefix = format!("{}: ", path.display());
+            err(t.strip_prefix(&prefix).unwrap_or(&t).to_string())
+        })?;
         let bytes = std::fs::read(path).map_err(|e| {
-            err(if e.kind() == std::io::ErrorKind::NotFound {
-                "model not found (train one with training/train.py, or use the shipped models/rpnn-hg.onnx)".into()
+            if e.kind() == std::io::ErrorKind::NotFound {
+                not_found()
             } else {
-                e.to_string()
-            })
+                err(e.to_string())
+            }
         })?;
         let mut m = Self::from_bytes(&bytes).map_err(err)?;
         if m.albedo.is_none() {
@@ -332,8 +345,21 @@ fn floats(t: &TensorProto) -> Result<Vec<f32>, String> {
     if let Some(i) = v.iter().position(|x| !x.is_finite()) {
         return Err(format!("tensor `{}`: value {i} is {}", t.name, v[i]));
     }
+    if let Some(i) = v.iter().position(|x| x.abs() > MAX_WEIGHT) {
+        return Err(format!(
+            "tensor `{}`: value {i} is {:e}, beyond ±{MAX_WEIGHT:e}: not a trained network's \
+             weight (the shipped models' are within ±1.2); its activations would overflow \
+             float32 and the two inference backends would disagree",
+            t.name, v[i]
+        ));
+    }
     Ok(v)
 }
+
+/// The largest weight or bias magnitude a model may hold. Trained weights are O(1) (the shipped
+/// models': ≤ 1.16); a network of 23 layers with weights far beyond that drives its float32
+/// activations to overflow, where ONNX Runtime and the WGSL MLP give different non-answers.
+const MAX_WEIGHT: f32 = 1e3;
 
 fn ints(t: &TensorProto) -> Result<Vec<i64>, String> {
     match t.data_type {

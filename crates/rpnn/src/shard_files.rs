@@ -214,3 +214,65 @@ pub(crate) fn lock_out(out: &Path) -> Result<std::fs::File, DatagenError> {
         Err(std::fs::TryLockError::Error(e)) => Err(err(e.to_string())),
     }
 }
+
+/// Bytes one record takes on disk: its descriptor (float32, or float16), its label and its
+/// metadata row (float32 each).
+pub(crate) fn record_disk_bytes(f16: bool) -> u128 {
+    let x = crate::descriptor::DESCRIPTOR_LEN * if f16 { 2 } else { 4 };
+    (x + 4 + META_COLUMNS * 4) as u128
+}
+
+/// Free bytes on the file system that holds `path` (or its nearest existing ancestor, as the
+/// folder may not exist yet); `None` where that cannot be asked.
+fn free_bytes(path: &Path) -> Option<u128> {
+    let at = path.ancestors().find(|p| p.exists())?;
+    let at = if at.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        at
+    };
+    #[cfg(unix)]
+    {
+        let s = rustix::fs::statvfs(at).ok()?;
+        Some(s.f_bavail as u128 * s.f_frsize as u128)
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = at;
+        None
+    }
+}
+
+/// Checks, before anything is written, that `records` more records fit on the file system of
+/// `out`: the shards already in `out` (a resumed run) count as written. Asking for 10¹² records
+/// is then a clear error at once instead of hours of work and a full disk.
+pub(crate) fn check_disk(out: &Path, records: u128, f16: bool) -> Result<(), DatagenError> {
+    let Some(free) = free_bytes(out) else {
+        return Ok(());
+    };
+    let held: u128 = std::fs::read_dir(out)
+        .map(|dir| {
+            dir.filter_map(|e| e.ok())
+                .filter(|e| e.path().extension().is_some_and(|x| x == "npy"))
+                .filter_map(|e| e.metadata().ok().map(|m| m.len() as u128))
+                .sum()
+        })
+        .unwrap_or(0);
+    let need = records.saturating_mul(record_disk_bytes(f16));
+    if need.saturating_sub(held) > free {
+        use nimbus_scene::memory::human;
+        return Err(DatagenError::Set {
+            what: out.display().to_string(),
+            msg: format!(
+                "field `--records`: {records} records in all (training, validation and test) need {} on \
+                 disk ({} each; shards already \
+                 here: {}), the file system has {} free",
+                human(need),
+                human(record_disk_bytes(f16)),
+                human(held),
+                human(free)
+            ),
+        });
+    }
+    Ok(())
+}

@@ -100,6 +100,27 @@ fn other_graphs_and_bad_files_are_refused() {
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
     let e = Rpnn::load(&cut).unwrap_err().to_string();
     assert!(e.contains("cut.onnx"), "{e}");
+    // Weights far beyond a trained network's (×10³⁰: once rendered without a word, the two
+    // backends disagreeing by 10²⁹) are refused, naming the tensor.
+    use protobuf::Message;
+    let mut m = onnx_protobuf::ModelProto::parse_from_bytes(&bytes).unwrap();
+    let t = m.graph.as_mut().unwrap().initializer.first_mut().unwrap();
+    if t.raw_data.is_empty() {
+        t.float_data[0] = 1e30;
+    } else {
+        t.raw_data[..4].copy_from_slice(&1e30f32.to_le_bytes());
+    }
+    let name = t.name.clone();
+    let huge = dir.join("huge-weight.onnx");
+    std::fs::write(&huge, m.write_to_bytes().unwrap()).unwrap();
+    let e = Rpnn::load(&huge).unwrap_err().to_string();
+    assert!(
+        e.contains("huge-weight.onnx") && e.contains(&name) && e.contains("1e30"),
+        "{e}"
+    );
+    // A folder is not read as a model.
+    let e = Rpnn::load(&dir).unwrap_err().to_string();
+    assert!(e.contains("a folder"), "{e}");
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -46,7 +46,8 @@ impl Camera {
                 "the distance from camera.origin overflows (coordinates beyond ≈ 1e154); use a smaller scene scale",
             ));
         }
-        if f.length() < 1e-12 {
+        // Relative to the coordinates' size: a scene may be modelled at any scale.
+        if f.length() == 0.0 || f.length() < 1e-12 * origin.length().max(target.length()) {
             return Err(FieldError::new(
                 "camera.target",
                 "must differ from camera.origin",

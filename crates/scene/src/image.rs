@@ -97,6 +97,7 @@ impl Image {
     /// Reads the RGB channels of the first layer of an EXR (Y-only images are broadcast).
     pub fn read_exr(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
+        crate::memory::regular_file(path)?;
         // The data window sizes the image: checked against the memory budget before the
         // pixels are allocated (a 10 kB file can claim 10⁶ × 10⁶ pixels).
         let meta = exr::meta::MetaData::read_from_file(path, false)

@@ -27,12 +27,17 @@ impl Sun {
         irradiance: DVec3,
         angular_radius_deg: f64,
     ) -> Result<Self, FieldError> {
-        if !direction.is_finite() || direction.length() < 1e-12 {
+        // Only the direction counts: the vector is scaled by its largest component before it is
+        // normalised, so [1e308, 1e308, 0] (whose length overflows) and [1e-300, 1e-300, 0]
+        // (whose length underflows) name the same direction as [1, 1, 0].
+        let largest = direction.abs().max_element();
+        if !direction.is_finite() || largest == 0.0 {
             return Err(FieldError::new(
                 "sun.direction",
                 "must be a finite non-zero vector",
             ));
         }
+        let direction = direction / largest;
         if !irradiance.is_finite() || irradiance.min_element() < 0.0 {
             return Err(FieldError::new("sun.irradiance", "must be finite and ≥ 0"));
         }
@@ -327,6 +332,14 @@ mod tests {
         assert!(s.contains(d));
         assert!((pdf * s.solid_angle() - 1.0).abs() < 1e-12);
         assert!(Sun::new(DVec3::ZERO, DVec3::ONE, 0.0).is_err());
+        // A direction is a direction at any length: one whose length overflows or underflows
+        // (once silently dropped: the normalised vector was NaN) names [1, 1, 0]/√2.
+        for scale in [1e308, 1e-300, 1e-320] {
+            let s = Sun::new(DVec3::new(scale, scale, 0.0), DVec3::ONE, 0.0).unwrap();
+            let want = DVec3::new(1.0, 1.0, 0.0).normalize();
+            assert!((s.dir - want).length() < 1e-15, "{scale}: {:?}", s.dir);
+        }
+        assert!(Sun::new(DVec3::new(f64::INFINITY, 0.0, 0.0), DVec3::ONE, 0.0).is_err());
         assert!(Sun::new(DVec3::Y, DVec3::splat(-1.0), 0.0).is_err());
     }
 

@@ -356,10 +356,40 @@ pub fn parse_phase(
     }
 }
 
+/// The largest scene file read: scene files are a few KiB of TOML, and a file far larger is
+/// something else (read whole, it would take its size in memory and its parse error would quote
+/// its longest line).
+pub const MAX_SCENE_BYTES: u64 = 1 << 20;
+
+/// A parse error's text with each quoted line cut to 200 characters: the error quotes the
+/// offending line, which in a file that is not a scene can be megabytes long.
+fn clip_lines(msg: &str) -> String {
+    const MAX: usize = 200;
+    msg.lines()
+        .map(|l| match l.char_indices().nth(MAX) {
+            Some((at, _)) => format!("{}… ({} more bytes)", &l[..at], l.len() - at),
+            None => l.to_string(),
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
 impl Scene {
-    /// Reads a scene file.
+    /// Reads a scene file (at most [`MAX_SCENE_BYTES`]).
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
+        let len = crate::memory::regular_file(path)?;
+        if len > MAX_SCENE_BYTES {
+            return Err(Error::parse(
+                path,
+                format!(
+                    "a scene file of {}: scene files are text of a few KiB (at most {}); \
+                     volumes belong in their own files (volume.file)",
+                    crate::memory::human(len as u128),
+                    crate::memory::human(MAX_SCENE_BYTES as u128)
+                ),
+            ));
+        }
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
         let base = path.parent().unwrap_or(Path::new("."));
         Self::from_toml_str(&text, base, path)
@@ -368,8 +398,12 @@ impl Scene {
     /// Parses scene text; relative paths resolve against `base_dir`; `label` names the source in
     /// errors.
     pub fn from_toml_str(text: &str, base_dir: &Path, label: &Path) -> Result<Self> {
-        let raw: RawScene =
-            toml::from_str(text).map_err(|e| Error::parse(label, format!("invalid scene: {e}")))?;
+        let raw: RawScene = toml::from_str(text).map_err(|e| {
+            Error::parse(
+                label,
+                format!("invalid scene: {}", clip_lines(&e.to_string())),
+            )
+        })?;
         let at = |e: FieldError| e.at(label);
         let v = &raw.volume;
         // Volume grid.

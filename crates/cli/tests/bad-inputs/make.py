@@ -99,3 +99,15 @@ scene("sky_1e39.toml", extra="\n[sky]\nradiance = [1e39, 1e39, 1e39]\n")
 scene("sun_disc_1e-300.toml", extra="angular_radius_deg = 1e-300\n")
 scene("generator_1290.toml", res="1290, 1290, 1290")
 scene("good.toml")
+
+# 7. A scene modelled at 10^34 (box ±10^34, density scale 10^-34): right in f64, once black or
+#    cloudless without a word in the f32 estimators. And a depth limit that pm and RPNN, which
+#    compute every order of scattering, cannot honour.
+text = SCENE.format(res="16, 12, 16", scale="1e-34", sun="3.0", origin="0.0, 3e33, 4e34",
+                    target="0.0, 0.0, 0.0", extra="")
+text = text.replace("aabb_min = [-1.0, -0.5, -1.0]", "aabb_min = [-1e34, -5e33, -1e34]")
+text = text.replace("aabb_max = [1.0, 0.5, 1.0]", "aabb_max = [1e34, 5e33, 1e34]")
+write("scale_1e34.toml", text.encode())
+text = SCENE.format(res="16, 12, 16", scale="40.0", sun="3.0", origin="0.0, 0.3, 4.0",
+                    target="0.0, 0.0, 0.0", extra="")
+write("max_depth_0.toml", text.replace("seed = 0", "seed = 0\nmax_depth = 0").encode())

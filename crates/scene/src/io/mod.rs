@@ -51,6 +51,7 @@ pub fn read_grid_named(path: impl AsRef<Path>, grid: Option<&str>) -> Result<Gri
             "only .vdb and .nvdb files hold named grids",
         ));
     }
+    crate::memory::regular_file(path)?;
     match ext.as_deref() {
         Some("vol") => vol::read(path),
         Some("npy") => npy::read(path).map(|grid| GridFile { grid, bounds: None }),
