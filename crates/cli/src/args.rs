@@ -173,3 +173,47 @@ pub(crate) fn unit_interval(s: &str) -> std::result::Result<f64, String> {
         Err(format!("must lie in [0, 1), got {s}"))
     }
 }
+
+/// `render`'s flags that belong to another estimator than the chosen one (the photon map's to
+/// pm, RPNN's to rpnn), as warnings: given, they would otherwise be ignored without a word.
+pub(crate) fn flags_for_other_methods(cmd: &clap::Command, m: &clap::ArgMatches) -> Vec<String> {
+    let Some(("render", sub)) = m.subcommand() else {
+        return Vec::new();
+    };
+    let Some(render) = cmd.find_subcommand("render") else {
+        return Vec::new();
+    };
+    let Some(method) = sub.get_one::<nimbus_render::Method>("method").copied() else {
+        return Vec::new();
+    };
+    use nimbus_render::Method;
+    let mut out = Vec::new();
+    for (group, applies, to) in [
+        (
+            "PmArgs",
+            matches!(method, Method::Pm | Method::PmElek2012),
+            "pm and pm-elek2012",
+        ),
+        ("RpnnArgs", method == Method::Rpnn, "rpnn"),
+    ] {
+        if applies {
+            continue;
+        }
+        let Some(g) = render.get_groups().find(|g| g.get_id() == group) else {
+            continue;
+        };
+        for id in g.get_args() {
+            if sub.value_source(id.as_str()) == Some(clap::parser::ValueSource::CommandLine) {
+                let flag = render
+                    .get_arguments()
+                    .find(|a| a.get_id() == id)
+                    .and_then(|a| a.get_long())
+                    .unwrap_or(id.as_str());
+                out.push(format!(
+                    "warning: --{flag} applies to --method {to}; ignored with --method {method}"
+                ));
+            }
+        }
+    }
+    out
+}

@@ -122,6 +122,22 @@ fn log(line: String) {
     say!("{line}");
 }
 
+/// What a comparison writes and reads at its end, checked before its first render (a reference
+/// and the runs can take an hour): the output and cache folders can be written, and RPNN's model
+/// (`model`: the one the runs would load) reads.
+fn preflight(opts: &CompareOptions, out: &Path, model: impl FnOnce() -> PathBuf) -> Result<()> {
+    use anyhow::Context;
+    nimbus_scene::io::check_writable(out.join("report.md")).context("--out")?;
+    if let Some(cache) = &opts.reference.cache_dir {
+        nimbus_scene::io::check_writable(cache.join("reference.exr")).context("--cache")?;
+    }
+    if opts.methods.contains(&nimbus_eval::method::Method::Rpnn) {
+        let path = opts.run.model.clone().unwrap_or_else(model);
+        nimbus_rpnn::model::Rpnn::load(&path)?;
+    }
+    Ok(())
+}
+
 /// `nimbus compare scene.toml --methods … --out DIR`.
 pub(crate) fn compare_scene(scene: &Path, args: &EvalArgs, out: &Path) -> Result<()> {
     let s = nimbus_scene::Scene::load(scene)?;
@@ -131,6 +147,9 @@ pub(crate) fn compare_scene(scene: &Path, args: &EvalArgs, out: &Path) -> Result
         .unwrap_or_default()
         .to_string_lossy()
         .into_owned();
+    preflight(&opts, out, || {
+        nimbus_rpnn::model::model_path_for(&s.phase_desc)
+    })?;
     let mut gpu = GpuSlot::default();
     let c = nimbus_eval::compare_scene(&s, &name, &opts, out, &mut gpu, &mut log)?;
     say!(
@@ -207,6 +226,11 @@ pub(crate) fn bench_suite(args: &SuiteArgs) -> Result<()> {
         compare: args.eval.options(1)?,
         work_dir: args.work.clone(),
     };
+    preflight(
+        &opts.compare,
+        &args.out,
+        nimbus_rpnn::model::default_model_path,
+    )?;
     let rows = run(&opts, &args.out, &mut log)?;
     say!("{} runs", rows.len());
     Ok(())

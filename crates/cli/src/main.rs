@@ -212,7 +212,14 @@ fn main() {
     if let Some(code) = nimbus_eval::stress::serve_child_if_requested() {
         std::process::exit(code);
     }
-    if let Err(e) = run(Cli::parse()) {
+    let cmd = <Cli as clap::CommandFactory>::command();
+    let matches = cmd.clone().get_matches();
+    let cli =
+        <Cli as clap::FromArgMatches>::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    for w in args::flags_for_other_methods(&cmd, &matches) {
+        eprintln!("{w}");
+    }
+    if let Err(e) = run(cli) {
         eprintln!("error: {e:#}");
         std::process::exit(1);
     }
@@ -267,8 +274,12 @@ fn run(cli: Cli) -> Result<()> {
                     .with_extension("exr")
             });
             let (exr, png) = (out.with_extension("exr"), out.with_extension("png"));
-            // Checked (and the folder made) before the render, not after it.
+            // Checked (and the folder made) before the render, not after it; so is the
+            // reference to compare with.
             io::check_writable(&exr)?;
+            if let Some(r) = &reference {
+                nimbus_scene::memory::regular_file(r).context("--reference")?;
+            }
             let method = match (method, device) {
                 (m, Device::Cpu) => m,
                 (Method::Pt | Method::PtGpu, Device::Gpu) => Method::PtGpu,
@@ -568,6 +579,23 @@ fn print_metrics(
             reference.display(),
             r.width,
             r.height
+        );
+    }
+    // A radiance reference has no negative or non-finite pixel: one would be dropped from the
+    // metrics without a word (the cloud mask skips pixels of non-positive luminance).
+    let bad: Vec<usize> = (0..r.pixels.len())
+        .filter(|&i| r.pixels[i].iter().any(|c| !(c.is_finite() && *c >= 0.0)))
+        .collect();
+    if let Some(&i) = bad.first() {
+        bail!(
+            "{}: {} of {} pixels are negative or not finite (the first at x = {}, y = {}: {:?}); \
+             a radiance reference has none",
+            reference.display(),
+            bad.len(),
+            r.pixels.len(),
+            i % r.width,
+            i / r.width,
+            r.pixels[i]
         );
     }
     let mask_path = mask_for(reference, mask);

@@ -1,7 +1,7 @@
 //! `nimbus compare scene.toml`, `bench-suite` and `stress` end to end on CI-sized scenes
 //! (lavapipe for the GPU methods, ONNX Runtime from training/.venv for RPNN).
 
-use crate::common::{nimbus, text, tmp};
+use crate::common::{nimbus, nimbus_within, text, tmp};
 use std::path::{Path, PathBuf};
 
 const SCENE: &str = r#"
@@ -241,6 +241,62 @@ fn compare_rejects_bad_arguments() {
     let o = nimbus(&["compare", "missing.toml"]);
     assert!(!o.status.success());
     assert!(text(&o).contains("missing.toml"), "{}", text(&o));
+    // What the comparison writes and reads at its end is checked before the reference is
+    // rendered (an hour, for a real scene): an --out that is a file, a model that does not read.
+    let blocker = d.join("a_file");
+    std::fs::write(&blocker, b"x").unwrap();
+    let garbage = d.join("garbage.onnx");
+    std::fs::write(&garbage, b"not a model").unwrap();
+    let (rep, cache) = (d.join("rep"), d.join("cache"));
+    let (b, rep, cache) = (
+        blocker.to_str().unwrap(),
+        rep.to_str().unwrap(),
+        cache.to_str().unwrap(),
+    );
+    for (args, want) in [
+        (
+            vec!["--methods", "pt", "--out", b, "--cache", cache],
+            "--out",
+        ),
+        (
+            vec!["--methods", "pt", "--out", rep, "--cache", b],
+            "--cache",
+        ),
+        (
+            vec!["--methods", "pt,rpnn", "--out", rep, "--cache", cache],
+            "garbage.onnx",
+        ),
+    ] {
+        let mut a = vec!["compare", s, "--ref-spp", "1000000"];
+        a.extend(args);
+        a.extend(["--model", garbage.to_str().unwrap()]);
+        let o = nimbus_within(&a, 20).expect("the check came after the reference");
+        assert!(
+            !o.status.success() && text(&o).contains(want),
+            "{a:?}: {}",
+            text(&o)
+        );
+    }
+    // A reference with a negative pixel (once dropped from the metrics without a word).
+    let mut img = nimbus_scene::Image::new(4, 3);
+    for p in img.pixels.iter_mut() {
+        *p = [0.5, 0.5, 0.5];
+    }
+    let test = d.join("test.exr");
+    img.write_exr(&test, None).unwrap();
+    img.pixels[5] = [0.5, -0.1, 0.5];
+    let reference = d.join("ref.exr");
+    img.write_exr(&reference, None).unwrap();
+    let o = nimbus(&[
+        "compare",
+        test.to_str().unwrap(),
+        reference.to_str().unwrap(),
+    ]);
+    let t = text(&o);
+    assert!(
+        !o.status.success() && t.contains("ref.exr") && t.contains("1 of 12 pixels are negative"),
+        "{t}"
+    );
 }
 
 #[test]
