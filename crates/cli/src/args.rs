@@ -153,7 +153,7 @@ pub(crate) fn thread_count(s: &str) -> std::result::Result<usize, String> {
     let v: usize = s
         .trim()
         .parse()
-        .map_err(|_| format!("`{s}` is not a whole number"))?;
+        .map_err(|_| format!("`{s}` is not a whole number in 1..=1024"))?;
     if (1..=1024).contains(&v) {
         Ok(v)
     } else {

@@ -109,7 +109,8 @@ enum Command {
     /// PNG frames and per-frame timings (CSV).
     Animate {
         scene: PathBuf,
-        #[arg(long, default_value_t = 100)]
+        /// Frames to render and write (at least 1).
+        #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u32).range(1..))]
         frames: u32,
         /// Sun angular speed about +y, degrees per simulated second.
         #[arg(long, default_value_t = 0.0)]
@@ -381,8 +382,14 @@ fn run(cli: Cli) -> Result<()> {
             io::check_grid_output(&out)?;
             let res = match res {
                 Some(r) if r.len() != 3 => bail!("--res needs three values X,Y,Z, got {r:?}"),
-                Some(r) => nimbus_scene::grid::check_resolution([r[0], r[1], r[2]], "--res")
-                    .map_err(|e| anyhow::anyhow!("{e}"))?,
+                // The generator's own limits, said for --res before the output file is opened
+                // (a .vol is streamed: sparse).
+                Some(r) => generate::check_generator_resolution(
+                    [r[0], r[1], r[2]],
+                    out.extension().is_some_and(|e| e == "vol"),
+                    "--res",
+                )
+                .map_err(|e| anyhow::anyhow!("{e}"))?,
                 None => kind.default_resolution(128),
             };
             let bounds = generate::default_aabb(res);

@@ -44,10 +44,9 @@ pub fn parse_budgets(spec: &str) -> Result<(Method, Vec<u32>)> {
     let m: Method = m.parse().map_err(anyhow::Error::msg)?;
     let mut b = Vec::new();
     for v in list.split(',') {
-        let n: u32 = v
-            .trim()
-            .parse()
-            .map_err(|_| anyhow::anyhow!("--budgets `{spec}`: `{v}` is not a whole number"))?;
+        let n: u32 = v.trim().parse().map_err(|_| {
+            anyhow::anyhow!("--budgets `{spec}`: `{v}` is not a whole number in 1..=65536")
+        })?;
         if !(1..=65_536).contains(&n) {
             bail!("--budgets `{spec}`: {n} lies outside 1..=65536");
         }

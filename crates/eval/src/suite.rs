@@ -270,6 +270,16 @@ fn med(mut v: Vec<f64>) -> f64 {
     }
 }
 
+/// "a", "a and b", "a, b and c".
+fn english_list<'a>(items: impl Iterator<Item = &'a str>) -> String {
+    let v: Vec<&str> = items.collect();
+    match v.split_last() {
+        None => String::new(),
+        Some((last, [])) => last.to_string(),
+        Some((last, rest)) => format!("{} and {last}", rest.join(", ")),
+    }
+}
+
 fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> String {
     let c = &opts.compare;
     let methods: Vec<Method> = c.methods.clone();
@@ -277,8 +287,8 @@ fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> St
     let _ = writeln!(
         s,
         "The analogue of Kallweit et al. 2017, Table 1: {} held-out generated clouds ({}) — the \
-         test split of the training set, never seen by the shipped network — under front, side \
-         and back light, sun only and sun + sky; {}×{} pixels; reference: path tracer in rounds \
+         test split of the training set, never seen by the shipped network — under {} light, \
+         {}; {}×{} pixels; reference: path tracer in rounds \
          of 2 × {} spp until its relative noise over 4×4 cloud blocks is ≤ {:.1} % (cap {:.0} s \
          per scene; the noise reached is in each scene's report). Every error is over the cloud \
          pixels (camera optical depth ≥ 0.1), never the sky. Regenerate with `nimbus \
@@ -289,6 +299,12 @@ fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> St
             .map(|c| c.name.as_str())
             .collect::<Vec<_>>()
             .join(", "),
+        english_list(opts.lightings.iter().map(|l| l.name())),
+        english_list(
+            opts.skies
+                .iter()
+                .map(|&sky| if sky { "sun + sky" } else { "sun only" })
+        ),
         opts.width,
         opts.height,
         c.reference.spp,

@@ -414,6 +414,27 @@ fn fill_slice(field: &Field, plan: &Option<Plan>, res: [usize; 3], z: usize, sli
     }
 }
 
+/// The resolutions a generator accepts (`field` names the setting in errors): at least 4
+/// voxels per axis, and within the dense or the sparse (brick) grid's limits.
+pub fn check_generator_resolution(
+    res: [i64; 3],
+    sparse: bool,
+    field: &str,
+) -> Result<[usize; 3], FieldError> {
+    let res = if sparse {
+        crate::brick::check_sparse_resolution(res, field)?
+    } else {
+        check_resolution(res, field)?
+    };
+    if res.iter().any(|&r| r < 4) {
+        return Err(FieldError::new(
+            field,
+            format!("procedural clouds need at least 4 voxels per axis, got {res:?}"),
+        ));
+    }
+    Ok(res)
+}
+
 /// [`generate`], with the shortcuts that skip empty space and unneeded noise on or off, dense or
 /// sparse (the same values every way).
 fn generate_with(
@@ -423,17 +444,7 @@ fn generate_with(
     fast: bool,
     sparse: bool,
 ) -> Result<DensityGrid, FieldError> {
-    let res = if sparse {
-        crate::brick::check_sparse_resolution(res.map(|r| r as i64), "resolution")?
-    } else {
-        check_resolution(res.map(|r| r as i64), "resolution")?
-    };
-    if res.iter().any(|&r| r < 4) {
-        return Err(FieldError::new(
-            "resolution",
-            format!("procedural clouds need at least 4 voxels per axis, got {res:?}"),
-        ));
-    }
+    let res = check_generator_resolution(res.map(|r| r as i64), sparse, "resolution")?;
     let [nx, ny, nz] = res;
     let what = format!("a {nx}×{ny}×{nz} grid");
     let init = || {

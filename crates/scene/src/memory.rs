@@ -80,8 +80,11 @@ pub fn parse_size(s: &str) -> Result<u64, String> {
         other => return Err(format!("`{s}`: unknown unit `{other}` (K, M, G or T)")),
     };
     let bytes = v * (1u64 << shift) as f64;
-    if !(bytes.is_finite() && bytes >= 1.0 && bytes < u64::MAX as f64) {
+    if bytes.is_nan() || bytes < 1.0 {
         return Err(format!("`{s}`: must be at least 1 byte"));
+    }
+    if !(bytes.is_finite() && bytes < u64::MAX as f64) {
+        return Err(format!("`{s}`: too large (at most 16 EiB, 2^64 bytes)"));
     }
     Ok(bytes as u64)
 }
@@ -178,6 +181,9 @@ mod tests {
         for bad in ["", "G", "-1G", "6X", "0", "1e999"] {
             assert!(parse_size(bad).is_err(), "{bad}");
         }
+        // Overflow is said as such (was "must be at least 1 byte").
+        let e = parse_size("99999999999999999999T").unwrap_err();
+        assert!(e.contains("too large"), "{e}");
     }
 
     #[test]

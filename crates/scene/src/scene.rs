@@ -423,6 +423,13 @@ impl Scene {
                 ));
             }
             (Some(f), None) => {
+                if f.as_os_str().is_empty() {
+                    return Err(Error::invalid(
+                        label,
+                        "volume.file",
+                        "is empty: name a .vol, .npy, .vdb or .nvdb file",
+                    ));
+                }
                 let p = base_dir.join(f);
                 let gf = io::read_grid_named(&p, v.grid.as_deref())?;
                 (gf.grid, gf.bounds, VolumeSource::File(p))

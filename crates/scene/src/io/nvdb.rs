@@ -107,6 +107,12 @@ struct Entry {
 /// Finds grid `name` in the file and returns its active voxels and tiles.
 pub fn read_sparse(bytes: &[u8], name: &str) -> PResult<SparseGrid> {
     let mut c = Cursor::new(bytes);
+    if bytes.is_empty() {
+        return Err(Fail::new(
+            "header",
+            "the file is empty (a NanoVDB file starts with the magic number `NanoVDB0`)",
+        ));
+    }
     let mut names = Vec::new();
     while c.left() > 0 {
         c.field = "header";
