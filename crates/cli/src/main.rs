@@ -321,6 +321,9 @@ fn run(cli: Cli) -> Result<()> {
             let e = exposure.unwrap_or_else(|| image.auto_exposure());
             image.write_png(&png, e)?;
             say!("wrote {} and {}", exr.display(), png.display());
+            if let Some(w) = image.png_warning(e) {
+                eprintln!("warning: {}: {w}", png.display());
+            }
             if let Some(r) = reference {
                 // Cloud pixels from the scene's own camera optical depth (τ ≥ 0.1), unless the
                 // reference comes with its `_tau.npy`.

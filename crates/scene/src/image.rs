@@ -210,6 +210,35 @@ impl Image {
     }
 }
 
+impl Image {
+    /// Why the PNG at `exposure` would show nothing, if it would: every pixel black or every
+    /// pixel white. A black EXR (no light reaches the camera: a sun below the atmosphere's
+    /// horizon and no sky, say) is said apart from an exposure that clips.
+    pub fn png_warning(&self, exposure: f64) -> Option<String> {
+        let px = self.to_srgb8(exposure);
+        if px.iter().all(|&v| v == 0) {
+            if self.pixels.iter().all(|p| p.iter().all(|&c| c == 0.0)) {
+                return Some(
+                    "every pixel is black: no light reaches the camera (is the sun below the \
+                     horizon of an atmosphere, or are sun and sky zero?)"
+                        .into(),
+                );
+            }
+            return Some(format!(
+                "every pixel of the PNG is black at exposure {exposure:e} (the EXR holds the values)"
+            ));
+        }
+        // Every lit pixel clipped (a black background stays black at any exposure).
+        if px.iter().all(|&v| v == 0 || v == 255) {
+            return Some(format!(
+                "every pixel of the PNG is black or white at exposure {exposure:e}: the exposure \
+                 clips (the EXR holds the values)"
+            ));
+        }
+        None
+    }
+}
+
 /// The sRGB transfer function (linear → encoded), input in [0, 1].
 pub fn srgb_oetf(v: f64) -> f64 {
     if v <= 0.0031308 {
@@ -244,6 +273,27 @@ mod tests {
             );
             assert!(!path.exists());
         }
+    }
+
+    #[test]
+    fn png_warnings() {
+        let mut img = Image::new(2, 2);
+        assert!(img.png_warning(1.0).unwrap().contains("no light reaches"));
+        img.pixels[0] = [0.5, 0.5, 0.5];
+        assert_eq!(img.png_warning(1.0), None);
+        assert!(
+            img.png_warning(1e-30)
+                .unwrap()
+                .contains("black at exposure")
+        );
+        for p in img.pixels.iter_mut() {
+            *p = [0.5, 0.5, 0.5];
+        }
+        assert!(
+            img.png_warning(1e308)
+                .unwrap()
+                .contains("white at exposure")
+        );
     }
 
     #[test]
