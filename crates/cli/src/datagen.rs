@@ -67,7 +67,7 @@ pub struct DatagenArgs {
     #[arg(long)]
     f16: bool,
     /// Sample cap per record (records that reach it are kept and flagged as not converged).
-    #[arg(long, default_value_t = 1 << 18)]
+    #[arg(long, default_value_t = 1 << 18, value_parser = clap::value_parser!(u64).range(1..))]
     max_samples: u64,
     /// σ_t per unit grid value for clouds read from a folder.
     #[arg(long, default_value_t = 30.0)]

@@ -345,7 +345,36 @@ fn check_settings(
     let want_text = serde_json::to_string_pretty(&settings_json(clouds, opts)).expect("json");
     // Compared as text: a parsed f64 need not round-trip bit for bit through serde_json.
     let want: serde_json::Value = serde_json::from_str(&want_text).expect("json");
-    if let Ok(text) = std::fs::read_to_string(&path) {
+    let found = match std::fs::read_to_string(&path) {
+        Ok(text) => Some(text),
+        // Records without the settings that made them cannot be resumed under new ones (they
+        // would keep their old labels under the new settings' name).
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            let holds_records = std::fs::read_dir(out).is_ok_and(|d| {
+                d.filter_map(|e| e.ok()).any(|e| {
+                    let n = e.file_name();
+                    let n = n.to_string_lossy();
+                    n.ends_with(".npy") || n == "manifest.json"
+                })
+            });
+            if holds_records {
+                return Err(DatagenError::Set {
+                    what: out.display().to_string(),
+                    msg: "holds records but no settings.json, so the settings that made them \
+                          are unknown; use a new --out (or remove the folder)"
+                        .into(),
+                });
+            }
+            None
+        }
+        Err(e) => {
+            return Err(DatagenError::Set {
+                what: path.display().to_string(),
+                msg: format!("cannot be read ({e}); remove the folder or use a new --out"),
+            });
+        }
+    };
+    if let Some(text) = found {
         if text == want_text {
             return Ok(());
         }

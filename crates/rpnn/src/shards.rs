@@ -340,6 +340,19 @@ pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeSummary, DatagenError
         }
     }
 
+    // A folder that already holds another set is not overwritten (as a plain datagen run into
+    // it would be refused): it may hold records, or be this merge's earlier, interrupted run.
+    let text = serde_json::to_string_pretty(&first.settings).expect("json");
+    if out.join("manifest.json").exists() || out.join("settings.json").exists() {
+        let same = std::fs::read_to_string(out.join("settings.json")).is_ok_and(|t| t == text);
+        if !same {
+            return Err(fail(
+                out.display(),
+                "holds another data set (its settings.json differs or is missing); merge into a \
+                 new folder (or remove it)",
+            ));
+        }
+    }
     // Write.
     std::fs::create_dir_all(out).map_err(|e| fail(out.display(), e.to_string()))?;
     let _lock = lock_out(out)?;
@@ -368,7 +381,6 @@ pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeSummary, DatagenError
     }
     // settings.json as a single run writes it; the manifest's settings without the part (and
     // without how the parts were computed or shown).
-    let text = serde_json::to_string_pretty(&first.settings).expect("json");
     write_text(&out.join("settings.json"), &text)?;
     let clouds: Vec<CloudSpec> = serde_json::from_value(first.clouds.clone()).map_err(|e| {
         fail(

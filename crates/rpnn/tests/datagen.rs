@@ -478,6 +478,21 @@ fn parts_merge_into_the_single_run() {
         &tmp("m3"),
     ));
     assert!(e.contains("other settings") && e.contains("`seed`"), "{e}");
+    // A merge does not overwrite a folder holding another set (it once replaced it silently).
+    let e = msg(merge(&parts, &other));
+    assert!(e.contains("holds another data set"), "{e}");
+    // Records whose settings.json is gone are not resumed under new settings (they once kept
+    // their labels under the new settings' name).
+    std::fs::remove_file(merged.join("settings.json")).unwrap();
+    let e = msg(dataset::run(
+        &set,
+        &DatagenOptions {
+            samples: 8,
+            ..o(None)
+        },
+        &merged,
+    ));
+    assert!(e.contains("no settings.json"), "{e}");
     let bad = parts[1].join("train_00001_y.npy");
     let mut bytes = std::fs::read(&bad).unwrap();
     let last = bytes.len() - 1;
