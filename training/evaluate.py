@@ -52,13 +52,19 @@ def main(argv=None) -> dict:
             p.error("--card records the test split only (drop --split or give --split test)")
         args.split = ["test"]
         card, model_sha = card_entry(args.model, args.data)
-    meta = {m.key: m.value for m in __import__("onnx").load(str(args.model)).metadata_props}
-    config = json.loads(meta.get("nimbus.rpnn.config", "{}")) or {}
+    model, meta = load_model(args.model)
     try:
-        model = RPNN(**config)
-        rexport.import_onnx(model, args.model)
-    except (ValueError, TypeError) as e:
+        manifest = rdata.read_manifest(args.data)
+    except rdata.DataError as e:
         raise SystemExit(f"error: {e}") from None
+    # A model scored on records of another medium measures nothing (the renderer warns too).
+    st = manifest.get("settings", {})
+    for key in ("phase", "albedo"):
+        have = meta.get(f"nimbus.rpnn.{key}")
+        want = st.get(key)
+        if have is not None and want is not None and str(have) != str(want):
+            raise SystemExit(f"error: {args.model} was trained for {key} {have}, the records "
+                             f"of {args.data} have {key} {want}")
     result = {"model": str(args.model), "data": str(args.data)}
     names = {"val": "validation", "test": "test", "train": "training"}
     for split in args.split or ["val", "test"]:
@@ -74,6 +80,9 @@ def main(argv=None) -> dict:
             continue
         err = train.record_errors(model, train.Batches(recs, np.arange(len(recs)),
                                                        torch.device("cpu"), False), 4000)
+        if err is None:
+            raise SystemExit(f"error: {args.data}: the {name} records have no positive target; "
+                             f"relative errors are undefined")
         train.with_label_noise(err, args.data, split)
         result[name] = err
         print(f"{name}: {err['records']} records, median relative error "
@@ -83,11 +92,39 @@ def main(argv=None) -> dict:
         for line in rexport.record_error_lines({name: err})[1:]:
             if line.strip():
                 print(line)
+    if len(result) == 2:
+        raise SystemExit(f"error: {args.data}: no validation or test records to score (give "
+                         f"--split train for a set of training records)")
     if args.card:
         add_to_card(args.model, model_sha, card, result["test"])
     if args.json:
-        args.json.write_text(json.dumps(result, indent=1))
+        try:
+            args.json.write_text(json.dumps(result, indent=1))
+        except OSError as e:
+            raise SystemExit(f"error: --json {args.json}: {e}") from None
     return result
+
+
+def load_model(path: Path) -> tuple[RPNN, dict]:
+    """The network of an ONNX file written by train.py and its metadata; errors name the file."""
+    import onnx
+    from google.protobuf.message import DecodeError
+
+    if not path.is_file():
+        raise SystemExit(f"error: {path}: {'a folder' if path.is_dir() else 'no such file'}"
+                         f" (--model names an ONNX file written by train.py)")
+    try:
+        meta = {m.key: m.value for m in onnx.load(str(path)).metadata_props}
+        config = json.loads(meta.get("nimbus.rpnn.config", "{}")) or {}
+        if not isinstance(config, dict):
+            raise ValueError("metadata field `nimbus.rpnn.config` is not a JSON object")
+        model = RPNN(**config)
+        rexport.import_onnx(model, path)
+    except (DecodeError, OSError, json.JSONDecodeError) as e:
+        raise SystemExit(f"error: {path}: not a readable RPNN model ({e})") from None
+    except (ValueError, TypeError) as e:
+        raise SystemExit(f"error: {path}: field `nimbus.rpnn.config` or the weights: {e}") from None
+    return model, meta
 
 
 def card_entry(model: Path, root: Path) -> tuple[dict, str]:
@@ -98,7 +135,12 @@ def card_entry(model: Path, root: Path) -> tuple[dict, str]:
     card_path = model.with_suffix(".json")
     if not card_path.exists():
         raise SystemExit(f"error: {card_path}: no model card next to {model} (--card)")
-    card = json.loads(card_path.read_text())
+    try:
+        card = json.loads(card_path.read_text())
+        if not isinstance(card, dict) or not isinstance(card.get("data", {}), dict):
+            raise ValueError("expected a JSON object with a `data` object")
+    except (ValueError, OSError) as e:
+        raise SystemExit(f"error: {card_path}: not a model card ({e})") from None
     sha = hashlib.sha256(model.read_bytes()).hexdigest()
     if card.get("model_sha256", sha) != sha:
         raise SystemExit(f"error: {card_path} describes another file (sha256 "
@@ -108,6 +150,12 @@ def card_entry(model: Path, root: Path) -> tuple[dict, str]:
         m = rdata.read_manifest(root)
     except rdata.DataError as e:
         raise SystemExit(f"error: {e}") from None
+    h = rdata.manifest_hash(root)
+    own = [str(card["data"].get("manifest_sha256") or ""),
+           str((card["data"].get("test_set") or {}).get("manifest_sha256") or "")]
+    if any(h in o for o in own):
+        raise SystemExit(f"error: {root} is one of the card's own data sets (its test split is "
+                         f"on the card already); --card adds further held-out sets")
     train.check_test_set({"settings": {k: card["data"].get(k) for k in ("phase", "albedo")},
                           "clouds": card["data"].get("clouds", [])}, m, root, "--card --data")
     st = m.get("settings", {})

@@ -12,6 +12,13 @@
 # clouds, light directions uniform in the angle gamma, density scales 10 … 300.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# Settings are environment variables (above and below); the script takes no arguments, so one
+# (e.g. --help) prints this header instead of starting hours of work.
+if [ "$#" -gt 0 ]; then
+  sed -n '2,/^set -euo/p' "$0" | sed '$d; s/^# \{0,1\}//'
+  echo "reproduce.sh takes no arguments (got: $*); its settings are environment variables" >&2
+  exit 2
+fi
 CLOUDS=${CLOUDS:-gen:150}           # or e.g. gen:150:congestus,stratus,cirrus,mixture (other kinds)
 DENSITY_RANGE=${DENSITY_RANGE:-10,300}
 RECORDS=${RECORDS:-1000000}
@@ -70,6 +77,19 @@ LR=${LR:-}                      # the first stage's Adam step (empty: train.py's
 DATA=${DATA:-out/rpnn-$PHASE-data}
 RUN=${RUN:-out/train-rpnn-$PHASE}
 MODEL=${MODEL:-models/rpnn-$PHASE.onnx}
+
+# Whole-number settings are checked now, not when their stage comes hours later.
+for v in RECORDS SAMPLES VAL_RECORDS TEST_RECORDS EVAL_SAMPLES EPOCHS RESTART_EPOCHS \
+         FINETUNE_EPOCHS FINETUNE_RECORDS SECOND_EPOCHS SECOND_RECORDS; do
+  case "${!v}" in
+    '' | *[!0-9]*) echo "reproduce.sh: $v=${!v} is not a whole number" >&2; exit 2 ;;
+  esac
+done
+for s in $SECOND_SEEDS; do
+  case "$s" in
+    *[!0-9]*) echo "reproduce.sh: SECOND_SEEDS holds \`$s\`, not a whole number" >&2; exit 2 ;;
+  esac
+done
 
 cargo build --release -p nimbus-cli
 bash training/setup.sh

@@ -63,6 +63,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from rpnn import data as rdata  # noqa: E402
 from rpnn import export as rexport  # noqa: E402
+from rpnn.metrics import record_errors, with_label_noise  # noqa: E402,F401
 from rpnn.model import (  # noqa: E402
     LOSSES,
     RPNN,
@@ -154,6 +155,15 @@ def parse_args(argv=None):
         p.error(f"--init {args.init}: no such file")
     if not 0.0 <= args.blend_init <= 1.0:
         p.error(f"--blend-init must lie in [0, 1], got {args.blend_init}")
+    if args.threads < 0 or args.seed < 0:
+        p.error(f"--threads and --seed must be >= 0, got {args.threads} and {args.seed}")
+    if not (np.isfinite(args.max_minutes) and args.max_minutes >= 0):
+        p.error(f"--max-minutes must be a finite number >= 0 (0: no limit), got {args.max_minutes}")
+    if not 0.0 < args.val_fraction < 1.0:
+        p.error(f"--val-fraction must lie in (0, 1), got {args.val_fraction}")
+    seen = [d.resolve() for d in args.data]
+    if len(set(seen)) != len(seen):
+        p.error("--data names a folder twice (its records would count twice)")
     return args
 
 
@@ -272,63 +282,6 @@ def evaluate(model, batches: Batches, batch: int, loss_fn, dist: Dist | None = N
     if dist:
         total = dist.sum([total], device)[0]
     return total / len(batches)
-
-
-GAMMA_BINS_DEG = [0, 30, 60, 90, 120, 150, 180]
-
-
-def record_errors(model, batches: Batches, batch: int) -> dict | None:
-    """Per-record relative error |y_hat - y| / y on a precise split: median overall, by gamma
-    (30-degree bins; gamma = 180 is front-lit) and by target size (terciles), plus the ratio of
-    mean prediction to mean target (overall and per gamma bin, with the standard error of the
-    per-bin ratio: the bias an image lit at that angle inherits)."""
-    if len(batches) == 0:
-        return None
-    model.eval()
-    preds, ys, gammas = [], [], []
-    with torch.no_grad():
-        for x, y in batches.iterate(batch, None):
-            preds.append(model(x)[:, 0].cpu().numpy())
-            ys.append(y.cpu().numpy())
-            gammas.append(x[:, -1].cpu().numpy())
-    p, y, g = np.concatenate(preds), np.concatenate(ys), np.degrees(np.concatenate(gammas))
-    ok = y > 0
-    pk, yk, g = p[ok], y[ok], g[ok]
-    rel = np.abs(pk - yk) / yk
-    out = {"records": int(ok.sum()), "median_rel_error": float(np.median(rel)),
-           "mean_ratio": float(pk.mean() / yk.mean()), "by_gamma": [], "by_target": []}
-    for lo, hi in zip(GAMMA_BINS_DEG[:-1], GAMMA_BINS_DEG[1:]):
-        sel = (g >= lo) & ((g < hi) | (hi == 180))
-        if sel.any():
-            n, ym = int(sel.sum()), float(yk[sel].mean())
-            out["by_gamma"].append({"gamma_deg": [lo, hi], "records": n,
-                                    "median_rel_error": float(np.median(rel[sel])),
-                                    "mean_ratio": float(pk[sel].mean()) / ym,
-                                    "mean_ratio_se": float((pk[sel] - yk[sel]).std()
-                                                           / np.sqrt(n) / ym)})
-    edges = np.quantile(yk, [0, 1 / 3, 2 / 3, 1])
-    for i in range(3):
-        sel = (yk >= edges[i]) & ((yk < edges[i + 1]) | (i == 2))
-        if sel.any():
-            out["by_target"].append({"target": [float(edges[i]), float(edges[i + 1])],
-                                     "records": int(sel.sum()),
-                                     "median_rel_error": float(np.median(rel[sel]))})
-    return out
-
-
-def with_label_noise(err: dict | None, root: Path | list[Path], split: str) -> dict | None:
-    """Adds to a split's record errors the median relative noise of its labels and the
-    median error a perfect model would show against them (|N(0, s_i)| per record, simulated
-    with a fixed seed); the errors themselves are never corrected for it."""
-    if not err:
-        return err
-    roots = root if isinstance(root, list) else [root]
-    s = np.concatenate([rdata.label_noise(r, split) for r in roots])
-    s = s[np.isfinite(s)]
-    rng = np.random.default_rng(0)
-    err["label_noise_median"] = float(np.median(s)) if s.size else None
-    err["noise_floor_median"] = float(np.median(np.abs(rng.normal(0.0, s)))) if s.size else None
-    return err
 
 
 def plot(log_rows: list[dict], path: Path) -> None:
@@ -477,6 +430,12 @@ def _train(args, dist: Dist, device) -> dict:
     if len(train_recs) < 2:
         raise SystemExit(f"{', '.join(map(str, args.data))}: {len(train_recs)} training records; "
                          f"at least 2 are needed")
+    if args.test_data is not None and not len(test_recs):
+        raise rdata.DataError(f"--test-data {args.test_data}: no test records (its test split "
+                              f"is empty)")
+    if all(float(np.max(sh.y)) == 0.0 for sh in train_shards if len(sh.y)):
+        raise rdata.DataError(f"{', '.join(map(str, args.data))}: every training target is 0; "
+                              f"a network fitted to them predicts 0 everywhere")
     if len(val_recs):
         # Held-out validation clouds with precise labels.
         fit_idx, val_idx = np.arange(len(train_recs)), np.arange(len(val_recs))
@@ -500,10 +459,20 @@ def _train(args, dist: Dist, device) -> dict:
     turn = quarter_turn_columns(args.levels).to(device) if args.axis_turns > 0 else None
 
     model = build_model(args)
+    if model.input_len != rdata.DESCRIPTOR_LEN:
+        raise SystemExit(f"error: --levels {args.levels}: the network would read "
+                         f"{model.input_len} inputs, the records hold {rdata.DESCRIPTOR_LEN} "
+                         f"(10 levels of 5x5x9 densities and gamma)")
     model.init_output_bias(float(np.mean(train_recs.gather(fit_idx[:200_000])[1])))
     init = None
     if args.init is not None and not (args.resume and (args.run / "last.pt").exists()):
-        init = load_init(model, args.init)
+        try:
+            init = load_init(model, args.init)
+        except SystemExit:
+            raise
+        except Exception as e:  # a file that is not a model of this architecture
+            raise SystemExit(f"error: --init {args.init}: cannot start from it "
+                             f"({type(e).__name__}: {e})") from None
         say(f"initialised from {args.init}")
     model = model.to(device)
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
@@ -516,11 +485,32 @@ def _train(args, dist: Dist, device) -> dict:
         import copy
 
         ema = copy.deepcopy(model)
+    # What a resumed run must share with the run it continues (the sets by their manifests).
+    run_settings = {"data": [rdata.manifest_hash(d) for d in args.data],
+                    "test_data": rdata.manifest_hash(args.test_data) if args.test_data else None,
+                    "lr": args.lr, "schedule": args.schedule, "batch": args.batch,
+                    "seed": args.seed, "mirror": args.mirror, "axis_turns": args.axis_turns,
+                    "epochs": args.epochs}
     state = {"epoch": 0, "best_val": float("inf"), "best_epoch": 0, "log": [], "seconds": 0.0,
              "init": init, "loss": args.loss, "rel_eps": args.rel_eps, "ema": args.ema,
-             "ema_steps": 0}
+             "ema_steps": 0, "run_settings": run_settings}
     if args.resume and last.exists():
-        ck = torch.load(last, map_location=device, weights_only=False)
+        try:
+            ck = torch.load(last, map_location=device, weights_only=False)
+            if not (isinstance(ck, dict) and {"config", "state", "model", "optimizer"} <= set(ck)):
+                raise ValueError("not a checkpoint of this script")
+        except Exception as e:  # torch raises many kinds on a damaged file
+            raise SystemExit(f"error: {last}: cannot resume from it ({type(e).__name__}: {e}); "
+                             f"remove it to start over, or use a new --run") from None
+        had = ck["state"].get("run_settings") or {}
+        # --epochs may grow (a longer run); everything else must match.
+        differs = [k for k in run_settings if k in had and k != "epochs"
+                   and had[k] != run_settings[k]]
+        if differs:
+            raise SystemExit(f"error: {last}: trained with other settings ("
+                             + ", ".join(f"{k}: was {had[k]}, now {run_settings[k]}"
+                                         for k in differs)
+                             + "); resuming would mix two runs: use a new --run")
         if ck["config"] != model.config():
             raise SystemExit(f"{last}: checkpoint architecture {ck['config']} differs from "
                              f"the requested {model.config()}")
@@ -538,6 +528,7 @@ def _train(args, dist: Dist, device) -> dict:
         if ema is not None:
             ema.load_state_dict(ck["ema"])
         state = saved
+        state["run_settings"] = run_settings
         say(f"resumed from {last} after epoch {state['epoch']}")
     # DDP after loading: it broadcasts rank 0's parameters to the others.
     net = torch.nn.parallel.DistributedDataParallel(model) if dist.on else model
@@ -610,6 +601,11 @@ def _train(args, dist: Dist, device) -> dict:
         row = {"epoch": epoch, "train_loss": tl / max(tn, 1), "val_loss": vl,
                "test_loss": te, "seconds": state["seconds"]}
         state["log"].append(row)
+        if not (np.isfinite(row["train_loss"]) and np.isfinite(vl)):
+            raise SystemExit(f"error: training diverged at epoch {epoch} (training loss "
+                             f"{row['train_loss']}, validation loss {vl}): lower --lr (now "
+                             f"{args.lr}) or check the data; {args.run} keeps the last finite "
+                             f"epoch's checkpoints")
         improved = vl < state["best_val"] or args.select == "last"
         if improved:
             state["best_val"], state["best_epoch"] = vl, epoch
@@ -761,7 +757,8 @@ def main(argv=None):
     args = parse_args(argv)
     try:
         train(args)
-    except rdata.DataError as e:
+    except (rdata.DataError, OSError, EOFError) as e:
+        # A set that cannot be used, a folder that cannot be written (the messages name them).
         raise SystemExit(f"error: {e}") from None
     if Dist().on:
         # A rank of a torchrun launch leaves without the interpreter's teardown: every file is

@@ -23,6 +23,12 @@ FORMAT = "nimbus-rpnn-records/2"
 FORMATS = ("nimbus-rpnn-records/1", FORMAT)
 
 
+# The largest target accepted: indirect radiance per unit sun irradiance is O(1) (the sets'
+# largest are ~ 1.2); a label a million times that is a corrupt file, and would make the
+# network fit it alone.
+MAX_TARGET = 1e6
+
+
 class DataError(ValueError):
     """A record set that cannot be used; the message names the file and the field."""
 
@@ -52,12 +58,18 @@ def manifest_hash(root: Path) -> str:
 
 def read_manifest(root: Path) -> dict:
     path = Path(root) / "manifest.json"
+    if Path(root).exists() and not Path(root).is_dir():
+        raise DataError(f"{root}: not a folder (a `nimbus datagen --out` folder is expected)")
     try:
         m = json.loads(path.read_text())
     except FileNotFoundError:
         raise DataError(f"{path}: not found (run `nimbus datagen --out {root}` first)") from None
-    except json.JSONDecodeError as e:
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise DataError(f"{path}: not valid JSON ({e})") from None
+    except OSError as e:
+        raise DataError(f"{path}: cannot be read ({e})") from None
+    if not isinstance(m, dict):
+        raise DataError(f"{path}: expected a JSON object, got {type(m).__name__}")
     if m.get("format") not in FORMATS:
         raise DataError(f"{path}: field 'format' is {m.get('format')!r}, expected one of {FORMATS}")
     if m.get("descriptor_len") != DESCRIPTOR_LEN:
@@ -66,21 +78,49 @@ def read_manifest(root: Path) -> dict:
         )
     if not isinstance(m.get("shards"), list):
         raise DataError(f"{path}: field 'shards' is missing or not a list")
+    if not isinstance(m.get("settings", {}), dict):
+        raise DataError(f"{path}: field 'settings' is not an object")
+    for i, sh in enumerate(m["shards"]):
+        if not isinstance(sh, dict):
+            raise DataError(f"{path}: shards[{i}] is not an object")
+        for key in ("x", "y", "meta"):
+            f = sh.get(key)
+            if key in sh and not (isinstance(f, str) and f and Path(f).name == f):
+                # A shard is a file name inside the set's folder: not a path that leaves it.
+                raise DataError(f"{path}: shards[{i}].{key} is {f!r}, expected a file name in "
+                                f"the set's folder")
+        if "records" in sh and not (isinstance(sh["records"], int)
+                                    and not isinstance(sh["records"], bool)
+                                    and sh["records"] >= 0):
+            raise DataError(f"{path}: shards[{i}].records is {sh['records']!r}, expected a "
+                            f"whole number >= 0")
     return m
 
 
 def _load(path: Path, shape_tail: tuple, dtypes=(np.float32,)) -> np.ndarray:
     try:
-        a = np.load(path, mmap_mode="r")
+        a = np.load(path, mmap_mode="r", allow_pickle=False)
     except FileNotFoundError:
         raise DataError(f"{path}: not found (the manifest lists it)") from None
-    except ValueError as e:
+    except (ValueError, EOFError, OverflowError, OSError) as e:
         raise DataError(f"{path}: not a readable .npy file ({e})") from None
+    if not isinstance(a, np.ndarray) or a.ndim == 0:
+        raise DataError(f"{path}: not an array")
     if a.dtype not in dtypes or a.shape[1:] != shape_tail:
         names = " or ".join(np.dtype(d).name for d in dtypes)
         raise DataError(f"{path}: expected {names} [n{''.join(f', {d}' for d in shape_tail)}], "
                         f"got {a.dtype} {list(a.shape)}")
     return a
+
+
+def _load_any(path: Path) -> np.ndarray:
+    """A memory-mapped .npy array of any shape (DataError naming the file when unreadable)."""
+    try:
+        return np.load(path, mmap_mode="r", allow_pickle=False)
+    except FileNotFoundError:
+        raise DataError(f"{path}: not found (the manifest lists it)") from None
+    except (ValueError, EOFError, OverflowError, OSError) as e:
+        raise DataError(f"{path}: not a readable .npy file ({e})") from None
 
 
 def advise_random(a: np.ndarray) -> None:
@@ -111,18 +151,24 @@ def load_shards(root: Path, split: str, check: bool = True) -> list[Shard]:
             if "meta" not in s:
                 raise DataError(f"{root / 'manifest.json'}: shards[{i}] has float16 descriptors "
                                 f"but no field 'meta' (gamma is taken from it)")
-            meta = np.load(root / s["meta"], mmap_mode="r")
+            meta = _load_any(root / s["meta"])
             if meta.ndim != 2 or meta.shape[0] != len(x) or meta.shape[1] < 10:
                 raise DataError(f"{root / s['meta']}: expected [n >= {len(x)}, >= 10] meta, "
                                 f"got {list(meta.shape)}")
             gamma = gamma_of(np.asarray(meta))
+            bad = np.flatnonzero(~np.isfinite(gamma))
+            if bad.size:
+                raise DataError(f"{root / s['meta']}: row {bad[0]}'s view or light direction "
+                                f"(columns 4..9) is not finite; gamma is taken from them")
         if len(x) != s["records"] or len(y) != s["records"]:
             raise DataError(f"{root / s['x']}: {len(x)} rows of x and {len(y)} of y, "
                             f"manifest field shards[{i}].records says {s['records']}")
         if check:
-            bad = np.flatnonzero(~np.isfinite(y) | (y < 0))
+            bad = np.flatnonzero(~np.isfinite(y) | (y < 0) | (y > MAX_TARGET))
             if bad.size:
-                raise DataError(f"{root / s['y']}: row {bad[0]} is {y[bad[0]]}; targets must be finite and >= 0")
+                raise DataError(f"{root / s['y']}: row {bad[0]} is {y[bad[0]]}; targets must be "
+                                f"finite and in [0, {MAX_TARGET:g}] (radiance per unit "
+                                f"irradiance)")
             rows = np.flatnonzero(~np.isfinite(x).all(axis=1))
             if rows.size:
                 raise DataError(f"{root / s['x']}: row {rows[0]} has a non-finite descriptor value")
