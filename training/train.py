@@ -485,9 +485,11 @@ def _train(args, dist: Dist, device) -> dict:
         import copy
 
         ema = copy.deepcopy(model)
-    # What a resumed run must share with the run it continues (the sets by their manifests).
-    run_settings = {"data": [rdata.manifest_hash(d) for d in args.data],
-                    "test_data": rdata.manifest_hash(args.test_data) if args.test_data else None,
+    # What a resumed run must share with the run it continues. The sets by their folders, not
+    # their manifests: a set may grow between stages (training/reproduce.sh extends it, a run's
+    # records being a prefix of any longer run's) and a finished stage still resumes.
+    run_settings = {"data": [str(Path(d).resolve()) for d in args.data],
+                    "test_data": str(Path(args.test_data).resolve()) if args.test_data else None,
                     "lr": args.lr, "schedule": args.schedule, "batch": args.batch,
                     "seed": args.seed, "mirror": args.mirror, "axis_turns": args.axis_turns,
                     "epochs": args.epochs}
