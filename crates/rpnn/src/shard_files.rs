@@ -111,10 +111,12 @@ pub(crate) fn read_f32(path: &Path) -> Result<Vec<f32>, String> {
 }
 
 /// Whether a finished shard can be kept on resume: `Ok(Some((sums, converged)))` when its files
-/// are intact, `Ok(None)` when it is absent or unfinished, `Err(why)` when it is damaged.
+/// are intact, `Ok(None)` when it is absent or unfinished, `Err(why)` when it is damaged. Its
+/// checksums are those of its checksum file, else those the manifest lists (`listed`).
 pub(crate) fn verify_shard(
     files: [&PathBuf; 3],
     sidecar: &Path,
+    listed: Option<&[String; 3]>,
     n: u64,
 ) -> Result<Option<([String; 3], usize)>, String> {
     if files.iter().any(|f| !f.exists()) {
@@ -150,6 +152,16 @@ pub(crate) fn verify_shard(
             Ok(Some((sums.clone(), converged(&meta()?))))
         }
         Err(_) => {
+            if let Some(want) = listed {
+                for (i, f) in files.iter().enumerate() {
+                    if want[i] != sums[i] {
+                        return Err(format!(
+                            "{} does not match its checksum in the manifest",
+                            f.display()
+                        ));
+                    }
+                }
+            }
             // A shard of an older run: whole and finite, or recomputed.
             let m = meta()?;
             let y = read_f32(files[1])?;

@@ -566,6 +566,16 @@ fn damaged_shards_are_recomputed_on_resume() {
     let r = dataset::run(&set, &o, &d).unwrap();
     assert_eq!(r.computed, 0);
     assert!(d.join("train_00001.sha256").exists());
+    // A shard whose checksum file is gone and whose data changed to other finite values: the
+    // manifest's checksums catch it (it was once kept, and its new checksum written).
+    std::fs::remove_file(d.join("train_00001.sha256")).unwrap();
+    let mut y = y1.clone();
+    let last = y.len() - 1;
+    y[last] ^= 1;
+    std::fs::write(d.join("train_00001_y.npy"), &y).unwrap();
+    let r = dataset::run(&set, &o, &d).unwrap();
+    assert_eq!(r.computed, 2);
+    assert_eq!(read("train_00001_y.npy"), y1);
 }
 
 #[test]
