@@ -755,8 +755,27 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
     return card
 
 
+def check_writable(path: Path, flag: str, folder: bool) -> None:
+    """Before training: the run folder (or the export's folder) can be made and written, so
+    that a bad path fails now and not after the last epoch."""
+    d = path if folder else path.parent
+    if path.exists() and path.is_dir() != folder:
+        raise SystemExit(f"error: {flag} {path}: {'not a folder' if folder else 'a folder'}")
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+        probe = d / f".write-probe-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as e:
+        raise SystemExit(f"error: {flag} {path}: cannot be written ({e.strerror or e})") from None
+
+
 def main(argv=None):
     args = parse_args(argv)
+    if Dist().rank == 0:
+        check_writable(args.run, "--run", True)
+        if args.export:
+            check_writable(args.export, "--export", False)
     try:
         train(args)
     except (rdata.DataError, OSError, EOFError) as e:

@@ -174,3 +174,17 @@ def test_evaluate_names_a_bad_model_and_refuses_meaningless_scores(record_set, t
     # --card with the card's own set: its test split is on the card already.
     with pytest.raises(SystemExit, match="one of the card's own data sets"):
         evaluate.main(["--data", str(record_set), "--model", str(model), "--card"])
+
+
+def test_run_and_export_paths_are_checked_before_training(record_set, tmp_path):
+    f = tmp_path / "a_file"
+    f.write_text("x")
+    base = ["--data", str(record_set), "--epochs", "1", "--width", "16", "--device", "cpu",
+            "--quiet"]
+    with pytest.raises(SystemExit, match="--run .*a_file: not a folder"):
+        train.main([*base, "--run", str(f)])
+    with pytest.raises(SystemExit, match="--export .*: a folder"):
+        train.main([*base, "--run", str(tmp_path / "r"), "--export", str(tmp_path)])
+    with pytest.raises(SystemExit, match="--export .*cannot be written"):
+        train.main([*base, "--run", str(tmp_path / "r"), "--export", str(f / "m.onnx")])
+    assert not (tmp_path / "r" / "last.pt").exists()  # refused before the first epoch
