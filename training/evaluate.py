@@ -60,9 +60,17 @@ def main(argv=None) -> dict:
     # A model scored on records of another medium measures nothing (the renderer warns too).
     st = manifest.get("settings", {})
     for key in ("phase", "albedo"):
-        have = meta.get(f"nimbus.rpnn.{key}")
-        want = st.get(key)
-        if have is not None and want is not None and str(have) != str(want):
+        have, want = meta.get(f"nimbus.rpnn.{key}"), st.get(key)
+        if have in (None, "unknown") or want is None:
+            continue
+        if key == "albedo":
+            try:
+                differs = abs(float(have) - float(want)) > 1e-9
+            except (TypeError, ValueError):
+                differs = True
+        else:
+            differs = str(have) != str(want)
+        if differs:
             raise SystemExit(f"error: {args.model} was trained for {key} {have}, the records "
                              f"of {args.data} have {key} {want}")
     result = {"model": str(args.model), "data": str(args.data)}
@@ -124,6 +132,9 @@ def load_model(path: Path) -> tuple[RPNN, dict]:
         raise SystemExit(f"error: {path}: not a readable RPNN model ({e})") from None
     except (ValueError, TypeError) as e:
         raise SystemExit(f"error: {path}: field `nimbus.rpnn.config` or the weights: {e}") from None
+    except Exception as e:  # onnxruntime's own kinds (a graph it cannot run, say)
+        raise SystemExit(f"error: {path}: not a usable RPNN model ({type(e).__name__}: {e})") \
+            from None
     return model, meta
 
 

@@ -121,7 +121,7 @@ if [ "$RESTART_EPOCHS" -gt "$EPOCHS" ]; then
   fi
   RUN="$RUN/restart"
   train --run "$RUN" --epochs "$RESTART_EPOCHS" --max-minutes "$RESTART_MAX_MINUTES" \
-    --select last --rel-eps "$REL_EPS"
+    --select last --rel-eps "$REL_EPS" ${LR:+--lr "$LR"}
 fi
 if [ "$FINETUNE_EPOCHS" -gt 0 ]; then
   # The curves of the stages before the fine-tuning, next to the model's.

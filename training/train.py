@@ -159,6 +159,9 @@ def parse_args(argv=None):
         p.error(f"--threads and --seed must be >= 0, got {args.threads} and {args.seed}")
     if not (np.isfinite(args.max_minutes) and args.max_minutes >= 0):
         p.error(f"--max-minutes must be a finite number >= 0 (0: no limit), got {args.max_minutes}")
+    if args.levels * 225 + 1 != rdata.DESCRIPTOR_LEN:
+        p.error(f"--levels {args.levels}: the network would read {args.levels * 225 + 1} inputs, "
+                f"the records hold {rdata.DESCRIPTOR_LEN} (10 levels of 5x5x9 densities and gamma)")
     if not 0.0 < args.val_fraction < 1.0:
         p.error(f"--val-fraction must lie in (0, 1), got {args.val_fraction}")
     seen = [d.resolve() for d in args.data]
@@ -459,10 +462,6 @@ def _train(args, dist: Dist, device) -> dict:
     turn = quarter_turn_columns(args.levels).to(device) if args.axis_turns > 0 else None
 
     model = build_model(args)
-    if model.input_len != rdata.DESCRIPTOR_LEN:
-        raise SystemExit(f"error: --levels {args.levels}: the network would read "
-                         f"{model.input_len} inputs, the records hold {rdata.DESCRIPTOR_LEN} "
-                         f"(10 levels of 5x5x9 densities and gamma)")
     model.init_output_bias(float(np.mean(train_recs.gather(fit_idx[:200_000])[1])))
     init = None
     if args.init is not None and not (args.resume and (args.run / "last.pt").exists()):
@@ -485,11 +484,12 @@ def _train(args, dist: Dist, device) -> dict:
         import copy
 
         ema = copy.deepcopy(model)
-    # What a resumed run must share with the run it continues. The sets by their folders, not
-    # their manifests: a set may grow between stages (training/reproduce.sh extends it, a run's
-    # records being a prefix of any longer run's) and a finished stage still resumes.
-    run_settings = {"data": [str(Path(d).resolve()) for d in args.data],
-                    "test_data": str(Path(args.test_data).resolve()) if args.test_data else None,
+    # What a resumed run must share with the run it continues. The sets by what made them (the
+    # datagen settings but the record counts, and the clouds), not by their manifests or
+    # folders: a set may grow between stages (training/reproduce.sh extends it, a run's records
+    # being a prefix of any longer run's), and a run may move to another machine or checkout.
+    run_settings = {"data": [rdata.set_identity(d) for d in args.data],
+                    "test_data": rdata.set_identity(args.test_data) if args.test_data else None,
                     "lr": args.lr, "schedule": args.schedule, "batch": args.batch,
                     "seed": args.seed, "mirror": args.mirror, "axis_turns": args.axis_turns,
                     "epochs": args.epochs}

@@ -56,6 +56,17 @@ def manifest_hash(root: Path) -> str:
     return hashlib.sha256((Path(root) / "manifest.json").read_bytes()).hexdigest()
 
 
+def set_identity(root: Path) -> str:
+    """What made a set, as a hash: its datagen settings but the record counts (a set may grow,
+    its records being a prefix of any longer run's) and its clouds. Equal for the same set in
+    another folder or on another machine."""
+    m = read_manifest(root)
+    grows = ("records", "val_records", "test_records", "progress", "gpu", "part")
+    what = {"settings": {k: v for k, v in m.get("settings", {}).items() if k not in grows},
+            "clouds": m.get("clouds", [])}
+    return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()
+
+
 def read_manifest(root: Path) -> dict:
     path = Path(root) / "manifest.json"
     if Path(root).exists() and not Path(root).is_dir():

@@ -97,9 +97,11 @@ def test_numeric_flags_are_checked(record_set, tmp_path, capsys, flags, match):
     assert match in capsys.readouterr().err
 
 
-def test_levels_must_match_the_records(record_set, tmp_path):
-    with pytest.raises(SystemExit, match="--levels 11: the network would read 2476 inputs"):
-        run(record_set, tmp_path / "r", "--epochs", "1", "--levels", "11")
+def test_levels_must_match_the_records(record_set, tmp_path, capsys):
+    # Checked with the arguments, before any shard is read.
+    with pytest.raises(SystemExit):
+        train.parse_args(["--data", str(record_set), "--run", str(tmp_path), "--levels", "11"])
+    assert "--levels 11: the network would read 2476 inputs" in capsys.readouterr().err
 
 
 def test_the_same_set_twice_is_refused(record_set, tmp_path, capsys):
@@ -124,6 +126,12 @@ def test_resume_refuses_other_settings_and_damaged_checkpoints(record_set, tmp_p
         train.train(train.parse_args([
             "--data", str(other), "--run", str(tmp_path / "r"), "--width", "16", "--batch",
             "100", "--seed", "3", "--device", "cpu", "--quiet", "--epochs", "2", "--resume"]))
+    # The same set in another folder (a moved checkout) is the same set.
+    import shutil
+    moved = shutil.copytree(record_set, tmp_path / "moved")
+    train.train(train.parse_args([
+        "--data", str(moved), "--run", str(tmp_path / "r"), "--width", "16", "--batch",
+        "100", "--seed", "3", "--device", "cpu", "--quiet", "--epochs", "1", "--resume"]))
     # More epochs is a longer run of the same settings.
     res = run(record_set, tmp_path / "r", "--epochs", "2", "--resume")
     assert res["state"]["epoch"] == 2
@@ -164,6 +172,10 @@ def test_evaluate_names_a_bad_model_and_refuses_meaningless_scores(record_set, t
                        lambda m: m["settings"].__setitem__("phase", "mie"))
     with pytest.raises(SystemExit, match="trained for phase hg, the records .* have phase mie"):
         evaluate.main(["--data", str(mie), "--model", str(model)])
+    # The same albedo written as 1 (not 1.0) is the same albedo.
+    one = set_manifest(write_set(tmp_path / "one", 200, 100, seed=7),
+                       lambda m: m["settings"].__setitem__("albedo", 1))
+    assert evaluate.main(["--data", str(one), "--model", str(model)])["test"]["records"] == 100
     train_only = write_set(tmp_path / "train_only", 200, 0, seed=5)
     with pytest.raises(SystemExit, match="no validation or test records"):
         evaluate.main(["--data", str(train_only), "--model", str(model)])

@@ -128,8 +128,17 @@ fn log(line: String) {
 fn preflight(opts: &CompareOptions, out: &Path, model: impl FnOnce() -> PathBuf) -> Result<()> {
     use anyhow::Context;
     nimbus_scene::io::check_writable(out.join("report.md")).context("--out")?;
-    if let Some(cache) = &opts.reference.cache_dir {
-        nimbus_scene::io::check_writable(cache.join("reference.exr")).context("--cache")?;
+    if let Some(cache) = &opts.reference.cache_dir
+        && let Err(e) = nimbus_scene::io::check_writable(cache.join("reference.exr"))
+    {
+        // A read-only cache still serves the references it holds.
+        if !cache.is_dir() {
+            return Err(e).context("--cache");
+        }
+        say!(
+            "warning: --cache {}: not writable ({e}); references rendered now are not stored",
+            cache.display()
+        );
     }
     if opts.methods.contains(&nimbus_eval::method::Method::Rpnn) {
         let path = opts.run.model.clone().unwrap_or_else(model);

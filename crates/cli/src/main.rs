@@ -279,7 +279,17 @@ fn run(cli: Cli) -> Result<()> {
             // reference to compare with.
             io::check_writable(&exr)?;
             if let Some(r) = &reference {
-                nimbus_scene::memory::regular_file(r).context("--reference")?;
+                let img = read_reference(r).context("--reference")?;
+                if (img.width, img.height) != (s.camera.width, s.camera.height) {
+                    bail!(
+                        "--reference {}: {}x{}, but the render will be {}x{}",
+                        r.display(),
+                        img.width,
+                        img.height,
+                        s.camera.width,
+                        s.camera.height
+                    );
+                }
             }
             let method = match (method, device) {
                 (m, Device::Cpu) => m,
@@ -572,25 +582,9 @@ fn mask_for(reference: &Path, mask: Option<PathBuf>) -> Option<PathBuf> {
 /// Error metrics of `test` against `reference` over the cloud pixels: the mask file given, else
 /// `<reference>_tau.npy`, else `scene_mask` (the scene's camera optical depth), else the
 /// reference's bright pixels.
-fn print_metrics(
-    test: &Path,
-    reference: &Path,
-    mask: Option<PathBuf>,
-    scene_mask: Option<Vec<bool>>,
-) -> Result<()> {
-    let t = nimbus_scene::Image::read_exr(test)?;
+/// A reference image: an EXR whose pixels are finite and ≥ 0.
+fn read_reference(reference: &Path) -> Result<nimbus_scene::Image> {
     let r = nimbus_scene::Image::read_exr(reference)?;
-    if (t.width, t.height) != (r.width, r.height) {
-        bail!(
-            "{} is {}x{} but {} is {}x{}",
-            test.display(),
-            t.width,
-            t.height,
-            reference.display(),
-            r.width,
-            r.height
-        );
-    }
     // A radiance reference has no negative or non-finite pixel: one would be dropped from the
     // metrics without a word (the cloud mask skips pixels of non-positive luminance).
     let bad: Vec<usize> = (0..r.pixels.len())
@@ -606,6 +600,28 @@ fn print_metrics(
             i % r.width,
             i / r.width,
             r.pixels[i]
+        );
+    }
+    Ok(r)
+}
+
+fn print_metrics(
+    test: &Path,
+    reference: &Path,
+    mask: Option<PathBuf>,
+    scene_mask: Option<Vec<bool>>,
+) -> Result<()> {
+    let t = nimbus_scene::Image::read_exr(test)?;
+    let r = read_reference(reference)?;
+    if (t.width, t.height) != (r.width, r.height) {
+        bail!(
+            "{} is {}x{} but {} is {}x{}",
+            test.display(),
+            t.width,
+            t.height,
+            reference.display(),
+            r.width,
+            r.height
         );
     }
     let mask_path = mask_for(reference, mask);

@@ -37,24 +37,38 @@ pub fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
-/// Like [`nimbus`], killed after `seconds`: `None` if it was still running (a hang).
+/// Like [`nimbus`], killed after `seconds`: `None` if it was still running (a hang). Its output
+/// goes to files, so a child that writes much cannot block on a full pipe and pass for a hang.
 pub fn nimbus_within(args: &[&str], seconds: u64) -> Option<Output> {
-    use std::process::Stdio;
     use std::time::{Duration, Instant};
+    static RUN: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let k = RUN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let d = tmp(&format!("within-{k}"));
+    let (out, err) = (d.join("stdout"), d.join("stderr"));
+    let runtime =
+        std::env::var_os("XDG_RUNTIME_DIR").unwrap_or_else(|| std::env::temp_dir().into());
     let mut child = Command::new(env!("CARGO_BIN_EXE_nimbus"))
         .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
+        .env("XDG_RUNTIME_DIR", runtime)
+        .stdout(std::fs::File::create(&out).unwrap())
+        .stderr(std::fs::File::create(&err).unwrap())
         .spawn()
         .unwrap();
     let start = Instant::now();
-    while child.try_wait().unwrap().is_none() {
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
         if start.elapsed() > Duration::from_secs(seconds) {
             let _ = child.kill();
             let _ = child.wait();
             return None;
         }
         std::thread::sleep(Duration::from_millis(20));
-    }
-    Some(child.wait_with_output().unwrap())
+    };
+    Some(Output {
+        status,
+        stdout: std::fs::read(&out).unwrap(),
+        stderr: std::fs::read(&err).unwrap(),
+    })
 }

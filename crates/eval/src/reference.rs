@@ -102,6 +102,7 @@ struct Meta {
 pub fn gpu_supports(scene: &Scene) -> bool {
     !matches!(scene.medium.phase, nimbus_scene::Phase::Tabulated(_))
         && !matches!(scene.sky, Some(Sky::Env(_)))
+        && nimbus_render::check_f32_scale(scene, nimbus_render::Method::PtGpu).is_ok()
 }
 
 /// The cache key of a reference of `scene` by `estimator` with `settings`.
@@ -138,7 +139,11 @@ pub fn reference(
 ) -> Result<Reference> {
     let use_gpu = match settings.device {
         RefDevice::Cpu => false,
-        RefDevice::Gpu => true,
+        RefDevice::Gpu => {
+            // Asked for by name: a scene beyond f32 is an error, not a wrong reference.
+            nimbus_render::check_f32_scale(scene, nimbus_render::Method::PtGpu)?;
+            true
+        }
         RefDevice::Auto => gpu_supports(scene) && gpu.get().is_ok_and(|g| !g.is_software()),
     };
     let estimator = if use_gpu { "pt-gpu" } else { "pt" };
@@ -268,28 +273,39 @@ pub fn reference(
         path: None,
     };
     if let (Some((exr, diff, tau, json)), Some(dir)) = (&files, &settings.cache_dir) {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-        r.image.write_exr(exr, Some(&r.variance))?;
-        npy::write_array(diff, &[h, w], &r.half_diff)?;
-        npy::write_array(tau, &[h, w], &r.tau)?;
-        let meta = Meta {
-            key,
-            scene: scene.source.display().to_string(),
-            estimator: estimator.into(),
-            spp,
-            rel_noise_4x4: noise,
-            target_met: met,
-            seed: settings.seed,
-            width: w,
-            height: h,
-            time_s,
+        // A cache that cannot take the entry (read-only, full) costs the next run a render,
+        // not this run its reference.
+        let store = || -> Result<()> {
+            std::fs::create_dir_all(dir)
+                .with_context(|| format!("cannot create {}", dir.display()))?;
+            r.image.write_exr(exr, Some(&r.variance))?;
+            npy::write_array(diff, &[h, w], &r.half_diff)?;
+            npy::write_array(tau, &[h, w], &r.tau)?;
+            let meta = Meta {
+                key,
+                scene: scene.source.display().to_string(),
+                estimator: estimator.into(),
+                spp,
+                rel_noise_4x4: noise,
+                target_met: met,
+                seed: settings.seed,
+                width: w,
+                height: h,
+                time_s,
+            };
+            // The JSON last: an entry without it is never read.
+            let tmp = json.with_extension("json.tmp");
+            std::fs::write(&tmp, serde_json::to_string_pretty(&meta)?)
+                .and_then(|_| std::fs::rename(&tmp, json))
+                .with_context(|| format!("cannot write {}", json.display()))?;
+            Ok(())
         };
-        // The JSON last: an entry without it is never read.
-        let tmp = json.with_extension("json.tmp");
-        std::fs::write(&tmp, serde_json::to_string_pretty(&meta)?)
-            .and_then(|_| std::fs::rename(&tmp, json))
-            .with_context(|| format!("cannot write {}", json.display()))?;
-        r.path = Some(exr.clone());
+        match store() {
+            Ok(()) => r.path = Some(exr.clone()),
+            Err(e) => log(format!(
+                "warning: reference not stored in the cache ({e:#})"
+            )),
+        }
     }
     Ok(r)
 }

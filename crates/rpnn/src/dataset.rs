@@ -352,9 +352,12 @@ fn check_settings(
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
             let holds_records = std::fs::read_dir(out).is_ok_and(|d| {
                 d.filter_map(|e| e.ok()).any(|e| {
+                    // Shard files (`train_00000_x.npy`, …) or a manifest: not any .npy.
                     let n = e.file_name();
                     let n = n.to_string_lossy();
-                    n.ends_with(".npy") || n == "manifest.json"
+                    n == "manifest.json"
+                        || (SPLITS.iter().any(|s| n.starts_with(&format!("{s}_")))
+                            && n.ends_with(".npy"))
                 })
             });
             if holds_records {
@@ -492,7 +495,17 @@ pub fn run(
     }
     let medium = medium(opts)?;
     let all: u128 = counts.iter().map(|&c| c as u128).sum();
-    crate::shard_files::check_disk(out, all.div_ceil(part.count as u128), opts.f16_descriptors)?;
+    let what = if part.count > 1 {
+        format!("this part's share, {part}")
+    } else {
+        "training, validation and test".into()
+    };
+    crate::shard_files::check_disk(
+        out,
+        all.div_ceil(part.count as u128),
+        &what,
+        opts.f16_descriptors,
+    )?;
     std::fs::create_dir_all(out).map_err(|e| err(e.to_string()))?;
     let _lock = lock_out(out)?;
     check_settings(clouds, opts, out)?;

@@ -237,12 +237,17 @@ pub(crate) fn record_disk_bytes(f16: bool) -> u128 {
 /// Free bytes on the file system that holds `path` (or its nearest existing ancestor, as the
 /// folder may not exist yet); `None` where that cannot be asked.
 fn free_bytes(path: &Path) -> Option<u128> {
-    let at = path.ancestors().find(|p| p.exists())?;
-    let at = if at.as_os_str().is_empty() {
-        Path::new(".")
-    } else {
-        at
-    };
+    // A relative path's last ancestor is "", which is the current folder.
+    let at = path
+        .ancestors()
+        .map(|p| {
+            if p.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                p
+            }
+        })
+        .find(|p| p.exists())?;
     #[cfg(unix)]
     {
         let s = rustix::fs::statvfs(at).ok()?;
@@ -258,7 +263,12 @@ fn free_bytes(path: &Path) -> Option<u128> {
 /// Checks, before anything is written, that `records` more records fit on the file system of
 /// `out`: the shards already in `out` (a resumed run) count as written. Asking for 10¹² records
 /// is then a clear error at once instead of hours of work and a full disk.
-pub(crate) fn check_disk(out: &Path, records: u128, f16: bool) -> Result<(), DatagenError> {
+pub(crate) fn check_disk(
+    out: &Path,
+    records: u128,
+    what: &str,
+    f16: bool,
+) -> Result<(), DatagenError> {
     let Some(free) = free_bytes(out) else {
         return Ok(());
     };
@@ -276,9 +286,9 @@ pub(crate) fn check_disk(out: &Path, records: u128, f16: bool) -> Result<(), Dat
         return Err(DatagenError::Set {
             what: out.display().to_string(),
             msg: format!(
-                "field `--records`: {records} records in all (training, validation and test) need {} on \
-                 disk ({} each; shards already \
-                 here: {}), the file system has {} free",
+                "fields `--records`, `--val-records`, `--test-records`: {records} records \
+                 ({what}) need {} on disk ({} each; shards already here: {}), the file system \
+                 has {} free",
                 human(need),
                 human(record_disk_bytes(f16)),
                 human(held),

@@ -160,6 +160,21 @@ pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeSummary, DatagenError
         .collect::<Result<_, _>>()?;
     let first = &dirs[0];
     let n = first.part.count;
+    // Checked before any part's shard files are read: a folder that already holds another set
+    // is not overwritten (a plain datagen run into it would be refused); one holding this
+    // merge's earlier, interrupted run is completed.
+    let text = serde_json::to_string_pretty(&first.settings).expect("json");
+    if out.join("manifest.json").exists() || out.join("settings.json").exists() {
+        let same = std::fs::read_to_string(out.join("settings.json")).is_ok_and(|t| t == text);
+        if !same {
+            return Err(fail(
+                out.display(),
+                "holds another data set (its settings.json differs or is missing); merge into a \
+                 new folder (or remove it)",
+            ));
+        }
+    }
+
     for d in &dirs[1..] {
         for (what, a, b) in [
             ("settings.json", &first.settings, &d.settings),
@@ -340,19 +355,6 @@ pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeSummary, DatagenError
         }
     }
 
-    // A folder that already holds another set is not overwritten (as a plain datagen run into
-    // it would be refused): it may hold records, or be this merge's earlier, interrupted run.
-    let text = serde_json::to_string_pretty(&first.settings).expect("json");
-    if out.join("manifest.json").exists() || out.join("settings.json").exists() {
-        let same = std::fs::read_to_string(out.join("settings.json")).is_ok_and(|t| t == text);
-        if !same {
-            return Err(fail(
-                out.display(),
-                "holds another data set (its settings.json differs or is missing); merge into a \
-                 new folder (or remove it)",
-            ));
-        }
-    }
     // Write.
     std::fs::create_dir_all(out).map_err(|e| fail(out.display(), e.to_string()))?;
     let _lock = lock_out(out)?;
