@@ -174,43 +174,67 @@ pub(crate) fn unit_interval(s: &str) -> std::result::Result<f64, String> {
     }
 }
 
-/// `render`'s flags that belong to another estimator than the chosen one (the photon map's to
-/// pm, RPNN's to rpnn), as warnings: given, they would otherwise be ignored without a word.
+/// Flags of `render`, `compare` and `bench-suite` that belong to estimators the command does not run (the
+/// photon map's to pm, RPNN's to rpnn), as warnings: given, they would otherwise be ignored
+/// without a word.
 pub(crate) fn flags_for_other_methods(cmd: &clap::Command, m: &clap::ArgMatches) -> Vec<String> {
-    let Some(("render", sub)) = m.subcommand() else {
-        return Vec::new();
-    };
-    let Some(render) = cmd.find_subcommand("render") else {
-        return Vec::new();
-    };
-    let Some(method) = sub.get_one::<nimbus_render::Method>("method").copied() else {
-        return Vec::new();
-    };
     use nimbus_render::Method;
+    let Some((name, sub)) = m.subcommand() else {
+        return Vec::new();
+    };
+    let Some(command) = cmd.find_subcommand(name) else {
+        return Vec::new();
+    };
+    let methods: Vec<Method> = match name {
+        "render" => sub
+            .get_one::<Method>("method")
+            .copied()
+            .into_iter()
+            .collect(),
+        "compare" | "bench-suite" => sub
+            .get_one::<String>("methods")
+            .and_then(|s| nimbus_eval::method::parse_methods(s).ok())
+            .unwrap_or_default(),
+        _ => return Vec::new(),
+    };
+    if methods.is_empty() {
+        return Vec::new();
+    }
+    let names: Vec<String> = methods.iter().map(|m| m.to_string()).collect();
+    let pm = methods
+        .iter()
+        .any(|m| matches!(m, Method::Pm | Method::PmElek2012));
+    let rpnn = methods.contains(&Method::Rpnn);
+    // The photon map's flags: render's group, compare's --beams.
+    let pm_ids: Vec<String> = match command.get_groups().find(|g| g.get_id() == "PmArgs") {
+        Some(g) => g.get_args().map(|id| id.to_string()).collect(),
+        None if name != "render" => vec!["beams".into()],
+        None => Vec::new(),
+    };
+    let rpnn_ids: Vec<String> = command
+        .get_groups()
+        .find(|g| g.get_id() == "RpnnArgs")
+        .map(|g| g.get_args().map(|id| id.to_string()).collect())
+        .unwrap_or_default();
     let mut out = Vec::new();
-    for (group, applies, to) in [
-        (
-            "PmArgs",
-            matches!(method, Method::Pm | Method::PmElek2012),
-            "pm and pm-elek2012",
-        ),
-        ("RpnnArgs", method == Method::Rpnn, "rpnn"),
-    ] {
+    for (ids, applies, to) in [(pm_ids, pm, "pm and pm-elek2012"), (rpnn_ids, rpnn, "rpnn")] {
         if applies {
             continue;
         }
-        let Some(g) = render.get_groups().find(|g| g.get_id() == group) else {
-            continue;
-        };
-        for id in g.get_args() {
-            if sub.value_source(id.as_str()) == Some(clap::parser::ValueSource::CommandLine) {
-                let flag = render
+        for id in ids {
+            if sub.value_source(&id) == Some(clap::parser::ValueSource::CommandLine) {
+                let flag = command
                     .get_arguments()
-                    .find(|a| a.get_id() == id)
+                    .find(|a| a.get_id() == id.as_str())
                     .and_then(|a| a.get_long())
                     .unwrap_or(id.as_str());
                 out.push(format!(
-                    "warning: --{flag} applies to --method {to}; ignored with --method {method}"
+                    "warning: --{flag} applies to --method {to}; ignored with {}",
+                    if name == "render" {
+                        format!("--method {}", names[0])
+                    } else {
+                        format!("--methods {}", names.join(","))
+                    }
                 ));
             }
         }
