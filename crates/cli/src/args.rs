@@ -174,9 +174,9 @@ pub(crate) fn unit_interval(s: &str) -> std::result::Result<f64, String> {
     }
 }
 
-/// Flags of `render`, `compare` and `bench-suite` that belong to estimators the command does not run (the
-/// photon map's to pm, RPNN's to rpnn), as warnings: given, they would otherwise be ignored
-/// without a word.
+/// Flags of `render`, `compare` and `bench-suite` that belong to estimators the command does not
+/// run (the photon map's to pm, RPNN's to rpnn), as warnings: given, they would otherwise be
+/// ignored without a word.
 pub(crate) fn flags_for_other_methods(cmd: &clap::Command, m: &clap::ArgMatches) -> Vec<String> {
     use nimbus_render::Method;
     let Some((name, sub)) = m.subcommand() else {

@@ -278,18 +278,21 @@ fn run(cli: Cli) -> Result<()> {
             // Checked (and the folder made) before the render, not after it; so is the
             // reference to compare with.
             io::check_writable(&exr)?;
-            if let Some(r) = &reference {
-                let img = read_reference(r).context("--reference")?;
-                if (img.width, img.height) != (s.camera.width, s.camera.height) {
-                    bail!(
-                        "--reference {}: {}x{}, but the render will be {}x{}",
-                        r.display(),
-                        img.width,
-                        img.height,
-                        s.camera.width,
-                        s.camera.height
-                    );
-                }
+            let reference = match reference {
+                Some(r) => Some((read_reference(&r).context("--reference")?, r)),
+                None => None,
+            };
+            if let Some((img, r)) = &reference
+                && (img.width, img.height) != (s.camera.width, s.camera.height)
+            {
+                bail!(
+                    "--reference {}: {}x{}, but the render will be {}x{}",
+                    r.display(),
+                    img.width,
+                    img.height,
+                    s.camera.width,
+                    s.camera.height
+                );
             }
             let method = match (method, device) {
                 (m, Device::Cpu) => m,
@@ -334,11 +337,12 @@ fn run(cli: Cli) -> Result<()> {
             if let Some(w) = image.png_warning(e) {
                 eprintln!("warning: {}: {w}", png.display());
             }
-            if let Some(r) = reference {
+            if let Some((img, r)) = reference {
                 // Cloud pixels from the scene's own camera optical depth (τ ≥ 0.1), unless the
                 // reference comes with its `_tau.npy`.
                 let tau = nimbus_trace::tau::optical_depth_image(&s);
-                print_metrics(&exr, &r, None, Some(nimbus_trace::tau::cloud_mask(&tau)))?;
+                let mask = Some(nimbus_trace::tau::cloud_mask(&tau));
+                print_metrics(&exr, &r, img, None, mask)?;
             }
         }
         Command::View(args) => view(args)?,
@@ -526,7 +530,13 @@ fn run(cli: Cli) -> Result<()> {
                 bail!("compare needs a scene (.toml), or a test EXR and a reference EXR");
             };
             let (test, reference) = (test.clone(), reference.clone());
-            print_metrics(&test, &reference, mask.clone(), None)?;
+            print_metrics(
+                &test,
+                &reference,
+                read_reference(&reference)?,
+                mask.clone(),
+                None,
+            )?;
             if let Some(out) = png {
                 if !(range.is_finite() && range > 0.0) {
                     bail!("--range must be > 0");
@@ -605,14 +615,15 @@ fn read_reference(reference: &Path) -> Result<nimbus_scene::Image> {
     Ok(r)
 }
 
+/// The error metrics of the EXR `test` against `r`, the reference read from `reference`.
 fn print_metrics(
     test: &Path,
     reference: &Path,
+    r: nimbus_scene::Image,
     mask: Option<PathBuf>,
     scene_mask: Option<Vec<bool>>,
 ) -> Result<()> {
     let t = nimbus_scene::Image::read_exr(test)?;
-    let r = read_reference(reference)?;
     if (t.width, t.height) != (r.width, r.height) {
         bail!(
             "{} is {}x{} but {} is {}x{}",

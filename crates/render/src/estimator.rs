@@ -111,12 +111,9 @@ pub fn check_f32_scale(scene: &Scene, method: Method) -> Result<()> {
     let aabb = scene.volume.aabb();
     let coord = |v: glam::DVec3| v.abs().max_element();
     let sigma = scene.volume.max_sigma_t();
-    let bad = if coord(aabb.min).max(coord(aabb.max)) > hi {
-        Some((
-            "volume.aabb_min/aabb_max",
-            "a coordinate",
-            coord(aabb.min).max(coord(aabb.max)),
-        ))
+    let box_coord = coord(aabb.min).max(coord(aabb.max));
+    let bad = if box_coord > hi {
+        Some(("volume.aabb_min/aabb_max", "a coordinate", box_coord))
     } else if aabb.extent().min_element() < lo {
         Some((
             "volume.aabb_min/aabb_max",

@@ -172,11 +172,12 @@ impl Rpnn {
             file: path.display().to_string(),
             msg,
         };
-        let not_found = || {
-            err("model not found (train one with training/train.py, or use the shipped models/rpnn-hg.onnx)".into())
-        };
         if !path.exists() {
-            return Err(not_found());
+            return Err(err(
+                "model not found (train one with training/train.py, or use the \
+                            shipped models/rpnn-hg.onnx)"
+                    .into(),
+            ));
         }
         // A regular file whose bytes fit the memory budget, before it is read whole (a 6 GiB
         // file named as a model was once read to the end before the protobuf parser refused it).
@@ -185,13 +186,7 @@ impl Rpnn {
             let prefix = format!("{}: ", path.display());
             err(t.strip_prefix(&prefix).unwrap_or(&t).to_string())
         })?;
-        let bytes = std::fs::read(path).map_err(|e| {
-            if e.kind() == std::io::ErrorKind::NotFound {
-                not_found()
-            } else {
-                err(e.to_string())
-            }
-        })?;
+        let bytes = std::fs::read(path).map_err(|e| err(e.to_string()))?;
         let mut m = Self::from_bytes(&bytes).map_err(err)?;
         if m.albedo.is_none() {
             // Models exported before the albedo entered the metadata: read the card.

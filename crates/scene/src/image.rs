@@ -225,7 +225,8 @@ impl Image {
                 );
             }
             return Some(format!(
-                "every pixel of the PNG is black at exposure {exposure:e} (the EXR holds the values)"
+                "every pixel of the PNG is black at exposure {exposure:e} (the EXR holds the \
+                 values)"
             ));
         }
         // Every lit pixel clipped (a black background stays black at any exposure).
