@@ -17,7 +17,8 @@
 # long, so a step never recomputes one); the epochs follow from the count and TRAIN_SECONDS at
 # TRAIN_RATE records/s. RECORDS=N and EPOCHS=E fix both instead (the card's reproduce line
 # records them, and every other setting). A finished OUTDIR/run is refused unless RESUME=1
-# (then it continues). `--small`: a few records on any adapter (lavapipe, CPU training), to
+# (then it continues). DATAGEN_DEVICE=cpu and TRAIN_DEVICE=cpu run the stage without a GPU.
+# `--small`: a few records on any adapter (lavapipe, CPU training), to
 # test the script.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -48,6 +49,7 @@ TEST_SEEDS=${TEST_SEEDS:-4}
 TEST_CLOUDS=${TEST_CLOUDS:-gen:150}   # the first set's clouds (training/reproduce.sh)
 MAX_SAMPLES=${MAX_SAMPLES:-262144}
 TRAIN_DEVICE=${TRAIN_DEVICE:-cuda}
+DATAGEN_DEVICE=${DATAGEN_DEVICE:-gpu}   # cpu: the same stage on a machine without a GPU
 if [ "$small" = 1 ]; then
   CLOUDS=gen:12:congestus,cumulus,stratus,congestus,cirrus,mixture; SAMPLES=16; VAL_RECORDS=40
   RECORDS_STEP=200; MAX_RECORDS=400; TEST_RECORDS=10; TRAIN_DEVICE=cpu; TRAIN_RATE=2000
@@ -85,7 +87,7 @@ for t in $TEST_SEEDS; do
     --max-samples "$MAX_SAMPLES" --shard-size 10000 --light uniform-gamma --samples 128 \
     --eval-samples 16384 \
     --eval-noise "$PRECISE_NOISE" --records 0 --val-records 0 --test-records "$TEST_RECORDS" \
-    --f16 --device gpu -q -o "$out/seed$t-test-precise"
+    --f16 --device "$DATAGEN_DEVICE" -q -o "$out/seed$t-test-precise"
 done
 
 # The card's test set: the seed-0 set (carried into the checkout) or, with --small, this run's.
@@ -96,7 +98,8 @@ done
 data() {
   "$nimbus" datagen --clouds "$CLOUDS" --density-range 10,300 --phase hg --seed "$SEED" \
     --shard-size "$shard" --light uniform-gamma --samples "$SAMPLES" --eval-samples 16384 \
-    --records "$1" --val-records "$VAL_RECORDS" --test-records 0 --f16 --device gpu -q \
+    --records "$1" --val-records "$VAL_RECORDS" --test-records 0 --f16 \
+    --device "$DATAGEN_DEVICE" -q \
     -o "$out/data"
 }
 records=0
@@ -119,7 +122,7 @@ epochs=${EPOCHS:-$((TRAIN_SECONDS * TRAIN_RATE / records))}
 [ -n "$EPOCHS" ] || [ "$epochs" -le "$MAX_EPOCHS" ] || epochs=$MAX_EPOCHS
 say "training $epochs epochs on $records records"
 
-settings="INIT=$INIT TEST_PRECISE=$TEST_PRECISE TEST_SEEDS='$TEST_SEEDS' TEST_CLOUDS=$TEST_CLOUDS TEST_RECORDS=$TEST_RECORDS PRECISE_NOISE=$PRECISE_NOISE MAX_SAMPLES=$MAX_SAMPLES SEED=$SEED CLOUDS=$CLOUDS SAMPLES=$SAMPLES VAL_RECORDS=$VAL_RECORDS RECORDS=$records EPOCHS=$epochs LR=$LR EMA=$EMA TRAIN_CAP_MINUTES=$TRAIN_CAP_MINUTES"
+settings="INIT=$INIT TEST_PRECISE=$TEST_PRECISE TEST_SEEDS='$TEST_SEEDS' TEST_CLOUDS=$TEST_CLOUDS TEST_RECORDS=$TEST_RECORDS PRECISE_NOISE=$PRECISE_NOISE MAX_SAMPLES=$MAX_SAMPLES SEED=$SEED CLOUDS=$CLOUDS SAMPLES=$SAMPLES DATAGEN_DEVICE=$DATAGEN_DEVICE VAL_RECORDS=$VAL_RECORDS RECORDS=$records EPOCHS=$epochs LR=$LR EMA=$EMA TRAIN_CAP_MINUTES=$TRAIN_CAP_MINUTES"
 train() { # W EXTRA...: a run's export at blend W
   local w=$1
   shift

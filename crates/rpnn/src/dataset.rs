@@ -500,13 +500,26 @@ pub fn run(
     } else {
         "training, validation and test".into()
     };
-    crate::shard_files::check_disk(
+    // The folder is made first, so that a path where none can be made (`/proc/x`, a file's
+    // child, no permission) is named as such; the folders made here go again if the disk check
+    // refuses the set.
+    let missing: Vec<&Path> = out
+        .ancestors()
+        .take_while(|p| !p.as_os_str().is_empty())
+        .take_while(|p| !p.exists())
+        .collect();
+    std::fs::create_dir_all(out).map_err(|e| err(format!("cannot create the folder: {e}")))?;
+    if let Err(e) = crate::shard_files::check_disk(
         out,
         all.div_ceil(part.count as u128),
         &what,
         opts.f16_descriptors,
-    )?;
-    std::fs::create_dir_all(out).map_err(|e| err(e.to_string()))?;
+    ) {
+        for made in &missing {
+            let _ = std::fs::remove_dir(made);
+        }
+        return Err(e);
+    }
     let _lock = lock_out(out)?;
     check_settings(clouds, opts, out)?;
     let gpu = if opts.gpu {
