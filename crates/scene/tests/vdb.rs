@@ -224,6 +224,98 @@ fn nanovdb_grids_read_the_writers_values() {
     assert_eq!((a.grid, a.bounds), (b.grid, b.bounds));
 }
 
+/// Where the grid buffer of an uncompressed single-grid file named `density` starts: the
+/// segment header (16 bytes), the grid's metadata (176) and its name (8 with the NUL).
+const GRID: usize = 16 + 176 + 8;
+
+/// A NanoVDB file of one grid, its buffer stored uncompressed: `file`'s grid as it is, or
+/// changed by `edit`.
+fn uncompressed(file: &str, edit: impl FnOnce(&mut Vec<u8>)) -> Vec<u8> {
+    use std::io::Read;
+    let b = std::fs::read(data(file)).unwrap();
+    let grid_size = i64::from_le_bytes(b[16..24].try_into().unwrap()) as usize;
+    let codec = u16::from_le_bytes([b[14], b[15]]);
+    let mut grid = if codec == 0 {
+        b[GRID..].to_vec()
+    } else {
+        assert_eq!(codec, 1, "{file}: zlib-coded fixtures only");
+        let mut g = Vec::new();
+        flate2::read::ZlibDecoder::new(&b[GRID + 8..])
+            .read_to_end(&mut g)
+            .unwrap();
+        g
+    };
+    assert_eq!(grid.len(), grid_size, "{file}");
+    edit(&mut grid);
+    let mut head = b[..GRID].to_vec();
+    head[14..16].copy_from_slice(&0u16.to_le_bytes()); // the segment's codec: none
+    head[24..32].copy_from_slice(&(grid.len() as i64).to_le_bytes()); // bytes in the file
+    head[16 + 168..16 + 170].copy_from_slice(&0u16.to_le_bytes()); // the grid's codec: none
+    head.extend_from_slice(&grid);
+    head
+}
+
+/// NanoVDB checksums (`src/io/nvdb/checksum.rs`). Full checksums from OpenVDB 10's vdb_tool
+/// (Float and Fp4, the 32.4 rules), and 32.6 / 32.7 files whose checksums
+/// `tests/data/make_checksums.py` computed independently: each reads the grid of the file
+/// without them, and one changed byte in the header, in the root or in a leaf's values is
+/// refused naming the field. A partial checksum (the tools' default) covers the header and
+/// root only; no checksum (all ones) checks nothing.
+#[test]
+fn nanovdb_checksums_refuse_damage() {
+    let p = Path::new("m.nvdb");
+    let want = io::read_grid(data("cloud_none.nvdb")).unwrap();
+    let fp4 = io::read_grid(data("cloud_fp4.nvdb")).unwrap();
+    let read = |b: &[u8]| io::nvdb::parse(b, p).map_err(|e| e.to_string());
+    let refused = |r: Result<io::GridFile, String>, what: &str| {
+        let e = r.expect_err(what);
+        assert!(
+            e.contains("m.nvdb") && e.contains("grid.checksum"),
+            "{what}: {e}"
+        );
+        assert!(e.contains("damaged"), "{what}: {e}");
+    };
+    // Byte 40: the grid's name; 736 + 70: the root's table; the last byte: a leaf's values.
+    let flip = |at: usize| {
+        move |g: &mut Vec<u8>| {
+            let at = if at == usize::MAX { g.len() - 1 } else { at };
+            g[at] ^= 0x10;
+        }
+    };
+    for (file, same) in [
+        ("cloud_full.nvdb", &want),
+        ("cloud_fp4_full.nvdb", &fp4),
+        ("cloud_v32_6.nvdb", &want),
+        ("cloud_v32_7.nvdb", &want),
+    ] {
+        let f = io::read_grid(data(file)).unwrap_or_else(|e| panic!("{file}: {e}"));
+        assert_eq!((&f.grid, f.bounds), (&same.grid, same.bounds), "{file}");
+        assert!(read(&uncompressed(file, |_| ())).is_ok(), "{file}");
+        for at in [40, 736 + 70, usize::MAX] {
+            refused(
+                read(&uncompressed(file, flip(at))),
+                &format!("{file} byte {at}"),
+            );
+        }
+        // Without the checksum the same damage is read (here: a leaf value).
+        let unchecked = uncompressed(file, |g| {
+            g[8..16].fill(0xff);
+            flip(usize::MAX)(g)
+        });
+        assert!(read(&unchecked).is_ok(), "{file}");
+    }
+    // A partial checksum: header and root damage is refused, a leaf's values are not covered.
+    refused(
+        read(&uncompressed("cloud_none.nvdb", flip(40))),
+        "partial, name",
+    );
+    refused(
+        read(&uncompressed("cloud_none.nvdb", flip(736 + 70))),
+        "partial, root",
+    );
+    assert!(read(&uncompressed("cloud_none.nvdb", flip(usize::MAX))).is_ok());
+}
+
 #[test]
 fn nanovdb_damage_fails_cleanly() {
     nimbus_scene::memory::set_budget(64 << 20);
@@ -243,9 +335,16 @@ fn nanovdb_damage_fails_cleanly() {
             let _ = io::nvdb::parse(&m, p);
         }
     }
+    // The same without a checksum (all ones), so that damage reaches the tree walk.
+    let mut bytes = std::fs::read(data("cloud_none.nvdb")).unwrap();
+    bytes[GRID + 8..GRID + 16].fill(0xff);
+    assert!(io::nvdb::parse(&bytes, p).is_ok());
+    for m in mutants(&bytes, 0x2545_f491_4f6c_dd1du64, 1000) {
+        let _ = io::nvdb::parse(&m, p);
+    }
     // A child offset pointing back at its parent (a cycle) is refused, not walked forever.
-    let mut b = std::fs::read(data("cloud_none.nvdb")).unwrap();
-    let grid = 16 + 176 + 8;
+    let mut b = bytes;
+    let grid = GRID;
     let root = grid + 672 + 64;
     b[root + 64 + 8..root + 64 + 16].copy_from_slice(&(-(root as i64 - grid as i64)).to_le_bytes());
     let e = io::nvdb::parse(&b, p).unwrap_err().to_string();

@@ -37,7 +37,9 @@ write("block_length_2e40.vdb", bytes(b))
 b = (DATA / "cloud_zip.vdb").read_bytes()
 write("truncated.vdb", b[: len(b) * 2 // 3])
 
-# 3. A NanoVDB grid whose root child offset points back at the grid (a cycle), re-compressed.
+# 3. A NanoVDB grid whose root child offset points back at the grid (a cycle), re-compressed:
+#    with its checksum disabled (all ones), so that the tree walk meets the cycle, and, as
+#    damaged_root.nvdb, with the checksum the writer stored, which no longer matches.
 b = bytearray((DATA / "cloud.nvdb").read_bytes())
 (grid_size, file_size) = struct.unpack_from("<qq", b, 16)
 (n,) = struct.unpack_from("<q", b, 200)
@@ -46,9 +48,12 @@ g = bytearray(zlib.decompress(bytes(b[208:208 + n])))
 assert len(g) == grid_size
 root = 672 + 64
 struct.pack_into("<q", g, root + 64 + 8, -root)
-z = zlib.compress(bytes(g), 9)
-struct.pack_into("<q", b, 24, 8 + len(z))
-write("cyclic_root.nvdb", bytes(b[:200]) + struct.pack("<q", len(z)) + z)
+for name, checksum in [("damaged_root.nvdb", None), ("cyclic_root.nvdb", b"\xff" * 8)]:
+    if checksum:
+        g[8:16] = checksum
+    z = zlib.compress(bytes(g), 9)
+    struct.pack_into("<q", b, 24, 8 + len(z))
+    write(name, bytes(b[:200]) + struct.pack("<q", len(z)) + z)
 
 # 4. A NanoVDB file that claims a 1 TB grid from a few zlib bytes.
 b = bytearray((DATA / "cloud.nvdb").read_bytes())

@@ -18,8 +18,9 @@
 //! child offsets relative to the node) and leaves (bounding box, flags, value mask,
 //! statistics, values from byte 96).
 //!
-//! Robustness: every offset is checked to lie inside the grid buffer with room for the whole
-//! node; the tree is walked from the root and may reach no more nodes than `TreeData`
+//! Robustness: the grid's checksum is verified first where the file has one ([`checksum`]:
+//! NanoVDB 32.3 – 32.5, 32.6 and 32.7+ rules); every offset is checked to lie inside the grid
+//! buffer with room for the whole node; the tree is walked from the root and may reach no more nodes than `TreeData`
 //! declares (so shared or cyclic child offsets cannot multiply the work); buffer sizes are
 //! checked against the bytes in the file, the compression ratio a codec can reach and the
 //! memory budget before anything is allocated.
@@ -28,6 +29,8 @@ use std::borrow::Cow;
 use std::path::Path;
 
 use glam::DVec3;
+
+mod checksum;
 
 use super::GridFile;
 use super::vdb::bytes::{Cursor, Fail, PResult, bit, count_on};
@@ -417,6 +420,7 @@ fn read_grid(b: &[u8], name: &str) -> PResult<SparseGrid> {
             ),
         ));
     };
+    checksum::verify(b, name, codes.leaf_size())?;
     // Map (at 296): float matrix, inverse, vector, taper; then the same in double (at 384).
     let m: Vec<f64> = (0..9).map(|k| f64_at(b, 384 + 8 * k)).collect();
     let t = [f64_at(b, 528), f64_at(b, 536), f64_at(b, 544)];

@@ -11,6 +11,7 @@
 #   cloud_blosc.nvdb                    NanoVDB Float grid, Blosc
 #   cloud_fp{16,8,4}.nvdb               NanoVDB quantised grids (16/8/4-bit codes per leaf),
 #                                       zlib / Blosc / zlib
+#   cloud_full.nvdb, cloud_fp4_full.nvdb  Float / Fp4 with full checksums (zlib)
 #   cloud_dense.npy                     the writer's own dense array over the active bounding box
 # The grid: a soft sphere of 4 207 active voxels around index (45, 53, 50) plus an active 8³
 # block at (64..71)³ that OpenVDB stores as a tile; voxel size 0.02.
@@ -67,6 +68,9 @@ vdb_tool -read "$tmp/base.vdb" -write codec=blosc bits=32 cloud_blosc.nvdb >/dev
 vdb_tool -read "$tmp/base.vdb" -write codec=zip bits=16 cloud_fp16.nvdb >/dev/null
 vdb_tool -read "$tmp/base.vdb" -write codec=blosc bits=8 cloud_fp8.nvdb >/dev/null
 vdb_tool -read "$tmp/base.vdb" -write codec=zip bits=4 cloud_fp4.nvdb >/dev/null
+# Full checksums (head and nodes; the tools' default is the head alone).
+vdb_tool -read "$tmp/base.vdb" -write codec=zip bits=32 checksum=full cloud_full.nvdb >/dev/null
+vdb_tool -read "$tmp/base.vdb" -write codec=zip bits=4 checksum=full cloud_fp4_full.nvdb >/dev/null
 OPENVDB_DISABLE_DELAYED_LOAD=1 /usr/bin/python3 - "$tmp/base.vdb" cloud_*.vdb <<'PY'
 import sys
 import numpy as np
