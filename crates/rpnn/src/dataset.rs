@@ -46,7 +46,7 @@
 //! (i mod 5 = 4) is a test cloud and every tenth (i mod 10 = 2) a validation cloud; neither
 //! enters training.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
@@ -501,23 +501,41 @@ pub fn run(
         "training, validation and test".into()
     };
     // The folder is made first, so that a path where none can be made (`/proc/x`, a file's
-    // child, no permission) is named as such; the folders made here go again if the disk check
-    // refuses the set.
+    // child, no permission) is named as such; the folders made here go again if that or the
+    // disk check fails.
+    let mut made: Vec<PathBuf> = Vec::new();
+    let undo = |made: &[PathBuf]| {
+        for dir in made.iter().rev() {
+            let _ = std::fs::remove_dir(dir);
+        }
+    };
     let missing: Vec<&Path> = out
         .ancestors()
-        .take_while(|p| !p.as_os_str().is_empty())
-        .take_while(|p| !p.exists())
+        .take_while(|p| !p.as_os_str().is_empty() && !p.exists())
         .collect();
-    std::fs::create_dir_all(out).map_err(|e| err(format!("cannot create the folder: {e}")))?;
+    for dir in missing.iter().rev() {
+        if let Err(e) = std::fs::create_dir(dir) {
+            undo(&made);
+            return Err(err(format!(
+                "cannot create the folder {}: {e}",
+                dir.display()
+            )));
+        }
+        made.push(dir.to_path_buf());
+    }
+    if !out.is_dir() {
+        undo(&made);
+        return Err(err(
+            "cannot create the folder: a file of that name is in the way".into(),
+        ));
+    }
     if let Err(e) = crate::shard_files::check_disk(
         out,
         all.div_ceil(part.count as u128),
         &what,
         opts.f16_descriptors,
     ) {
-        for made in &missing {
-            let _ = std::fs::remove_dir(made);
-        }
+        undo(&made);
         return Err(e);
     }
     let _lock = lock_out(out)?;

@@ -18,12 +18,12 @@
 //! child offsets relative to the node) and leaves (bounding box, flags, value mask,
 //! statistics, values from byte 96).
 //!
-//! Robustness: the grid's checksum is verified first where the file has one ([`checksum`]:
+//! Robustness: the grid's checksum is verified first where the file has one (`checksum.rs`:
 //! NanoVDB 32.3 – 32.5, 32.6 and 32.7+ rules); every offset is checked to lie inside the grid
-//! buffer with room for the whole node; the tree is walked from the root and may reach no more nodes than `TreeData`
-//! declares (so shared or cyclic child offsets cannot multiply the work); buffer sizes are
-//! checked against the bytes in the file, the compression ratio a codec can reach and the
-//! memory budget before anything is allocated.
+//! buffer with room for the whole node; the tree is walked from the root and may reach no more
+//! nodes than `TreeData` declares (so shared or cyclic child offsets cannot multiply the work);
+//! buffer sizes are checked against the bytes in the file, the compression ratio a codec can
+//! reach and the memory budget before anything is allocated.
 
 use std::borrow::Cow;
 use std::path::Path;

@@ -8,23 +8,27 @@
 //! (NanoVDB `util/GridChecksum.h` and, from 32.7, `tools/GridChecksum.h`); the grid's version
 //! (byte 16) says which rules wrote it:
 //!
-//! - **32.3 – 32.5** (OpenVDB 9 – 10, pbrt-v4's clouds, Debian's tools): the head covers bytes
+//! - **32.3 – 32.5** (OpenVDB 9 – 10, Debian's tools): the head covers bytes
 //!   16 up to the end of the root's tile table (`GridData`, `TreeData`, the root); the tail is
 //!   the CRC of the array of every node's own CRC (upper, then lower internal nodes, then
 //!   leaves, each over its whole size), stored as `std::uint_fast32_t`, which is 8 bytes with
 //!   glibc on 64-bit Linux and 4 bytes elsewhere: either is accepted.
-//! - **32.6** (OpenVDB 11): the head covers bytes 16 up to the first upper node; the tail is a
-//!   blocked CRC of everything from there to the end of the grid (`mGridSize`).
+//! - **32.6** (OpenVDB 11): the head covers bytes 16 up to the first upper node (without one:
+//!   up to the blind metadata, else the whole grid); the tail is a blocked CRC of everything
+//!   from there to the end of the grid (`mGridSize`).
 //! - **32.7 and later** (OpenVDB 12 –): the head covers bytes 16 – 736 (`GridData` and
 //!   `TreeData`), the tail a blocked CRC of the rest.
 //!
 //! A blocked CRC cuts its range into 4 KiB blocks (the remainder joins the last block), takes
-//! each block's CRC and then the CRC of those CRCs as little-endian u32 values.
+//! each block's CRC and then the CRC of those CRCs as little-endian u32 values. A tail shorter
+//! than one block has no blocks, so NanoVDB's own rule leaves it unchecked (its CRC is 0).
 //!
 //! The 32.3 – 32.5 rules are checked against files written by OpenVDB 10's `vdb_tool` with
 //! partial and full checksums (`crates/scene/tests/data`); no file written by OpenVDB 11 or 12
 //! is among the fixtures, so the later rules are checked against files whose checksums an
-//! independent script computed from the NanoVDB source (`make_checksums.py`).
+//! independent script computed from the NanoVDB source (`make_checksums.py`). Not covered by a
+//! fixture: the 4-byte form of the 32.3 – 32.5 node table and 32.6's grids without upper
+//! nodes.
 
 use super::super::vdb::bytes::{Fail, PResult};
 
@@ -67,8 +71,8 @@ fn blocked(bytes: &[u8]) -> u32 {
 const UPPER: usize = 8256 + 8 * 32768;
 const LOWER: usize = 1088 + 8 * 4096;
 
-/// Verifies the checksum of grid buffer `b` (at least [`GRID_AND_TREE`] + 64 bytes, magic
-/// checked) whose leaves are `leaf_size` bytes; `name` labels errors.
+/// Verifies the checksum of grid buffer `b` (at least 672 + 64 bytes, magic checked) whose
+/// leaves are `leaf_size` bytes; `name` labels errors.
 pub(crate) fn verify(b: &[u8], name: &str, leaf_size: usize) -> PResult<()> {
     let (head, tail) = (u32_at(b, 8), u32_at(b, 12));
     if head == u32::MAX && tail == u32::MAX {
@@ -102,6 +106,7 @@ pub(crate) fn verify(b: &[u8], name: &str, leaf_size: usize) -> PResult<()> {
     };
     let (head_range, tail_crc): (_, Box<dyn Fn() -> PResult<Vec<u32>>>) = if minor < 6 {
         // The root sits right after TreeData; its table size is at byte 24 of the root.
+        range(16, GRID_AND_TREE as i128 + 64, "the root's header")?;
         let table = u32_at(b, GRID_AND_TREE + 24) as i128;
         let head_end = GRID_AND_TREE as i128 + 64 + 32 * table;
         let tail = move || -> PResult<Vec<u32>> {
