@@ -31,18 +31,11 @@
 //! nodes.
 
 use super::super::vdb::bytes::{Fail, PResult};
+use super::{i64_at, u32_at};
 
 /// Bytes of `GridData` and `TreeData`.
 const GRID_AND_TREE: usize = 672 + 64;
 const BLOCK: usize = 4096;
-
-fn u32_at(b: &[u8], at: usize) -> u32 {
-    u32::from_le_bytes(b[at..at + 4].try_into().unwrap())
-}
-
-fn i64_at(b: &[u8], at: usize) -> i64 {
-    i64::from_le_bytes(b[at..at + 8].try_into().unwrap())
-}
 
 fn crc(bytes: &[u8]) -> u32 {
     crc32fast::hash(bytes)
@@ -104,30 +97,15 @@ pub(crate) fn verify(b: &[u8], name: &str, leaf_size: usize) -> PResult<()> {
             ))
         }
     };
-    let (head_range, tail_crc): (_, Box<dyn Fn() -> PResult<Vec<u32>>>) = if minor < 6 {
+    let head_range = if minor < 6 {
         // The root sits right after TreeData; its table size is at byte 24 of the root.
         range(16, GRID_AND_TREE as i128 + 64, "the root's header")?;
         let table = u32_at(b, GRID_AND_TREE + 24) as i128;
-        let head_end = GRID_AND_TREE as i128 + 64 + 32 * table;
-        let tail = move || -> PResult<Vec<u32>> {
-            let counts = [0, 1, 2].map(|k| u32_at(b, 672 + 32 + 4 * k) as i128);
-            let mut node_crcs = Vec::new();
-            for (k, size) in [(2, UPPER), (1, LOWER), (0, leaf_size)] {
-                let first = 672 + offset(k) as i128;
-                let nodes = range(first, first + counts[k] * size as i128, "the nodes")?;
-                node_crcs.extend(b[nodes].chunks_exact(size).map(crc));
-            }
-            let as_u64: Vec<u8> = node_crcs
-                .iter()
-                .flat_map(|c| (*c as u64).to_le_bytes())
-                .collect();
-            let as_u32: Vec<u8> = node_crcs.iter().flat_map(|c| c.to_le_bytes()).collect();
-            Ok(vec![crc(&as_u64), crc(&as_u32)])
-        };
-        (
-            range(16, head_end, "the root and its tiles")?,
-            Box::new(tail),
-        )
+        range(
+            16,
+            GRID_AND_TREE as i128 + 64 + 32 * table,
+            "the root and its tiles",
+        )?
     } else {
         let mid = if minor == 6 {
             let blind = (i64_at(b, 640), u32_at(b, 648));
@@ -141,11 +119,28 @@ pub(crate) fn verify(b: &[u8], name: &str, leaf_size: usize) -> PResult<()> {
         } else {
             GRID_AND_TREE as i128
         };
-        let head = range(16, mid, "the grid header")?;
-        let tail_bytes = &b[head.end..];
-        (head, Box::new(move || Ok(vec![blocked(tail_bytes)])))
+        range(16, mid, "the grid header")?
     };
-    let found = crc(&b[head_range]);
+    // The tail's CRC as each rule computes it (32.3 – 32.5: both widths of the node table).
+    let tail_crc = || -> PResult<Vec<u32>> {
+        if minor >= 6 {
+            return Ok(vec![blocked(&b[head_range.end..])]);
+        }
+        let counts = [0, 1, 2].map(|k| u32_at(b, 672 + 32 + 4 * k) as i128);
+        let mut node_crcs = Vec::new();
+        for (k, size) in [(2, UPPER), (1, LOWER), (0, leaf_size)] {
+            let first = 672 + offset(k) as i128;
+            let nodes = range(first, first + counts[k] * size as i128, "the nodes")?;
+            node_crcs.extend(b[nodes].chunks_exact(size).map(crc));
+        }
+        let as_u64: Vec<u8> = node_crcs
+            .iter()
+            .flat_map(|c| (*c as u64).to_le_bytes())
+            .collect();
+        let as_u32: Vec<u8> = node_crcs.iter().flat_map(|c| c.to_le_bytes()).collect();
+        Ok(vec![crc(&as_u64), crc(&as_u32)])
+    };
+    let found = crc(&b[head_range.clone()]);
     if found != head {
         return Err(fail(
             "GridData.mChecksum",
