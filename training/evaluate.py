@@ -87,7 +87,8 @@ def main(argv=None) -> dict:
                 raise SystemExit(f"error: {args.data}: no {name} records (split `{split}`)")
             continue
         err = train.record_errors(model, train.Batches(recs, np.arange(len(recs)),
-                                                       torch.device("cpu"), False), 4000)
+                                                       torch.device("cpu"), False), 4000,
+                                  rdata.cloud_kinds(args.data, split))
         if err is None:
             raise SystemExit(f"error: {args.data}: the {name} records have no positive target; "
                              f"relative errors are undefined")

@@ -681,7 +681,7 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
                                     4 * args.batch),
         "test": with_label_noise(record_errors(
             dev_model, Batches(test_recs, np.arange(len(test_recs)), device, False),
-            4 * args.batch), test_root, "test"),
+            4 * args.batch, rdata.cloud_kinds(test_root, "test")), test_root, "test"),
     }
     if result["val_from_clouds"]:
         errors["validation"] = with_label_noise(errors["validation"], args.data, "val")

@@ -234,6 +234,33 @@ def label_noise(root: Path, split: str) -> np.ndarray:
     return np.concatenate(out) if out else np.zeros(0)
 
 
+def cloud_kinds(root: Path, split: str) -> np.ndarray:
+    """The cloud kind (the manifest's `clouds[i].kind`: cumulus, stratus, cirrus, ...; a cloud
+    read from a file: its name) of every record of `split`, in row order; "unknown" where the
+    meta or the manifest does not say."""
+    root = Path(root)
+    m = read_manifest(root)
+    names = []
+    for c in m.get("clouds", []):
+        c = c if isinstance(c, dict) else {}
+        names.append(str(c.get("kind") or c.get("name") or "unknown"))
+    out = []
+    for s in m.get("shards", []):
+        if s.get("split") != split:
+            continue
+        n = int(s.get("records", 0))
+        meta = np.load(root / s["meta"], mmap_mode="r") if s.get("meta") else None
+        if meta is None or meta.ndim != 2 or meta.shape[0] != n or meta.shape[1] < 1:
+            out.append(np.full(n, "unknown", dtype=object))
+            continue
+        col = np.asarray(meta[:, 0], dtype=np.float64)
+        ok = np.isfinite(col) & (col >= 0) & (col < len(names)) & (col == np.round(col))
+        k = np.full(n, "unknown", dtype=object)
+        k[ok] = [names[int(i)] for i in col[ok]]
+        out.append(k)
+    return np.concatenate(out) if out else np.zeros(0, dtype=object)
+
+
 def split_indices(n: int, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """A fixed random split of n rows: (train, validation)."""
     if not 0.0 < val_fraction < 1.0:

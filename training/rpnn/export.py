@@ -173,6 +173,10 @@ def record_error_lines(errors: dict | None) -> list[str]:
         out.append("  - by target tercile: " + ", ".join(
             f"{b['target'][0]:.3g}–{b['target'][1]:.3g}: {100 * b['median_rel_error']:.1f} %"
             for b in e["by_target"]))
+        if e.get("by_kind"):
+            out.append("  - by cloud kind: " + ", ".join(
+                f"{b['kind']} {100 * b['median_rel_error']:.1f} % ({b['records']}, mean ratio "
+                f"{b['mean_ratio']:.3f})" for b in e["by_kind"]))
         if e.get("label_noise_median") is not None:
             out.append(f"  - the labels' own relative noise: median "
                        f"{100 * e['label_noise_median']:.1f} %; a perfect model would read "

@@ -13,12 +13,14 @@ from . import data as rdata
 GAMMA_BINS_DEG = [0, 30, 60, 90, 120, 150, 180]
 
 
-def record_errors(model, batches, batch: int) -> dict | None:
+def record_errors(model, batches, batch: int, kinds: np.ndarray | None = None) -> dict | None:
     """Per-record relative error |y_hat - y| / y on a precise split: median overall, by gamma
     (30-degree bins; gamma = 180 is front-lit) and by target size (terciles), plus the ratio of
     mean prediction to mean target (overall and per gamma bin, with the standard error of the
     per-bin ratio: the bias an image lit at that angle inherits). `batches`: a train.Batches;
-    None when it is empty or holds no record with a positive target."""
+    `kinds`: the cloud kind of each of its records in order (`data.cloud_kinds`), which adds the
+    median and mean ratio per kind. None when it is empty or holds no record with a positive
+    target."""
     if len(batches) == 0:
         return None
     model.eval()
@@ -32,6 +34,8 @@ def record_errors(model, batches, batch: int) -> dict | None:
     ok = y > 0
     if not ok.any():
         return None  # no record with a positive target: relative errors are undefined
+    if kinds is not None and len(kinds) != len(y):
+        raise ValueError(f"{len(kinds)} cloud kinds for {len(y)} records")
     pk, yk, g = p[ok], y[ok], g[ok]
     rel = np.abs(pk - yk) / yk
     out = {"records": int(ok.sum()), "median_rel_error": float(np.median(rel)),
@@ -52,6 +56,12 @@ def record_errors(model, batches, batch: int) -> dict | None:
             out["by_target"].append({"target": [float(edges[i]), float(edges[i + 1])],
                                      "records": int(sel.sum()),
                                      "median_rel_error": float(np.median(rel[sel]))})
+    if kinds is not None:
+        kk = np.asarray(kinds, dtype=object)[ok]
+        out["by_kind"] = [{"kind": str(k), "records": int((kk == k).sum()),
+                           "median_rel_error": float(np.median(rel[kk == k])),
+                           "mean_ratio": float(pk[kk == k].mean() / yk[kk == k].mean())}
+                          for k in sorted(set(kk.tolist()))]
     return out
 
 

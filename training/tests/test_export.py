@@ -326,3 +326,49 @@ def test_card_names_the_stage_a_fine_tuning_started_from(tmp_path):
     assert ("that model: loss rel-l2, ε 0.01, 8 epochs, 270 s, itself started from "
             "`models/rpnn-hg.onnx`.") in line, line
     assert "None" not in line
+
+
+def test_errors_by_cloud_kind(record_set):
+    # The synthetic truth itself as the "model": error 0. The test split's targets of the
+    # cirrus cloud are divided by 1.25, so its records read exactly 25 % (ratio 1.25) and the
+    # rest 0; a cloud without a kind is named, an index outside the manifest is "unknown".
+    class Truth(torch.nn.Module):
+        def forward(self, x):
+            g = x[:, -1]
+            return (0.3 * torch.exp(-x[:, :225].mean(1)) * (1.2 + torch.cos(g))
+                    + 0.1 * x[:, 5 * 225:6 * 225].mean(1))[:, None]
+
+    m = json.loads((record_set / "manifest.json").read_text())
+    m["clouds"] = [{"name": "a", "split": "train", "kind": "cumulus"},
+                   {"name": "b", "split": "test", "kind": "cirrus"},
+                   {"name": "c_file", "split": "test"}]
+    (record_set / "manifest.json").write_text(json.dumps(m))
+    for s in m["shards"]:
+        if s["split"] == "test":
+            y = np.load(record_set / s["y"])
+            meta = np.load(record_set / s["meta"])
+            n = len(y)
+            meta[:, 0] = np.where(np.arange(n) < n // 2, 1, np.where(np.arange(n) < 3 * n // 4,
+                                                                      2, 7))
+            y[: n // 2] /= 1.25
+            np.save(record_set / s["y"], y)
+            np.save(record_set / s["meta"], meta)
+    kinds = rdata.cloud_kinds(record_set, "test")
+    recs = rdata.Records(rdata.load_shards(record_set, "test"))
+    assert len(kinds) == len(recs) == 200
+    err = train.record_errors(Truth(), train.Batches(recs, np.arange(len(recs)),
+                                                     torch.device("cpu"), False), 64, kinds)
+    by = {b["kind"]: b for b in err["by_kind"]}
+    assert sorted(by) == ["c_file", "cirrus", "unknown"]
+    assert [by[k]["records"] for k in ("cirrus", "c_file", "unknown")] == [100, 50, 50]
+    # float32 descriptors and targets: the truth is reproduced to ≈ 1e-6 relative.
+    assert by["cirrus"]["median_rel_error"] == pytest.approx(0.25, rel=1e-4)
+    assert by["cirrus"]["mean_ratio"] == pytest.approx(1.25, rel=1e-4)
+    for k in ("c_file", "unknown"):
+        assert by[k]["median_rel_error"] < 1e-4
+        assert by[k]["mean_ratio"] == pytest.approx(1.0, rel=1e-4)
+    assert any("by cloud kind: c_file 0.0 % (50, mean ratio 1.000), cirrus 25.0 % (100" in line
+               for line in rexport.record_error_lines({"test": err}))
+    with pytest.raises(ValueError, match="199 cloud kinds for 200 records"):
+        train.record_errors(Truth(), train.Batches(recs, np.arange(len(recs)),
+                                                   torch.device("cpu"), False), 64, kinds[1:])
