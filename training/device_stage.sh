@@ -18,6 +18,12 @@
 # TRAIN_RATE records/s. RECORDS=N and EPOCHS=E fix both instead (the card's reproduce line
 # records them, and every other setting). A finished OUTDIR/run is refused unless RESUME=1
 # (then it continues). DATAGEN_DEVICE=cpu and TRAIN_DEVICE=cpu run the stage without a GPU.
+# INIT_STAGE: the command that made INIT when INIT is not a committed model (an earlier stage's
+# export); the card's reproduce line runs it first.
+# EXTRA_CLOUDS (e.g. gen:200:cirrus) adds one more training set per seed in EXTRA_SEEDS, of
+# EXTRA_RECORDS records at EXTRA_SAMPLES samples each (OUTDIR/extra-<seed>, no validation or
+# test clouds of their own), trained on together with OUTDIR/data: more records of a kind the
+# held-out errors by cloud kind (evaluate.py) show to be the worst.
 # `--small`: a few records on any adapter (lavapipe, CPU training), to
 # test the script.
 set -euo pipefail
@@ -59,7 +65,19 @@ if [ "$small" = 1 ]; then
 fi
 RECORDS=${RECORDS:-}
 EPOCHS=${EPOCHS:-}
-for v in RECORDS_STEP MAX_RECORDS DATAGEN_SECONDS TRAIN_SECONDS TRAIN_RATE MAX_EPOCHS \
+EXTRA_CLOUDS=${EXTRA_CLOUDS:-}
+EXTRA_SEEDS=${EXTRA_SEEDS:-}
+EXTRA_RECORDS=${EXTRA_RECORDS:-200000}
+EXTRA_SAMPLES=${EXTRA_SAMPLES:-4096}
+if [ -n "$EXTRA_CLOUDS" ] && [ -z "$EXTRA_SEEDS" ]; then
+  echo "training/device_stage.sh: EXTRA_CLOUDS=$EXTRA_CLOUDS needs EXTRA_SEEDS" >&2; exit 2
+fi
+for t in $EXTRA_SEEDS; do
+  [[ "$t" =~ ^[0-9]+$ ]] ||
+    { echo "training/device_stage.sh: EXTRA_SEEDS: '$t' is not a seed" >&2; exit 2; }
+done
+for v in ${EXTRA_CLOUDS:+EXTRA_RECORDS EXTRA_SAMPLES} RECORDS_STEP MAX_RECORDS DATAGEN_SECONDS \
+         TRAIN_SECONDS TRAIN_RATE MAX_EPOCHS \
          TEST_RECORDS VAL_RECORDS SAMPLES MAX_SAMPLES ${RECORDS:+RECORDS} ${EPOCHS:+EPOCHS}; do
   [[ "${!v}" =~ ^[1-9][0-9]*$ ]] ||
     { echo "training/device_stage.sh: $v=${!v}: expected a positive integer" >&2; exit 2; }
@@ -117,17 +135,32 @@ while [ -z "$RECORDS" ] && [ "$records" -lt "$MAX_RECORDS" ]; do
   # Stop when one more step would overrun the budget.
   [ $((now - d0 + now - s)) -le "$DATAGEN_SECONDS" ] || break
 done
-epochs=${EPOCHS:-$((TRAIN_SECONDS * TRAIN_RATE / records))}
+# The extra sets (EXTRA_CLOUDS): shards of 10 000 records, one folder per seed.
+extra=()
+total=$records
+if [ -n "$EXTRA_CLOUDS" ]; then
+  for t in $EXTRA_SEEDS; do
+    say "extra set: $EXTRA_RECORDS records of $EXTRA_CLOUDS, seed $t, $EXTRA_SAMPLES samples"
+    "$nimbus" datagen --clouds "$EXTRA_CLOUDS" --density-range 10,300 --phase hg --seed "$t" \
+      --shard-size 10000 --light uniform-gamma --samples "$EXTRA_SAMPLES" --eval-samples 16384 \
+      --records "$EXTRA_RECORDS" --val-records 0 --test-records 0 --f16 \
+      --device "$DATAGEN_DEVICE" -q -o "$out/extra-$t"
+    extra+=("$out/extra-$t")
+    total=$((total + EXTRA_RECORDS))
+  done
+fi
+epochs=${EPOCHS:-$((TRAIN_SECONDS * TRAIN_RATE / total))}
 [ "$epochs" -ge 1 ] || epochs=1
 [ -n "$EPOCHS" ] || [ "$epochs" -le "$MAX_EPOCHS" ] || epochs=$MAX_EPOCHS
-say "training $epochs epochs on $records records"
+say "training $epochs epochs on $total records"
 
-settings="INIT=$INIT TEST_PRECISE=$TEST_PRECISE TEST_SEEDS='$TEST_SEEDS' TEST_CLOUDS=$TEST_CLOUDS TEST_RECORDS=$TEST_RECORDS PRECISE_NOISE=$PRECISE_NOISE MAX_SAMPLES=$MAX_SAMPLES SEED=$SEED CLOUDS=$CLOUDS SAMPLES=$SAMPLES DATAGEN_DEVICE=$DATAGEN_DEVICE VAL_RECORDS=$VAL_RECORDS RECORDS=$records EPOCHS=$epochs LR=$LR EMA=$EMA TRAIN_CAP_MINUTES=$TRAIN_CAP_MINUTES"
+settings="${INIT_STAGE:+$INIT_STAGE && }INIT=$INIT TEST_PRECISE=$TEST_PRECISE TEST_SEEDS='$TEST_SEEDS' TEST_CLOUDS=$TEST_CLOUDS TEST_RECORDS=$TEST_RECORDS PRECISE_NOISE=$PRECISE_NOISE MAX_SAMPLES=$MAX_SAMPLES SEED=$SEED CLOUDS=$CLOUDS SAMPLES=$SAMPLES DATAGEN_DEVICE=$DATAGEN_DEVICE VAL_RECORDS=$VAL_RECORDS RECORDS=$records EPOCHS=$epochs LR=$LR EMA=$EMA TRAIN_CAP_MINUTES=$TRAIN_CAP_MINUTES${EXTRA_CLOUDS:+ EXTRA_CLOUDS=$EXTRA_CLOUDS EXTRA_SEEDS='$EXTRA_SEEDS' EXTRA_RECORDS=$EXTRA_RECORDS EXTRA_SAMPLES=$EXTRA_SAMPLES}"
 train() { # W EXTRA...: a run's export at blend W
   local w=$1
   shift
   mkdir -p "$out/w$w"
-  "$py" training/train.py --data "$out/data" --test-data "$TEST_PRECISE" --run "$out/run" \
+  "$py" training/train.py --data "$out/data" ${extra[@]+"${extra[@]}"} \
+    --test-data "$TEST_PRECISE" --run "$out/run" \
     --init "$INIT" --epochs "$epochs" --lr "$LR" --schedule cosine --loss rel-l2 --rel-eps 0.01 \
     --ema "$EMA" --select last --seed 0 --device "$TRAIN_DEVICE" --resume --blend-init "$w" \
     --export "$out/w$w/rpnn-hg.onnx" --max-minutes "$TRAIN_CAP_MINUTES" \

@@ -703,6 +703,7 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
                     rdata.manifest_hash(args.test_data), "seed": ts.get("seed"),
                     "eval_samples": ts.get("eval_samples"), "eval_noise": ts.get("eval_noise"),
                     "test_clouds": [c.get("split") for c in tm.get("clouds", [])].count("test")}
+    samples = [rdata.read_manifest(d).get("settings", {}).get("samples") for d in args.data]
     card = {
         "model": Path(args.export).name,
         "architecture": {**cfg, "input_len": model.input_len,
@@ -714,7 +715,8 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
                  "manifest_sha256": ", ".join(rdata.manifest_hash(d) for d in args.data),
                  "phase": settings.get("phase"), "albedo": settings.get("albedo"),
                  "seed": settings.get("seed"), "max_samples": settings.get("max_samples"),
-                 "samples": settings.get("samples"), "eval_samples": settings.get("eval_samples"),
+                 "samples": samples[0] if len(set(samples)) == 1 else samples,
+                 "eval_samples": settings.get("eval_samples"),
                  "light": settings.get("light"),
                  "train_clouds": splits.count("train"), "val_clouds": splits.count("val"),
                  "test_clouds": (test_set["test_clouds"] if test_set

@@ -233,6 +233,12 @@ def init_lines(init: dict | None) -> list[str]:
             f"stage's{before}."]
 
 
+def samples_text(samples) -> str:
+    """A card's training-label sample count: one number, or one per set (`train.py --data A
+    B` with sets of different counts)."""
+    return " / ".join(map(str, samples)) if isinstance(samples, list) else str(samples)
+
+
 def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
     """Writes ``<model>.json`` and ``<model>.md`` next to the ONNX file."""
     path_onnx = Path(path_onnx)
@@ -263,7 +269,9 @@ def write_card(path_onnx: Path, card: dict) -> tuple[Path, Path]:
         f"{d.get('val_records', 0) or t['val_rows']} validation records, {d['test_records']} "
         f"test-cloud records.",
         "- Labels: " + (
-            f"training {d['samples']} samples each (fixed count, unbiased, noisy); validation "
+            f"training {samples_text(d['samples'])} samples each ("
+            f"{'per set, in the order above; ' if isinstance(d['samples'], list) else ''}"
+            f"fixed count, unbiased, noisy); validation "
             f"and test {d.get('eval_samples') or 'converged to ±2 % (95 %)'} samples each; "
             f"light directions {d.get('light')}."
             if d.get("samples") else

@@ -200,8 +200,16 @@ def test_test_data_takes_the_test_split_of_another_set(record_set, tmp_path):
 
 def test_several_sets_train_together(record_set, tmp_path):
     second = write_set(tmp_path / "second", 500, 0, seed=9)
+    # Labels of 1 024 samples in the first set and 4 096 in the second: the card says both.
+    for root, n in ((record_set, 1024), (second, 4096)):
+        m = json.loads((root / "manifest.json").read_text())
+        m["settings"]["samples"] = n
+        (root / "manifest.json").write_text(json.dumps(m))
     res = run(record_set, tmp_path, "--epochs", "1", "--data", str(record_set), str(second),
               "--export", str(tmp_path / "m.onnx"))
+    assert res["card"]["data"]["samples"] == [1024, 4096]
+    assert ("- Labels: training 1024 / 4096 samples each (per set, in the order above; fixed "
+            "count") in (tmp_path / "m.md").read_text()
     # 1 700 training rows, no validation split in either: 25 % of them validate.
     assert res["fit"] + res["val"] == 1700
     assert res["card"]["data"]["root"] == f"{record_set}, {second}"

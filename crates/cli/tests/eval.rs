@@ -451,8 +451,9 @@ fn device_benchmark_script_small() {
 
 /// `training/device_stage.sh --small`: the GPU fine-tuning stage runs end to end on this
 /// machine's adapter (lavapipe in CI, CPU training): an independent precise test set, a growing
-/// training set, a run from the shipped weights, an export with its card at a blend, and the
-/// scores of the starting model and of the export on the test set.
+/// training set and an extra set of one cloud kind (EXTRA_CLOUDS), a run from the shipped weights
+/// on both, an export with its card at a blend, and the scores of the starting model and of the
+/// export on the test set.
 #[test]
 fn device_stage_script_small() {
     let Some((root, py)) = gpu_script_setup("eval::device_stage_script_small") else {
@@ -464,19 +465,34 @@ fn device_stage_script_small() {
         .args(["training/device_stage.sh", "--small", d.to_str().unwrap()])
         .env("NIMBUS", env!("CARGO_BIN_EXE_nimbus"))
         .env("PYTHON", &py)
+        .env("EXTRA_CLOUDS", "gen:8:cirrus")
+        .env("EXTRA_SEEDS", "12")
+        .env("EXTRA_RECORDS", "100")
+        .env("EXTRA_SAMPLES", "16")
         .output()
         .unwrap();
     let log = text(&o);
     assert!(o.status.success(), "{log}");
-    // Two growth steps of 200 records each, then 8 epochs (TRAIN_RATE × TRAIN_SECONDS / 400,
-    // capped at MAX_EPOCHS).
-    assert!(log.contains("training 8 epochs on 400 records"), "{log}");
+    // Two growth steps of 200 records each and 100 extra cirrus records, then 8 epochs
+    // (TRAIN_RATE × TRAIN_SECONDS / 500, capped at MAX_EPOCHS).
+    assert!(log.contains("training 8 epochs on 500 records"), "{log}");
+    let extra = std::fs::read_to_string(d.join("extra-12/manifest.json")).unwrap();
+    let extra: serde_json::Value = serde_json::from_str(&extra).unwrap();
+    assert_eq!(extra["records"], 100);
+    assert_eq!(extra["settings"]["samples"], 16);
     // `--small` exports one blend, W = 0.5, with the run's curves beside it.
     assert!(d.join("w0.5/curves.png").exists() && !d.join("w1").exists());
     let card = std::fs::read_to_string(d.join("w0.5/rpnn-hg.json")).unwrap();
     let card: serde_json::Value = serde_json::from_str(&card).unwrap();
     assert_eq!(card["training"]["epochs"], 8);
-    assert_eq!(card["data"]["train_records"], 400);
+    assert_eq!(card["data"]["train_records"], 500);
+    // The reproduce line names the extra set, and the main set's own count (not the total).
+    let line = card["reproduce"].as_str().unwrap_or_default();
+    assert!(
+        line.contains("RECORDS=400 ")
+            && line.contains("EXTRA_CLOUDS=gen:8:cirrus EXTRA_SEEDS='12' EXTRA_RECORDS=100"),
+        "{line}"
+    );
     // The card's test figures come from the run's own seed-4 set (10 precise records).
     assert_eq!(card["data"]["test_records"], 10);
     assert_eq!(card["export_check"]["passed"].as_bool(), Some(true));
