@@ -760,11 +760,35 @@ pub fn run(
         bar.finish_and_clear();
     }
     let seconds = start.elapsed().as_secs_f64();
-    Manifest::new(opts.clone(), clouds.to_vec(), shards, seconds, computed).write(out)?;
+    let manifest = Manifest::new(opts.clone(), clouds.to_vec(), shards, seconds, computed);
+    // A run that found every record in place keeps the manifest as it was: model cards name
+    // its sha256, and a run that changed no record must not change it.
+    if computed > 0 || !same_set(&manifest, out) {
+        manifest.write(out)?;
+    }
     Ok(RunSummary {
         records: total,
         computed,
         converged,
         seconds,
     })
+}
+
+/// Whether `out/manifest.json` describes the same records as `m` (all but the run's timing).
+fn same_set<S: Serialize>(m: &Manifest<S>, out: &Path) -> bool {
+    let strip = |mut v: serde_json::Value| {
+        if let Some(o) = v.as_object_mut() {
+            o.remove("seconds_this_run");
+            o.remove("records_per_second_this_run");
+        }
+        v
+    };
+    let Ok(text) = std::fs::read_to_string(out.join("manifest.json")) else {
+        return false;
+    };
+    let Ok(old) = serde_json::from_str::<serde_json::Value>(&text) else {
+        return false;
+    };
+    let new = serde_json::to_value(m).expect("a manifest serialises");
+    strip(old) == strip(new)
 }
