@@ -72,6 +72,10 @@ EXTRA_SAMPLES=${EXTRA_SAMPLES:-4096}
 if [ -n "$EXTRA_CLOUDS" ] && [ -z "$EXTRA_SEEDS" ]; then
   echo "training/device_stage.sh: EXTRA_CLOUDS=$EXTRA_CLOUDS needs EXTRA_SEEDS" >&2; exit 2
 fi
+if [ -z "$EXTRA_CLOUDS" ] && [ -n "$EXTRA_SEEDS" ]; then
+  echo "training/device_stage.sh: EXTRA_SEEDS='$EXTRA_SEEDS' without EXTRA_CLOUDS" \
+    "(the kinds of cloud of the extra sets)" >&2; exit 2
+fi
 for t in $EXTRA_SEEDS; do
   [[ "$t" =~ ^[0-9]+$ ]] ||
     { echo "training/device_stage.sh: EXTRA_SEEDS: '$t' is not a seed" >&2; exit 2; }

@@ -217,14 +217,18 @@ class Records:
         return x, y
 
 
+def _split_meta(root: Path, split: str):
+    """(shard entry, its meta array memory-mapped or None) for each shard of `split`."""
+    for s in read_manifest(root).get("shards", []):
+        if s.get("split") == split:
+            yield s, (np.load(root / s["meta"], mmap_mode="r") if s.get("meta") else None)
+
+
 def label_noise(root: Path, split: str) -> np.ndarray:
     """Relative standard deviation of every label of `split` (NaN where unknown)."""
     out = []
-    for s in read_manifest(root).get("shards", []):
-        if s.get("split") != split:
-            continue
+    for s, meta in _split_meta(root, split):
         y = np.load(root / s["y"], mmap_mode="r").astype(np.float64)
-        meta = np.load(root / s["meta"], mmap_mode="r") if s.get("meta") else None
         if meta is None or meta.ndim != 2 or meta.shape[1] <= 13:  # no label variance
             out.append(np.full(len(y), np.nan))
             continue
@@ -245,11 +249,8 @@ def cloud_kinds(root: Path, split: str) -> np.ndarray:
         c = c if isinstance(c, dict) else {}
         names.append(str(c.get("kind") or c.get("name") or "unknown"))
     out = []
-    for s in m.get("shards", []):
-        if s.get("split") != split:
-            continue
+    for s, meta in _split_meta(root, split):
         n = int(s.get("records", 0))
-        meta = np.load(root / s["meta"], mmap_mode="r") if s.get("meta") else None
         if meta is None or meta.ndim != 2 or meta.shape[0] != n or meta.shape[1] < 1:
             out.append(np.full(n, "unknown", dtype=object))
             continue

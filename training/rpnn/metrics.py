@@ -58,10 +58,12 @@ def record_errors(model, batches, batch: int, kinds: np.ndarray | None = None) -
                                      "median_rel_error": float(np.median(rel[sel]))})
     if kinds is not None:
         kk = np.asarray(kinds, dtype=object)[ok]
-        out["by_kind"] = [{"kind": str(k), "records": int((kk == k).sum()),
-                           "median_rel_error": float(np.median(rel[kk == k])),
-                           "mean_ratio": float(pk[kk == k].mean() / yk[kk == k].mean())}
-                          for k in sorted(set(kk.tolist()))]
+        out["by_kind"] = []
+        for k in sorted(set(kk.tolist())):
+            sel = kk == k
+            out["by_kind"].append({"kind": str(k), "records": int(sel.sum()),
+                                   "median_rel_error": float(np.median(rel[sel])),
+                                   "mean_ratio": float(pk[sel].mean() / yk[sel].mean())})
     return out
 
 
