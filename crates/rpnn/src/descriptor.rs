@@ -56,12 +56,32 @@ pub fn frame(view: Vec3, to_light: Vec3) -> (Vec3, Vec3, Vec3) {
 /// Writes the descriptor of the shading configuration (x, ω, ω_l) into `out`
 /// (len [`DESCRIPTOR_LEN`]).
 pub fn descriptor(pyr: &Pyramid, x: Vec3, view: Vec3, to_light: Vec3, out: &mut [f32]) {
+    descriptor_scaled(pyr, x, view, to_light, 1.0, out)
+}
+
+/// [`descriptor`] with the stencil scaled by `s` (every level's points `s` times as far apart,
+/// read from the pyramid level [`Pyramid::level_for_scaled`] picks); `s` = 1 is the paper's
+/// stencil, bit for bit. For experiments with the descriptor's scale
+/// (`training/experiments/stencil_ab.py`). With `s` < 1 the stencil reads finer levels than
+/// [`Pyramid::new`] stores: use [`Pyramid::with_every_level`] (a missing level panics).
+pub fn descriptor_scaled(
+    pyr: &Pyramid,
+    x: Vec3,
+    view: Vec3,
+    to_light: Vec3,
+    s: f32,
+    out: &mut [f32],
+) {
     assert_eq!(out.len(), DESCRIPTOR_LEN);
     let (ex, ey, ez) = frame(view, to_light);
     let mfp = (1.0 / pyr.mean_sigma) as f32;
     for k in 1..=LEVELS {
-        let level = pyr.level_for(k as u32);
-        let scale = (1u32 << (k - 1)) as f32 * mfp;
+        let level = pyr.level_for_scaled(k as u32, s as f64);
+        assert!(
+            s == 1.0 || pyr.levels[level].is_stored(),
+            "stencil scale {s}: pyramid level {level} is not stored (Pyramid::with_every_level)"
+        );
+        let scale = (1u32 << (k - 1)) as f32 * mfp * s;
         for p in 0..POINTS {
             let s = stencil_point(p);
             let q = x + (ex * s.x + ey * s.y + ez * s.z) * scale;

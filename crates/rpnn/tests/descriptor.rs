@@ -2,7 +2,9 @@
 //! degenerate frames.
 
 use glam::{DVec3, Vec3};
-use nimbus_rpnn::descriptor::{Config, DESCRIPTOR_LEN, POINTS, descriptor, descriptors, frame};
+use nimbus_rpnn::descriptor::{
+    Config, DESCRIPTOR_LEN, LEVELS, POINTS, descriptor, descriptor_scaled, descriptors, frame,
+};
 use nimbus_rpnn::gpu::GpuDescriptor;
 use nimbus_rpnn::{Pyramid, PyramidError};
 use nimbus_scene::{Aabb, DensityGrid, Volume, generate};
@@ -129,6 +131,33 @@ fn invariant_under_joint_rotation() {
                 "index {i}: {u} vs {v}"
             );
         }
+    }
+}
+
+/// The scaled stencil (the A/B of `training/experiments/stencil_ab.py`): scale 1 is the paper's
+/// descriptor bit for bit, and at scale ½ level k + 1 has level k's points and pyramid level,
+/// so it reads the same values exactly.
+#[test]
+fn scaled_stencil_shifts_the_levels() {
+    let vol = cloud([32, 24, 32]);
+    let pyr = Pyramid::with_every_level(&vol).unwrap();
+    let mut r = rng(5);
+    for _ in 0..20 {
+        let (x, view, l) = (
+            Vec3::new(r() - 0.5, r() * 0.5 - 0.25, r() - 0.5),
+            dir(&mut r),
+            dir(&mut r),
+        );
+        let mut one = vec![0.0; DESCRIPTOR_LEN];
+        let mut same = vec![0.0; DESCRIPTOR_LEN];
+        let mut half = vec![0.0; DESCRIPTOR_LEN];
+        descriptor(&pyr, x, view, l, &mut one);
+        descriptor_scaled(&pyr, x, view, l, 1.0, &mut same);
+        descriptor_scaled(&pyr, x, view, l, 0.5, &mut half);
+        assert_eq!(one, same);
+        assert_eq!(half[POINTS..LEVELS * POINTS], one[..(LEVELS - 1) * POINTS]);
+        assert_eq!(half[LEVELS * POINTS], one[LEVELS * POINTS]);
+        assert!(one.iter().any(|v| *v > 0.0));
     }
 }
 

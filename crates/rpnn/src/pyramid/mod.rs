@@ -164,7 +164,12 @@ fn level_resolutions(res: [usize; 3]) -> Vec<[usize; 3]> {
 
 /// [`Pyramid::level_for`] before the pyramid exists (non-decreasing in `k`).
 fn level_index(k: u32, mean_sigma: f64, voxel: f64, levels: usize) -> usize {
-    let h_vox = 0.5 * 2f64.powi(k as i32 - 1) / (mean_sigma * voxel);
+    level_index_scaled(k, 1.0, mean_sigma, voxel, levels)
+}
+
+/// [`level_index`] for a stencil scaled by `s` (points `s` times closer or farther apart).
+fn level_index_scaled(k: u32, s: f64, mean_sigma: f64, voxel: f64, levels: usize) -> usize {
+    let h_vox = s * 0.5 * 2f64.powi(k as i32 - 1) / (mean_sigma * voxel);
     let i = (h_vox / 2.0).log2().floor();
     if i.is_nan() || i < 0.0 {
         0
@@ -328,6 +333,12 @@ impl Pyramid {
     /// σᵢ = 2ⁱ ≤ h/2 (level 0 when h/2 < 2), capped at the coarsest level.
     pub fn level_for(&self, k: u32) -> usize {
         level_index(k, self.mean_sigma, self.voxel, self.levels.len())
+    }
+
+    /// [`Pyramid::level_for`] for the stencil scaled by `s` (spacing s · 0.5 · 2^(k−1) mean
+    /// free paths); `s` = 1 is `level_for`. For experiments with the descriptor's scale.
+    pub fn level_for_scaled(&self, k: u32, s: f64) -> usize {
+        level_index_scaled(k, s, self.mean_sigma, self.voxel, self.levels.len())
     }
 
     /// ρ at world point p from level `i` (trilinear, clamp-to-edge inside the box, 0 outside).
