@@ -37,6 +37,8 @@ def prep(args):
     sets = [("train", args.train, "train")]
     sets += [(f"t{i}", p, "test") for i, p in enumerate(args.test)]
     for name, root, split in sets:
+        if not (root / "manifest.json").is_file():
+            raise SystemExit(f"{root}: no manifest.json (not a record set)")
         man = json.loads((root / "manifest.json").read_text())
         cols = man["meta_columns"]
         shards = [s for s in man["shards"] if s["split"] == split]
@@ -55,6 +57,11 @@ def train(args):
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
     s = args.scale
+    need = [args.work / f"train_s{s}.f32", args.work / "train_y.npy"]
+    missing = [str(p) for p in need if not p.is_file()]
+    if missing:
+        raise SystemExit(f"missing {', '.join(missing)}: run prep and the stencil_scale example "
+                         "first (see the docstring)")
     load = lambda n: torch.from_numpy(  # noqa: E731
         np.fromfile(args.work / f"{n}_s{s}.f32", dtype="<f4").reshape(-1, 2251))
     x_all, y_all = load("train"), torch.from_numpy(np.load(args.work / "train_y.npy"))
