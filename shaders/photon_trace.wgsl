@@ -69,7 +69,8 @@ fn view_phase(x: vec3<f32>, d: vec3<f32>) -> f32 {
     let v = P.view_origin - x;
     let l = length(v);
     if (!(l > 1.0e-20)) { return 1.0 / (4.0 * PI); }
-    return hg_eval(P.g, dot(d, v / l));
+    // `P.view_g`: the final gathering's effective anisotropy (0: the medium's).
+    return hg_eval(select(P.view_g, P.g, P.view_g == 0.0), dot(d, v / l));
 }
 
 // Empty-space skipping (`P.skip_empty`): the distance that takes a beam at x along d out of its

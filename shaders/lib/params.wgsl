@@ -24,5 +24,5 @@ struct Params {
     upsample_mean: u32, upsample_g_extrapolate: u32, sun_first: u32, sun_count: u32,
     view_origin: vec3<f32>, view_mode: u32,
     light_res: vec3<u32>, near_radius: u32,
-    skip_empty: u32, light_voxels: u32, _pad_skip1: u32, _pad_skip2: u32,
+    skip_empty: u32, light_voxels: u32, view_g: f32, _pad_skip2: u32,
 };

@@ -17,6 +17,7 @@
 #import params
 #import grid
 #import rng
+#import tracking
 #import hg
 #import constants
 
@@ -31,57 +32,6 @@ struct LiTask { x: vec4<f32>, view: vec4<f32>, to_light: vec4<f32> };
 @group(0) @binding(2) var<uniform> T: Task;
 @group(0) @binding(3) var<storage, read> li_tasks: array<LiTask>;
 @group(0) @binding(4) var<storage, read_write> out: array<vec4<f32>>;
-
-// Half the smallest voxel edge: the step through empty space where free-flight steps fall
-// below the resolution of t.
-fn half_voxel() -> f32 {
-    let v = (P.aabb_max - P.aabb_min) / vec3<f32>(P.d_res);
-    return 0.5 * min(v.x, min(v.y, v.z));
-}
-
-fn delta_track(o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32, rng: ptr<function, Rng>) -> f32 {
-    var t = t0;
-    loop {
-        var next = t - log(1.0 - rand(rng)) / P.sigma_max;
-        if (next <= t) {
-            // A step below the representable increment of t (σ̄ beyond ≈ 1e7 per unit at
-            // t ≈ 1), where a null collision would repeat forever: where there is density the
-            // medium is opaque at this resolution and the collision happens here; where there
-            // is none the walk moves on by half a voxel (the CPU's majorant grid skips such
-            // cells, `tracking.rs`).
-            if (density_at(o + d * t) > 0.0) { return t; }
-            next = t + half_voxel();
-        }
-        t = next;
-        if (t >= t1) { return -1.0; }
-        if (rand(rng) * P.sigma_max < P.density_scale * density_at(o + d * t)) { return t; }
-    }
-    return -1.0;
-}
-
-fn ratio_track(o: vec3<f32>, d: vec3<f32>, rng: ptr<function, Rng>) -> f32 {
-    let hit = box_intersect(o, d);
-    if (hit.x > hit.y) { return 1.0; }
-    var tr = 1.0;
-    var t = hit.x;
-    loop {
-        var next = t - log(1.0 - rand(rng)) / P.sigma_max;
-        if (next <= t) {
-            // Below one ulp of t: opaque where there is density, else half a voxel on (see
-            // `delta_track`).
-            if (density_at(o + d * t) > 0.0) { return 0.0; }
-            next = t + half_voxel();
-        }
-        t = next;
-        if (t >= hit.y) { break; }
-        tr *= max(1.0 - P.density_scale * density_at(o + d * t) / P.sigma_max, 0.0);
-        if (tr < 0.1) {
-            if (tr <= 0.0 || rand(rng) < 0.5) { return 0.0; }
-            tr *= 2.0;
-        }
-    }
-    return tr;
-}
 
 // Radiance along o + t d for a path that has scattered `scat0` times, lit by a delta sun
 // towards `sun_dir` with irradiance `sun_e` and the constant sky.
@@ -98,7 +48,7 @@ fn radiance(o0: vec3<f32>, d0: vec3<f32>, scat0: u32, sun_dir: vec3<f32>, sun_e:
     loop {
         let hit = box_intersect(o, d);
         var t = -1.0;
-        if (hit.x <= hit.y) { t = delta_track(o, d, hit.x, hit.y, rng); }
+        if (hit.x <= hit.y) { t = delta_track(o, d, hit.x, hit.y, P.sigma_max, rng); }
         if (t < 0.0) {
             l += beta * P.sky_radiance;
             if (disc && scat == 0u && dot(d, sun_dir) >= P.sun_cos_max) {
@@ -121,7 +71,7 @@ fn radiance(o0: vec3<f32>, d0: vec3<f32>, scat0: u32, sun_dir: vec3<f32>, sun_e:
             }
             let ph = hg_eval(P.g, dot(d, wi));
             if (ph > 0.0) {
-                l += beta * ph * scale * ratio_track(x, wi, rng) * sun_e;
+                l += beta * ph * scale * ratio_track(x, wi, P.sigma_max, rng) * sun_e;
             }
         }
         let u1 = rand(rng);

@@ -23,6 +23,78 @@ pub(crate) enum UpsampleLambdaArg {
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub(crate) enum ShadowArg {
+    Auto,
+    Volume,
+    Rays,
+}
+
+impl From<ShadowArg> for nimbus_photon::SunShadow {
+    fn from(a: ShadowArg) -> Self {
+        match a {
+            ShadowArg::Auto => nimbus_photon::SunShadow::Auto,
+            ShadowArg::Volume => nimbus_photon::SunShadow::Volume,
+            ShadowArg::Rays => nimbus_photon::SunShadow::Rays,
+        }
+    }
+}
+
+/// The final gathering's flags (`render`, `compare`, `bench-suite`, `view`).
+#[derive(clap::Args, Clone)]
+pub(crate) struct GatherArgs {
+    /// Photon mapping with final gathering (`pm`): phase-sampled bounces k before the photon map
+    /// is read (0: the cache at the camera ray's collision, a smooth biased preview); every sun
+    /// order up to k + 1 is computed exactly.
+    #[arg(long, default_value_t = nimbus_photon::mapper::DEFAULT_GATHER_BOUNCES,
+          value_parser = clap::value_parser!(u32).range(0..=1_000_000))]
+    pub(crate) gather_bounces: u32,
+    /// Photon mapping with final gathering: the sun at each collision from the
+    /// sun-transmittance volume (`volume`: its single scattering ray marched) or by a
+    /// ratio-tracked shadow ray (`rays`); `auto`: the volume where the light volumes have the
+    /// grid's resolution, else rays.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub(crate) pm_shadow: ShadowArg,
+    /// Photon mapping with final gathering: what a gather path reads where it ends: `view`
+    /// (view-dependent words with the phase function HG(g^(k+1)) towards the camera) or
+    /// `lobes` (each cell's two flux lobes towards the previous vertex).
+    #[arg(long, value_enum, default_value = "view")]
+    pub(crate) gather_terminal: TerminalArg,
+    /// Photon mapping with final gathering, `view` terminal: the share c ∈ [0, 1] of the
+    /// bounces' angular spread the view-dependent words average over (phase function
+    /// HG(g^(1 + k c)); 1: end point and direction independent).
+    #[arg(long, default_value_t = nimbus_photon::mapper::DEFAULT_GATHER_SPREAD, value_parser = unit_closed)]
+    pub(crate) gather_spread: f64,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub(crate) enum TerminalArg {
+    View,
+    Lobes,
+}
+
+impl GatherArgs {
+    /// The gathering's settings; `ring` and `beams` are the photon map's flags when given.
+    pub(crate) fn settings(
+        &self,
+        ring: Option<u32>,
+        beams: Option<u32>,
+    ) -> nimbus_photon::GatherSettings {
+        use nimbus_photon::mapper::{DEFAULT_GATHER_BEAMS, DEFAULT_GATHER_RING};
+        nimbus_photon::GatherSettings {
+            ring: ring.unwrap_or(DEFAULT_GATHER_RING),
+            beams: beams.unwrap_or(DEFAULT_GATHER_BEAMS),
+            bounces: self.gather_bounces,
+            spread: self.gather_spread,
+            shadow: self.pm_shadow.into(),
+            terminal: match self.gather_terminal {
+                TerminalArg::View => nimbus_photon::Terminal::View,
+                TerminalArg::Lobes => nimbus_photon::Terminal::Lobes,
+            },
+        }
+    }
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub(crate) enum InScatterArg {
     View,
     Lobes,
@@ -31,9 +103,10 @@ pub(crate) enum InScatterArg {
 /// Photon-mapping settings shared by `render --method pm` and `animate`.
 #[derive(clap::Args)]
 pub(crate) struct PmArgs {
-    /// Photon mapping: beams traced per frame (n_g), 1..=2²⁶.
-    #[arg(long, default_value_t = 8192, value_parser = clap::value_parser!(u32).range(1..=1 << 26))]
-    pub(crate) beams: u32,
+    /// Photon mapping: beams traced per frame (n_g), 1..=2²⁶ (default: 8 192, the paper's; with
+    /// final gathering 65 536).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=1 << 26))]
+    pub(crate) beams: Option<u32>,
     /// Photon mapping: `exact` (default: exact single scattering from a sun-transmittance
     /// volume, the cache for scattered light only, similarity σ(1−g), per-cell flux axes) or
     /// `elek2012` (the paper: one cache for all scattering orders, similarity σ√(1−g), lobes
@@ -69,9 +142,10 @@ pub(crate) struct PmArgs {
     /// variant's (exact: view, elek2012: lobes); see BENCHMARKS.md.
     #[arg(long, value_enum)]
     pm_in_scatter: Option<InScatterArg>,
-    /// Photon mapping: partial caches in the ring (m).
-    #[arg(long, default_value_t = 100)]
-    pub(crate) ring: u32,
+    /// Photon mapping: partial caches in the ring (m; default 100, the paper's; with final
+    /// gathering 8).
+    #[arg(long)]
+    pub(crate) ring: Option<u32>,
     /// Photon mapping: cache resolution X,Y,Z (default: ≤ 2400 cells, the grid's proportions).
     #[arg(long, value_delimiter = ',')]
     cache_res: Option<Vec<u32>>,
@@ -112,8 +186,8 @@ impl PmArgs {
             view_dependent: self.pm_in_scatter.map(|a| a == InScatterArg::View),
             upsample_mean: self.pm_upsample_lambda == UpsampleLambdaArg::Mean,
             upsample_g_extrapolate: self.pm_upsample_g_extrapolate,
-            beams_per_frame: self.beams,
-            ring: self.ring,
+            beams_per_frame: self.beams.unwrap_or(8192),
+            ring: self.ring.unwrap_or(100),
             cache_res: triple(self.cache_res.clone(), "--cache-res")?,
             light_res: triple(self.light_res.clone(), "--light-res")?,
             seed,
@@ -161,6 +235,19 @@ pub(crate) fn thread_count(s: &str) -> std::result::Result<usize, String> {
     }
 }
 
+/// A value in [0, 1].
+pub(crate) fn unit_closed(s: &str) -> std::result::Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a number"))?;
+    if v.is_finite() && (0.0..=1.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("must lie in [0, 1], got {s}"))
+    }
+}
+
 /// A value in [0, 1).
 pub(crate) fn unit_interval(s: &str) -> std::result::Result<f64, String> {
     let v: f64 = s
@@ -201,23 +288,34 @@ pub(crate) fn flags_for_other_methods(cmd: &clap::Command, m: &clap::ArgMatches)
         return Vec::new();
     }
     let names: Vec<String> = methods.iter().map(|m| m.to_string()).collect();
-    let pm = methods
-        .iter()
-        .any(|m| matches!(m, Method::Pm | Method::PmElek2012));
+    let pm = methods.iter().any(|m| m.is_photon_mapping());
     let rpnn = methods.contains(&Method::Rpnn);
-    // The photon map's flags: render's group, compare's --beams.
-    let pm_ids: Vec<String> = match command.get_groups().find(|g| g.get_id() == "PmArgs") {
-        Some(g) => g.get_args().map(|id| id.to_string()).collect(),
-        None if name != "render" => vec!["beams".into()],
-        None => Vec::new(),
+    // The photon map's flags: render's groups, compare's --beams and --ring and the
+    // gathering's group.
+    let group = |id: &str| -> Vec<String> {
+        command
+            .get_groups()
+            .find(|g| g.get_id() == id)
+            .map(|g| g.get_args().map(|a| a.to_string()).collect())
+            .unwrap_or_default()
     };
+    let mut pm_ids = group("PmArgs");
+    if name != "render" {
+        pm_ids.extend(["beams".to_string(), "ring".to_string()]);
+    }
+    let gather_ids = group("GatherArgs");
+    let gather = methods.contains(&Method::Pm);
     let rpnn_ids: Vec<String> = command
         .get_groups()
         .find(|g| g.get_id() == "RpnnArgs")
         .map(|g| g.get_args().map(|id| id.to_string()).collect())
         .unwrap_or_default();
     let mut out = Vec::new();
-    for (ids, applies, to) in [(pm_ids, pm, "pm and pm-elek2012"), (rpnn_ids, rpnn, "rpnn")] {
+    for (ids, applies, to) in [
+        (pm_ids, pm, "pm, pm-march and pm-elek2012"),
+        (gather_ids, gather, "pm"),
+        (rpnn_ids, rpnn, "rpnn"),
+    ] {
         if applies {
             continue;
         }

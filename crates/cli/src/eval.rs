@@ -52,9 +52,16 @@ pub(crate) struct EvalArgs {
     /// Seed of the method runs (default: the scene's `render.seed`).
     #[arg(long)]
     seed: Option<u64>,
-    /// Photon mapping: beams per frame (n_g).
-    #[arg(long, default_value_t = 8192)]
-    beams: u32,
+    /// Photon mapping: beams per frame (n_g; default 8 192, the paper's; with final gathering
+    /// 65 536).
+    #[arg(long)]
+    beams: Option<u32>,
+    /// Photon mapping with final gathering: the ring's generations m (default 8; the
+    /// ray-marched methods' budgets are their rings).
+    #[arg(long)]
+    ring: Option<u32>,
+    #[command(flatten)]
+    gather: crate::args::GatherArgs,
     #[command(flatten)]
     rpnn: RpnnArgs,
 }
@@ -82,8 +89,15 @@ impl EvalArgs {
                 self.ref_time_cap
             );
         }
-        if !(1..=1 << 24).contains(&self.beams) {
-            bail!("--beams must lie in 1..=16777216, got {}", self.beams);
+        if let Some(b) = self.beams
+            && !(1..=1 << 24).contains(&b)
+        {
+            bail!("--beams must lie in 1..=16777216, got {b}");
+        }
+        if let Some(r) = self.ring
+            && !(1..=4096).contains(&r)
+        {
+            bail!("--ring must lie in 1..=4096, got {r}");
         }
         if !(1..=1024).contains(&self.rpnn.sky_dirs) {
             bail!(
@@ -97,7 +111,8 @@ impl EvalArgs {
             budgets,
             run: RunSettings {
                 seed,
-                pm_beams: self.beams,
+                pm_beams: self.beams.unwrap_or(8192),
+                pm_gather: self.gather.settings(self.ring, self.beams),
                 model: self.rpnn.model.clone(),
                 rpnn_backend: self.rpnn.backend.into(),
                 sky_dirs: self.rpnn.sky_dirs,

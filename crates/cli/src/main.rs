@@ -103,6 +103,8 @@ enum Command {
         #[command(flatten)]
         pm: PmArgs,
         #[command(flatten)]
+        gather: args::GatherArgs,
+        #[command(flatten)]
         rpnn: RpnnArgs,
     },
     /// Render an animation with photon mapping: moving sun and/or evolving density; numbered
@@ -248,6 +250,7 @@ fn run(cli: Cli) -> Result<()> {
             quiet,
             timings,
             pm: pm_args,
+            gather,
             rpnn: rpnn_args,
         } => {
             if let Some(n) = threads {
@@ -310,9 +313,12 @@ fn run(cli: Cli) -> Result<()> {
                 progress: !quiet,
                 pm: pm_args.settings(opts.seed as u32)?,
                 pm_half_res: pm_args.half_res,
+                pm_gather: gather.settings(pm_args.ring, pm_args.beams),
+                impostors: None,
+                pm_density_max: None,
                 rpnn: rpnn_args.settings(),
             };
-            let budget = if method.is_photon_mapping() {
+            let budget = if method.budget_is_ring() {
                 options.pm.ring
             } else {
                 opts.spp

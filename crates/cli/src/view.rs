@@ -61,6 +61,8 @@ pub(crate) struct ViewArgs {
     exposure: Option<f64>,
     #[command(flatten)]
     pm: PmArgs,
+    #[command(flatten)]
+    gather: crate::args::GatherArgs,
 }
 
 /// `nimbus view`.
@@ -84,6 +86,7 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
         log,
         exposure,
         pm: pm_args,
+        gather,
     } = args;
     use nimbus_viewer::{Script, ViewMode, ViewerOptions};
     let (mut s, source) = match &scene {
@@ -120,7 +123,8 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
             .map_err(|e| anyhow::anyhow!("--size: {e}"))?;
     }
     let method = ViewMode::parse(&method).map_err(|e| anyhow::anyhow!("--method: {e}"))?;
-    // The viewer starts in photon mapping (f32, on the GPU), whatever --method says.
+    // The viewer's estimators but the CPU path tracer compute in f32 (its switch to pm or RPNN
+    // needs the same).
     nimbus_render::check_f32_scale(&s, nimbus_render::Method::Pm)?;
     if !(sun_speed.is_finite() && density_fps.is_finite() && density_fps > 0.0) {
         bail!("--sun-speed must be finite and --density-fps positive");
@@ -145,6 +149,7 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
             sun_chunks: 0,
             ..pm_args.settings(s.render.seed as u32)?
         },
+        gather: gather.settings(pm_args.ring, pm_args.beams),
         half_res: pm_args.half_res,
         impostors: (!no_impostors).then(Default::default),
         density,
@@ -152,7 +157,7 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
         density_fps,
         play_sun,
         play_density: animated,
-        method: ViewMode::Pm,
+        method,
         exposure,
         rpnn_model: model.unwrap_or_else(nimbus_rpnn::model::default_model_path),
     };
@@ -162,19 +167,13 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
         nimbus_rpnn::model::Rpnn::load(&opts.rpnn_model)
             .map_err(|e| anyhow::anyhow!("--method rpnn: {e}"))?;
     }
-    // Start in photon mapping and switch, so RPNN mode loads its model the same way as the key.
-    let mut script = script;
-    if method != ViewMode::Pm {
-        script.actions.insert(
-            0,
-            nimbus_viewer::script::Timed {
-                frame: 0,
-                action: nimbus_viewer::Action::Method(method),
-            },
-        );
-    }
     if headless {
-        let frames = frames.unwrap_or(pm_args.ring);
+        let frames = frames.unwrap_or(match method {
+            ViewMode::Pm => pm_args
+                .ring
+                .unwrap_or(nimbus_photon::mapper::DEFAULT_GATHER_RING),
+            _ => pm_args.ring.unwrap_or(100),
+        });
         let gpu = nimbus_gpu::Gpu::new()?;
         let h = nimbus_viewer::headless::HeadlessOptions {
             frames,

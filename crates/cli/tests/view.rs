@@ -45,7 +45,8 @@ impl Drop for Xvfb {
 }
 
 const SIZE: &str = "160x100";
-const PM: [&str; 4] = ["--ring", "6", "--beams", "1024"];
+/// The ray-marched photon map (whose ring, impostors and convergence these tests follow).
+const PM: [&str; 6] = ["--method", "pm-march", "--ring", "6", "--beams", "1024"];
 
 fn lum(p: [f32; 3]) -> f64 {
     (0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]) as f64
@@ -176,7 +177,7 @@ fn headless_converges_to_the_photon_mapping_render() {
     std::fs::write(&sp, scene).unwrap();
     let render = Command::new(env!("CARGO_BIN_EXE_nimbus"))
         .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-        .args(["render", sp.to_str().unwrap(), "--method", "pm"])
+        .args(["render", sp.to_str().unwrap()])
         .args(PM)
         .args(["-o", r.to_str().unwrap()])
         .output()
@@ -222,5 +223,35 @@ fn bad_script_names_file_and_line() {
         t.contains("bad.txt:2: `orbit`: `ten` is not a number"),
         "{t}"
     );
+    std::fs::remove_dir_all(&d).ok();
+}
+
+/// The viewer's default, the gathered photon map, headless: the ring fills, then gathered
+/// samples accumulate (the log counts them) into an image of the cloud.
+#[test]
+fn headless_gathered_photon_map_accumulates() {
+    if !nimbus_gpu::testing::has_adapter("view::headless_gathered_photon_map_accumulates") {
+        return;
+    }
+    let d = tmp("gathered");
+    let v = d.join("view.exr");
+    let o = Command::new(env!("CARGO_BIN_EXE_nimbus"))
+        .current_dir(root())
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .args([
+            "view",
+            "scenes/demo-cumulus.toml",
+            "--headless",
+            "--size",
+            SIZE,
+        ])
+        .args(["--ring", "4", "--beams", "16384", "--frames", "12", "--log"])
+        .args(["--screenshot", v.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let log = text(&o);
+    assert!(o.status.success(), "{log}");
+    assert!(log.contains("ring 4/4") && log.contains("8 spp"), "{log}");
+    assert_cloud(&Image::read_exr(&v).unwrap(), "gathered");
     std::fs::remove_dir_all(&d).ok();
 }

@@ -64,6 +64,8 @@ pub struct RunSettings {
     pub seed: u64,
     /// Photon mapping: beams per frame n_g.
     pub pm_beams: u32,
+    /// Photon mapping with final gathering: bounces and the sun's shadows.
+    pub pm_gather: nimbus_photon::GatherSettings,
     /// RPNN: the ONNX model (default: the shipped one).
     pub model: Option<PathBuf>,
     /// RPNN: where the network runs.
@@ -77,6 +79,7 @@ impl Default for RunSettings {
         Self {
             seed: 1,
             pm_beams: 8192,
+            pm_gather: Default::default(),
             model: None,
             rpnn_backend: NetBackend::Auto,
             sky_dirs: 4,
@@ -145,6 +148,9 @@ impl RunSettings {
                 ..Default::default()
             },
             pm_half_res: false,
+            pm_gather: self.pm_gather,
+            impostors: None,
+            pm_density_max: None,
             rpnn: RpnnSettings {
                 model: self.model.clone(),
                 backend: self.rpnn_backend,

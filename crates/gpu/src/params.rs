@@ -103,7 +103,11 @@ pub struct VolumeParams {
     /// Photon mapping: voxels of the light volumes' stored bricks, slot 0 excluded (the
     /// upsampling's dispatch: `shaders/lib/light_bricks.wgsl`).
     pub light_voxels: u32,
-    pub _pad_skip1: u32,
+    /// Photon mapping: anisotropy of the phase function of the view-dependent words (0: the
+    /// medium's g). The final gathering's words are traced with g^(k+1), the phase function of
+    /// a terminal vertex k bounces from the camera averaged over its direction (HG's Legendre
+    /// coefficients g^l multiply under convolution).
+    pub view_g: f32,
     pub _pad_skip2: u32,
 }
 
@@ -183,7 +187,7 @@ mod tests {
             ("near_radius", offset_of!(VolumeParams, near_radius)),
             ("skip_empty", offset_of!(VolumeParams, skip_empty)),
             ("light_voxels", offset_of!(VolumeParams, light_voxels)),
-            ("_pad_skip1", offset_of!(VolumeParams, _pad_skip1)),
+            ("view_g", offset_of!(VolumeParams, view_g)),
             ("_pad_skip2", offset_of!(VolumeParams, _pad_skip2)),
         ];
         assert_eq!(members.len(), rust.len());

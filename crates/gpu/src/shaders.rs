@@ -35,8 +35,11 @@ pub const MODULES: &[(&str, &str)] = &[
     module!("density_bricks"),
     module!("light_bricks"),
     module!("density_light"),
+    module!("tracking"),
     module!("pt_core"),
+    module!("photon_lookup"),
     module!("photon_raymarch_core"),
+    module!("photon_gather_core"),
 ];
 
 /// (file name, source) of every stage in `shaders/`.
@@ -48,6 +51,9 @@ pub const SHADERS: &[(&str, &str)] = &[
     stage!("photon_raymarch_bricks.wgsl"),
     stage!("photon_raymarch_light.wgsl"),
     stage!("photon_sun.wgsl"),
+    stage!("photon_gather.wgsl"),
+    stage!("photon_gather_bricks.wgsl"),
+    stage!("photon_gather_light.wgsl"),
     stage!("pt.wgsl"),
     stage!("pt_bricks.wgsl"),
     stage!("rpnn_descriptor.wgsl"),

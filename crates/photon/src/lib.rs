@@ -17,5 +17,7 @@ pub mod mapper;
 pub mod cpu;
 pub mod settings;
 
-pub use mapper::{LobeAxis, PhotonMapper, PmError, PmSettings, PmVariant};
+pub use mapper::{
+    GatherSettings, LobeAxis, PhotonMapper, PmError, PmSettings, PmVariant, SunShadow, Terminal,
+};
 pub use nimbus_gpu::params::VolumeParams;

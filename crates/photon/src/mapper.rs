@@ -12,6 +12,7 @@ use nimbus_scene::{Camera, Image, Phase, Scene, Sky};
 use nimbus_gpu::params::VolumeParams;
 
 mod changes;
+mod gather;
 pub mod light;
 mod memory;
 mod raymarch;
@@ -19,6 +20,10 @@ mod readback;
 mod sun;
 mod view;
 
+pub use gather::{
+    DEFAULT_GATHER_BEAMS, DEFAULT_GATHER_BOUNCES, DEFAULT_GATHER_RING, DEFAULT_GATHER_SPREAD,
+    GATHER_MAX_EXTRA, GATHER_MIN_FILL, GatherParams, GatherSettings, SunShadow, Terminal,
+};
 pub use memory::buffer_bytes;
 use memory::check_host_memory;
 
@@ -116,9 +121,13 @@ pub struct PhotonMapper<'g> {
     grid_max: f64,
     /// The densest cache cell's fill (`light::cache_fill`).
     cache_fill: f64,
+    /// Each cache cell's fill (`light::cell_fills`), read by the final gathering.
+    cell_fill: wgpu::Buffer,
     /// The ray marcher's uniform block (`params` with `d_res = fine_res`) and density.
     march_buf: wgpu::Buffer,
     march_density: light::MarchDensity,
+    /// The final gathering's pipeline and running sums (`mapper/gather.rs`), made on first use.
+    gather: Option<gather::GatherState>,
 }
 
 fn f3(v: DVec3) -> [f32; 3] {
@@ -317,7 +326,7 @@ impl<'g> PhotonMapper<'g> {
                 .skip_empty
                 .unwrap_or(light_res != fine_res || !map.is_full()) as u32,
             light_voxels: map.light_voxels(),
-            _pad_skip1: 0,
+            view_g: settings.view_g.map_or(0.0, |v| v as f32),
             _pad_skip2: 0,
         };
         gpu.check_storage(
@@ -357,6 +366,7 @@ impl<'g> PhotonMapper<'g> {
             gpu.zeroed("skippable cache cells (unused)", 4)
         };
         let cache_fill = light::cache_fill(&map, i_res);
+        let cell_fill = gpu.storage("cache cell fills", &light::cell_fills(&map, i_res));
         map.drop_values();
         let cell_bytes = cells as u64 * CELL_BYTES as u64;
         let h_new = gpu.zeroed("H_new", cell_bytes);
@@ -554,8 +564,10 @@ impl<'g> PhotonMapper<'g> {
             cell_skip,
             grid_max,
             cache_fill,
+            cell_fill,
             march_buf,
             march_density,
+            gather: None,
             slot_view: vec![None; settings.ring as usize],
             j_view: None,
             settings,

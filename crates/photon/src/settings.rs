@@ -127,6 +127,13 @@ pub struct PmSettings {
     /// every ring slot was traced for the current camera position and the lobes before (and
     /// while the camera moves). `None`: the variant's (see [`PmSettings::effective_view`]).
     pub view_dependent: Option<bool>,
+    /// Anisotropy of the view-dependent words' phase function (`None`: the medium's g); the
+    /// final gathering sets g^(k+1) (`mapper/gather.rs`).
+    pub view_g: Option<f64>,
+    /// The default cache as fine as the light volumes where memory and beams allow
+    /// ([`PmSettings::default_max_cells`]): the final gathering's, whose only error left is the
+    /// cache's spatial resolution.
+    pub fine_cache: bool,
     /// Frames over which a sun-transmittance rebuild is spread (1 = at once, the default;
     /// the viewer amortises large volumes: `mapper/sun.rs`).
     pub sun_chunks: u32,
@@ -157,6 +164,8 @@ impl Default for PmSettings {
             force_global_atomics: false,
             sun_chunks: 1,
             view_dependent: None,
+            view_g: None,
+            fine_cache: false,
         }
     }
 }
@@ -169,6 +178,11 @@ pub const VIEW_RING_BYTES: u64 = 128 << 20;
 /// ring of 100 × 8 192 beams then allows ≈ 25 600 cells (half the resolution of the held-out
 /// clouds), the CLI's smallest (2 × 2 048) the paper's 2 400.
 pub const VIEW_BEAMS_PER_CELL: u64 = 32;
+
+/// Fewest beams in the ring per cache cell for the final gathering's default cache
+/// ([`PmSettings::fine_cache`]): its paths average each pixel's cache reads over many cells,
+/// so cells may hold fewer beams than the ray marcher needs.
+pub const GATHER_BEAMS_PER_CELL: u64 = 4;
 
 /// Fewest beams in the ring for the view-dependent words by default. Each deposit carries its
 /// phase value towards the camera — up to HG(1) · 4π ≈ 90 × its mean at g = 0.857 — so the
@@ -217,10 +231,15 @@ impl PmSettings {
         }
         let voxels = d_res.iter().map(|&v| v as u64).product::<u64>();
         let ring = self.ring.max(1) as u64;
-        let beams = ring * self.beams_per_frame as u64 / VIEW_BEAMS_PER_CELL;
+        let (cells, per_cell) = if self.fine_cache {
+            (voxels, GATHER_BEAMS_PER_CELL)
+        } else {
+            (voxels / 8, VIEW_BEAMS_PER_CELL)
+        };
+        let beams = ring * self.beams_per_frame as u64 / per_cell;
         let ring_bytes = ring * crate::cache_layout::CELL_BYTES as u64;
         let budget = max_binding.min(VIEW_RING_BYTES) / ring_bytes;
-        (voxels / 8)
+        cells
             .min(beams)
             .max(2400)
             .min(budget)
@@ -262,4 +281,13 @@ pub fn similarity_order(g: f64, t: f64) -> u32 {
     } else {
         i.floor().max(0.0) as u32
     }
+}
+
+/// Slices of an amortised sun-transmittance rebuild in a live view ([`PmSettings::sun_chunks`]
+/// 0): at most 2^16 voxel marches per frame, at most 64 frames of lag (less than the default
+/// ring of 100 frames). A rebuild of the demo's 128×96×128 cloud at once takes ≈ 8.5 s on
+/// lavapipe (2 cores), so ≈ 0.35 s per frame in 24 slices; on a discrete GPU the whole lag is a
+/// fraction of a second.
+pub fn sun_chunks(res: [usize; 3]) -> u32 {
+    (res.iter().product::<usize>().div_ceil(1 << 16)).clamp(1, 64) as u32
 }

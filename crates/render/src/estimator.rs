@@ -1,16 +1,24 @@
-//! [`prepare`] an estimator once per scene, then [`Estimator::render`] it for any budget.
+//! [`prepare`] an estimator once per scene, then [`Estimator::render`] it for any budget, or
+//! drive it progressively: [`Estimator::accumulate`] adds samples (or photon-map generations)
+//! to the image, [`Estimator::change`] takes a new camera, sun or density and starts the image
+//! again, [`Estimator::image`] reads it. The command line, the evaluation and the viewer all go
+//! through this one dispatch; each estimator is one [`crate::engine`] module.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
+use glam::DVec3;
 use nimbus_gpu::Gpu;
-use nimbus_photon::{PhotonMapper, PmSettings, PmVariant};
-use nimbus_rpnn::render::{Backend, RpnnOptions};
+use nimbus_photon::PmSettings;
+use nimbus_photon::impostor::{ImpostorCriteria, Refresh};
+use nimbus_rpnn::render::Backend;
 use nimbus_rpnn::{Pyramid, model::Rpnn};
-use nimbus_scene::{Image, Scene};
-use nimbus_trace::{PathTracer, RenderOptions, gpu::GpuPathTracer};
+use nimbus_scene::volume::Volume;
+use nimbus_scene::{Camera, Image, Scene};
 
+use crate::engine::{self, Engine};
 use crate::{GpuSlot, Method, NetBackend};
 
 /// RPNN's settings.
@@ -43,11 +51,19 @@ impl Default for RpnnSettings {
 pub struct Options {
     /// CPU path tracer: a progress bar on stderr.
     pub progress: bool,
-    /// Photon mapping (the ring size and seed come from each render's budget and seed; the
-    /// variant from the method for [`Method::PmElek2012`]).
+    /// Photon mapping (the ring size and seed of a ray-marched render come from its budget and
+    /// seed; the variant from the method for [`Method::PmElek2012`]).
     pub pm: PmSettings,
     /// Photon mapping: ray march at half resolution and upsample the image.
     pub pm_half_res: bool,
+    /// Photon mapping with final gathering ([`Method::Pm`]): bounces and the sun's shadows.
+    pub pm_gather: nimbus_photon::GatherSettings,
+    /// Ray-marched photon mapping, progressively driven (the viewer): reuse the last image as
+    /// an impostor while these criteria allow (Elek 2012 §4.4); `None` ray marches every frame.
+    pub impostors: Option<ImpostorCriteria>,
+    /// Photon mapping of an animated density: the largest value any of its frames holds, so
+    /// the majorant covers them all (`None`: the scene's grid).
+    pub pm_density_max: Option<f32>,
     /// RPNN.
     pub rpnn: RpnnSettings,
 }
@@ -70,29 +86,77 @@ pub struct Rendered {
     pub timing_lines: Vec<String>,
 }
 
+/// A change of the scene between images (the viewer's edits).
+#[derive(Debug, Clone)]
+pub enum Change {
+    /// A new camera: position, orientation, field of view or image size.
+    Camera(Camera),
+    /// A new direction towards the sun; with `[sun] atmosphere` the sun's and sky's colours
+    /// follow ([`Scene::set_sun_dir`]).
+    SunDir(DVec3),
+    /// A new density grid of the same resolution and box (an animation's next frame).
+    Density(Arc<Volume>),
+}
+
+/// What one [`Estimator::accumulate`] did (the viewer's status line).
+#[derive(Debug, Clone, Default)]
+pub struct Step {
+    /// Wall-clock milliseconds per stage, GPU work finished.
+    pub stages: Vec<(&'static str, f64)>,
+    /// Photon beams traced (sun, sky).
+    pub beams: (u64, u64),
+    /// Photon mapping: generations in the ring and its size m.
+    pub ring: Option<(u32, u32)>,
+    /// Ray-marched photon mapping with impostors: why the image was ray marched (`None`: the
+    /// impostor was re-projected).
+    pub refresh: Option<Refresh>,
+    /// Impostor criteria's counts: refreshes per reason ([`Refresh`] order) and reuses.
+    pub impostor_counts: Option<([u32; 5], u32)>,
+    /// Samples per pixel in the image (progressive estimators).
+    pub spp: u32,
+    /// Something the user should know about this step.
+    pub note: Option<String>,
+}
+
 /// A prepared estimator: the work a scene needs once is done, renders are cheap to repeat.
-pub struct Estimator<'a> {
+pub struct Estimator<'g> {
     method: Method,
-    scene: &'a Scene,
-    opts: Options,
+    scene: Scene,
     /// Seconds [`prepare`] took.
     pub prepare_s: f64,
     /// Where it runs (`cpu (2 threads)`, the adapter, `ort (cpu)`, …).
     pub device: String,
     /// Warnings for the user (an RPNN model trained for another medium).
     pub warnings: Vec<String>,
-    state: State<'a>,
+    engine: Box<dyn Engine + 'g>,
+    /// Seed of the progressive images and how many restarts drew from it.
+    seed: u64,
+    restarts: u64,
 }
 
-enum State<'a> {
-    Pt(PathTracer<'a>),
-    PtGpu(Box<GpuPathTracer<'a>>),
-    Pm(&'a Gpu),
-    Rpnn {
-        model_path: PathBuf,
-        pyramid: Pyramid,
-        backend: Backend<'a>,
-    },
+/// Where an estimator finds its GPU: a [`GpuSlot`] (opened on first use) or an open [`Gpu`]
+/// (the viewer's, which owns the window's surface).
+pub trait GpuSource<'g>: Copy {
+    fn get(self) -> Result<&'g Gpu>;
+    fn try_get(self) -> Option<&'g Gpu>;
+}
+
+impl<'g> GpuSource<'g> for &'g GpuSlot {
+    fn get(self) -> Result<&'g Gpu> {
+        GpuSlot::get(self)
+    }
+    fn try_get(self) -> Option<&'g Gpu> {
+        GpuSlot::try_get(self)
+    }
+}
+
+impl<'g> GpuSource<'g> for &'g Gpu {
+    fn get(self) -> Result<&'g Gpu> {
+        Ok(self)
+    }
+    fn try_get(self) -> Option<&'g Gpu> {
+        Some(self)
+    }
 }
 
 /// The range of coordinates and box extents (`F32_SCALE`) and of the largest extinction
@@ -146,12 +210,12 @@ pub fn check_f32_scale(scene: &Scene, method: Method) -> Result<()> {
 /// Prepares `method` on `scene`: the majorant grid (path tracer), the GPU pipelines and
 /// buffers (GPU path tracer), the device (photon mapping), or the model, density pyramid and
 /// network backend (RPNN). A GPU is opened through `gpu` only when the method needs one.
-pub fn prepare<'a>(
-    scene: &'a Scene,
+pub fn prepare<'g>(
+    scene: &Scene,
     method: Method,
     opts: &Options,
-    gpu: &'a GpuSlot,
-) -> Result<Estimator<'a>> {
+    gpu: impl GpuSource<'g>,
+) -> Result<Estimator<'g>> {
     let t0 = Instant::now();
     let label = scene.source.display().to_string();
     let mut warnings = Vec::new();
@@ -166,20 +230,31 @@ pub fn prepare<'a>(
     if method != Method::Pt {
         check_f32_scale(scene, method)?;
     }
-    let (state, device) = match method {
+    let (engine, device): (Box<dyn Engine + 'g>, String) = match method {
         Method::Pt => (
-            State::Pt(PathTracer::new(scene)),
+            Box::new(engine::pt::PtEngine::new(scene, opts.progress)),
             format!("cpu ({} threads)", rayon::current_num_threads()),
         ),
         Method::PtGpu => {
             let g = gpu.get()?;
-            let t = GpuPathTracer::new(g, scene)
-                .with_context(|| format!("{label}: GPU path tracer"))?;
-            (State::PtGpu(Box::new(t)), g.describe())
+            (
+                Box::new(engine::pt_gpu::PtGpuEngine::new(g, scene)?),
+                g.describe(),
+            )
         }
-        Method::Pm | Method::PmElek2012 => {
+        Method::Pm => {
             let g = gpu.get()?;
-            (State::Pm(g), g.describe())
+            (
+                Box::new(engine::pm::GatherEngine::new(g, scene, opts)?),
+                g.describe(),
+            )
+        }
+        Method::PmMarch | Method::PmElek2012 => {
+            let g = gpu.get()?;
+            (
+                Box::new(engine::pm_march::MarchEngine::new(g, scene, method, opts)),
+                g.describe(),
+            )
         }
         Method::Rpnn => {
             let r = &opts.rpnn;
@@ -219,23 +294,22 @@ pub fn prepare<'a>(
             let (backend, device) =
                 rpnn_backend(r.backend, adapter, &model_path, &model, &pyramid)?;
             (
-                State::Rpnn {
-                    model_path,
-                    pyramid,
-                    backend,
-                },
+                Box::new(engine::rpnn::RpnnEngine::new(
+                    scene, model_path, model, pyramid, backend, adapter, r,
+                )),
                 device,
             )
         }
     };
     Ok(Estimator {
         method,
-        scene,
-        opts: opts.clone(),
+        scene: scene.clone(),
         prepare_s: t0.elapsed().as_secs_f64(),
         device,
         warnings,
-        state,
+        engine,
+        seed: scene.render.seed,
+        restarts: 0,
     })
 }
 
@@ -282,177 +356,61 @@ pub fn rpnn_backend<'g>(
     Ok((Backend::Ort(b), "ort (cpu)".to_string()))
 }
 
-impl Estimator<'_> {
+impl<'g> Estimator<'g> {
     pub fn method(&self) -> Method {
         self.method
     }
 
-    /// Renders with `budget` samples per pixel (Monte Carlo methods) or a ring of `budget`
-    /// frames (photon mapping), from `seed`.
+    /// The scene as the estimator sees it now (after its [`Change`]s).
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    /// Renders with `budget` samples per pixel (Monte Carlo methods and the final gathering)
+    /// or a ring of `budget` frames (the ray-marched photon maps), from `seed`, from scratch.
     pub fn render(&mut self, budget: u32, seed: u64) -> Result<Rendered> {
         let label = self.scene.source.display().to_string();
-        let cam = &self.scene.camera;
-        let pixels = (cam.width * cam.height) as f64;
-        match &mut self.state {
-            State::Pt(tracer) => {
-                let out = nimbus_trace::render_with(
-                    tracer,
-                    &RenderOptions {
-                        spp: budget,
-                        seed,
-                        progress: self.opts.progress,
-                    },
-                );
-                let st = out.stats;
-                Ok(Rendered {
-                    image: out.image,
-                    variance: Some(out.variance),
-                    seconds: st.seconds,
-                    setup_s: 0.0,
-                    gpu_ms: None,
-                    summary: format!(
-                        "path tracing {}x{} at {} spp in {:.2} s ({:.3e} camera paths/s, {:.1} scatterings/path)",
-                        cam.width,
-                        cam.height,
-                        budget,
-                        st.seconds,
-                        st.paths_per_second(),
-                        st.scatterings as f64 / st.paths.max(1) as f64,
-                    ),
-                    timing_lines: Vec::new(),
-                })
-            }
-            State::PtGpu(gpt) => {
-                let t0 = Instant::now();
-                let (image, variance) = gpt.render(budget, seed)?;
-                let seconds = t0.elapsed().as_secs_f64();
-                // As the command line has always reported it: set-up and render together.
-                let total = self.prepare_s + seconds;
-                Ok(Rendered {
-                    image,
-                    variance: Some(variance),
-                    seconds,
-                    setup_s: 0.0,
-                    gpu_ms: None,
-                    summary: format!(
-                        "GPU path tracing on {} — {}x{} at {} spp in {:.2} s ({:.3e} camera paths/s)",
-                        self.device,
-                        cam.width,
-                        cam.height,
-                        budget,
-                        total,
-                        pixels * budget as f64 / total.max(1e-9)
-                    ),
-                    timing_lines: Vec::new(),
-                })
-            }
-            State::Pm(gpu) => {
-                let t0 = Instant::now();
-                let mut settings = PmSettings {
-                    ring: budget,
-                    seed: seed as u32,
-                    ..self.opts.pm.clone()
-                };
-                if self.method == Method::PmElek2012 {
-                    settings.variant = PmVariant::Elek2012;
-                }
-                let beams = settings.beams_per_frame;
-                let mut pm = PhotonMapper::new(gpu, self.scene, settings)
-                    .with_context(|| format!("{label}: photon mapper"))?;
-                let setup_s = t0.elapsed().as_secs_f64();
-                let t1 = Instant::now();
-                let mut gpu_ms = 0.0;
-                while !pm.ring_full() {
-                    pm.trace_frame(None);
-                    gpu_ms += stage_sum(&pm.last_times);
-                }
-                pm.upsample();
-                gpu_ms += stage_sum(&pm.last_times);
-                let image = if self.opts.pm_half_res {
-                    pm.raymarch_half(cam)?
-                } else {
-                    pm.raymarch(cam)?
-                };
-                gpu_ms += stage_sum(&pm.last_times);
-                let seconds = t1.elapsed().as_secs_f64();
-                let mut timing_lines = Vec::new();
-                if pm.last_times.is_empty() {
-                    timing_lines.push("GPU timestamps are not available on this adapter".into());
-                }
-                for (stage, ms) in &pm.last_times {
-                    timing_lines.push(format!("  {stage:14} {ms:9.3} ms (last frame)"));
-                }
-                Ok(Rendered {
-                    image,
-                    variance: None,
-                    seconds,
-                    setup_s,
-                    gpu_ms: gpu.has_timestamps().then_some(gpu_ms).filter(|&v| v > 0.0),
-                    summary: format!(
-                        "photon mapping on {} — {} frames × {} beams, cache {:?} ({}){}, {}x{} in {:.2} s",
-                        self.device,
-                        pm.frames(),
-                        beams,
-                        pm.cache_res(),
-                        if pm.uses_shared_memory() {
-                            "workgroup memory"
-                        } else {
-                            "global atomics"
-                        },
-                        [pm.light_note(), pm.cache_note()]
-                            .into_iter()
-                            .flatten()
-                            .map(|n| format!(", {n}"))
-                            .collect::<String>(),
-                        cam.width,
-                        cam.height,
-                        setup_s + seconds
-                    ),
-                    timing_lines,
-                })
-            }
-            State::Rpnn {
-                model_path,
-                pyramid,
-                backend,
-            } => {
-                let ro = RpnnOptions {
-                    spp: budget,
-                    seed,
-                    sky_dirs: self.opts.rpnn.sky_dirs,
-                };
-                let out = nimbus_rpnn::render::render(self.scene, pyramid, backend, &ro)
-                    .with_context(|| format!("{label}: RPNN render"))?;
-                let t = &out.times;
-                let n = budget as f64;
-                Ok(Rendered {
-                    summary: format!(
-                        "RPNN ({}, {}) {}x{} at {} spp in {:.2} s — {:.1} ms per spp, {} network queries",
-                        model_path.display(),
-                        backend.name(),
-                        cam.width,
-                        cam.height,
-                        budget,
-                        t.total_ms / 1e3,
-                        t.total_ms / n,
-                        t.queries
-                    ),
-                    timing_lines: vec![
-                        format!("  descriptor {:9.2} ms per spp", t.descriptor_ms / n),
-                        format!("  inference  {:9.2} ms per spp", t.inference_ms / n),
-                        format!("  rest       {:9.2} ms per spp", t.rest_ms / n),
-                    ],
-                    seconds: t.total_ms / 1e3,
-                    setup_s: 0.0,
-                    gpu_ms: None,
-                    variance: Some(out.variance),
-                    image: out.image,
-                })
-            }
-        }
+        self.engine
+            .render(&self.scene, &self.device, self.prepare_s, budget, seed)
+            .with_context(|| format!("{label}: {}", self.method))
     }
-}
 
-fn stage_sum(t: &[(&'static str, f64)]) -> f64 {
-    t.iter().map(|(_, v)| v).sum()
+    /// Starts the progressive image again from `seed`.
+    pub fn restart(&mut self, seed: u64) -> Result<()> {
+        self.seed = seed;
+        self.restarts = 0;
+        self.engine.restart(&self.scene, seed)
+    }
+
+    /// Takes `change` into the scene and starts the image again. Samples after a restart are
+    /// independent of those before it (each restart draws from its own seed).
+    pub fn change(&mut self, change: Change) -> Result<()> {
+        match &change {
+            Change::Camera(c) => self.scene.camera = c.clone(),
+            Change::SunDir(d) => self.scene.set_sun_dir(*d),
+            Change::Density(v) => self.scene.volume = v.clone(),
+        }
+        self.engine.apply(&self.scene, &change)?;
+        self.restarts += 1;
+        let seed = self
+            .seed
+            .wrapping_add(self.restarts.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        self.engine.restart(&self.scene, seed)
+    }
+
+    /// Adds `n` samples per pixel to the progressive image (ray-marched photon maps: traces up
+    /// to `n` generations where the ring needs them, then ray marches or re-projects).
+    pub fn accumulate(&mut self, n: u32) -> Result<Step> {
+        self.engine.accumulate(&self.scene, n)
+    }
+
+    /// The progressive image so far.
+    pub fn image(&mut self) -> Result<Rendered> {
+        self.engine.image(&self.scene, &self.device)
+    }
+
+    /// Samples per pixel in the progressive image.
+    pub fn samples(&self) -> u32 {
+        self.engine.samples()
+    }
 }

@@ -11,11 +11,13 @@
 //! variance, timings) → report (nimbus-eval) or files (the CLI). See `ARCHITECTURE.md`.
 
 pub mod backend;
+mod engine;
 pub mod estimator;
 pub mod method;
 
 pub use backend::{GpuSlot, NetBackend};
 pub use estimator::{
-    Estimator, Options, Rendered, RpnnSettings, check_f32_scale, prepare, rpnn_backend,
+    Change, Estimator, GpuSource, Options, Rendered, RpnnSettings, Step, check_f32_scale, prepare,
+    rpnn_backend,
 };
 pub use method::Method;

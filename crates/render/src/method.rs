@@ -12,9 +12,15 @@ pub enum Method {
     Pt,
     /// The WGSL path tracer (f32; HG/isotropic phase, constant sky).
     PtGpu,
-    /// Temporally-coherent photon mapping (Elek 2012), converged ring of m frames, in the
-    /// default variant ([`nimbus_photon::PmVariant::default`]).
+    /// Photon mapping with final gathering (the default): the photon map of the default
+    /// variant ([`nimbus_photon::PmVariant::default`]), read at the end of k phase-sampled
+    /// bounces after exact next-event estimation of the sun (`nimbus_photon::mapper` gather.rs);
+    /// progressive, one sample per pixel per frame.
     Pm,
+    /// Temporally-coherent photon mapping (Elek 2012) ray marched through the upsampled cache,
+    /// converged ring of m frames, in the default variant: the estimator before final
+    /// gathering.
+    PmMarch,
     /// Photon mapping exactly as the paper publishes it (`--pm-variant elek2012`), so the
     /// default's improvements are measured against the paper.
     PmElek2012,
@@ -24,10 +30,11 @@ pub enum Method {
 }
 
 impl Method {
-    pub const ALL: [Method; 5] = [
+    pub const ALL: [Method; 6] = [
         Method::Pt,
         Method::PtGpu,
         Method::Pm,
+        Method::PmMarch,
         Method::PmElek2012,
         Method::Rpnn,
     ];
@@ -38,6 +45,7 @@ impl Method {
             Method::Pt => "pt",
             Method::PtGpu => "pt-gpu",
             Method::Pm => "pm",
+            Method::PmMarch => "pm-march",
             Method::PmElek2012 => "pm-elek2012",
             Method::Rpnn => "rpnn",
         }
@@ -48,15 +56,16 @@ impl Method {
         match self {
             Method::Pt => "path tracing",
             Method::PtGpu => "GPU path tracing",
-            Method::Pm => "photon mapping",
+            Method::Pm => "photon mapping with final gathering",
+            Method::PmMarch => "photon mapping (ray marched)",
             Method::PmElek2012 => "photon mapping (Elek 2012 as published)",
             Method::Rpnn => "RPNN",
         }
     }
 
-    /// What a budget counts: samples per pixel, or the photon map's ring frames.
+    /// What a budget counts: samples per pixel, or the ray-marched photon map's ring frames.
     pub fn budget_unit(self) -> &'static str {
-        if self.is_photon_mapping() {
+        if self.budget_is_ring() {
             "frames"
         } else {
             "spp"
@@ -70,7 +79,8 @@ impl Method {
         match self {
             Method::Pt => vec![2, 8, 32, 128],
             Method::PtGpu => vec![4, 16, 64, 256],
-            Method::Pm | Method::PmElek2012 => vec![4, 16, 100],
+            Method::Pm => vec![2, 8, 32],
+            Method::PmMarch | Method::PmElek2012 => vec![4, 16, 100],
             Method::Rpnn => vec![2, 8, 32],
         }
     }
@@ -78,17 +88,26 @@ impl Method {
     /// Whether each render reports a per-pixel variance (Monte Carlo estimators do; the photon
     /// map's error is mostly low-frequency bias and is measured against a reference only).
     pub fn has_variance(self) -> bool {
-        !self.is_photon_mapping()
+        !self.budget_is_ring()
     }
 
     pub fn is_photon_mapping(self) -> bool {
-        matches!(self, Method::Pm | Method::PmElek2012)
+        matches!(self, Method::Pm | Method::PmMarch | Method::PmElek2012)
+    }
+
+    /// Whether a budget is the photon map's ring size m (the ray-marched estimators), not
+    /// samples per pixel.
+    pub fn budget_is_ring(self) -> bool {
+        matches!(self, Method::PmMarch | Method::PmElek2012)
     }
 
     /// Whether the method always needs a GPU adapter (RPNN uses one only when its backend
     /// runs the network in WGSL).
     pub fn needs_gpu(self) -> bool {
-        matches!(self, Method::PtGpu | Method::Pm | Method::PmElek2012)
+        matches!(
+            self,
+            Method::PtGpu | Method::Pm | Method::PmMarch | Method::PmElek2012
+        )
     }
 }
 
@@ -105,7 +124,9 @@ impl FromStr for Method {
             .into_iter()
             .find(|m| m.name() == s.trim())
             .ok_or_else(|| {
-                format!("unknown method `{s}` (expected pt, pt-gpu, pm, pm-elek2012 or rpnn)")
+                format!(
+                    "unknown method `{s}` (expected pt, pt-gpu, pm, pm-march, pm-elek2012 or rpnn)"
+                )
             })
     }
 }

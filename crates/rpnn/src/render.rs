@@ -98,6 +98,45 @@ struct Shade {
     queries: Vec<(Config, DVec3)>,
 }
 
+/// Per-pixel running sums of a progressive RPNN render: Σ RGB and Σ lum² over `samples`
+/// samples per pixel.
+#[derive(Debug, Clone)]
+pub struct RpnnSums {
+    pub width: usize,
+    pub height: usize,
+    pub sum: Vec<DVec3>,
+    pub sum_l2: Vec<f64>,
+    pub samples: u32,
+}
+
+impl RpnnSums {
+    pub fn new(width: usize, height: usize) -> Self {
+        Self {
+            width,
+            height,
+            sum: vec![DVec3::ZERO; width * height],
+            sum_l2: vec![0.0; width * height],
+            samples: 0,
+        }
+    }
+
+    /// The mean image and the variance of each pixel's mean luminance (0 below two samples).
+    pub fn image(&self) -> (Image, Vec<f32>) {
+        let n = self.samples.max(1) as f64;
+        let mut image = Image::new(self.width, self.height);
+        let mut variance = vec![0.0f32; self.width * self.height];
+        for (p, (px, var)) in image.pixels.iter_mut().zip(&mut variance).enumerate() {
+            let m = self.sum[p] / n;
+            *px = [m.x as f32, m.y as f32, m.z as f32];
+            if self.samples > 1 {
+                let ml = (m.x + m.y + m.z) / 3.0;
+                *var = ((self.sum_l2[p] / n - ml * ml).max(0.0) / (n - 1.0)) as f32;
+            }
+        }
+        (image, variance)
+    }
+}
+
 /// Renders `scene` with the network. `pyr` is the scene volume's density pyramid.
 pub fn render(
     scene: &Scene,
@@ -105,22 +144,54 @@ pub fn render(
     backend: &mut Backend,
     opts: &RpnnOptions,
 ) -> Result<RpnnOutput, RenderError> {
+    let mut sums = RpnnSums::new(scene.camera.width, scene.camera.height);
+    let majorants = majorants(scene);
+    let times = accumulate(scene, pyr, &majorants, backend, opts, &mut sums)?;
+    let (image, variance) = sums.image();
+    Ok(RpnnOutput {
+        image,
+        variance,
+        times,
+    })
+}
+
+/// The majorant grid camera rays are tracked through (the path tracer's).
+pub fn majorants(scene: &Scene) -> MajorantGrid {
+    MajorantGrid::with_block(&scene.volume, nimbus_trace::integrator::MAJORANT_BLOCK)
+}
+
+/// Adds `opts.spp` samples per pixel to `sums` (progressive rendering): sample s is sample
+/// `sums.samples + s` of each pixel's stream, so steps give the image one call gives.
+/// `majorants` is [`majorants`] of the scene's volume.
+pub fn accumulate(
+    scene: &Scene,
+    pyr: &Pyramid,
+    majorants: &MajorantGrid,
+    backend: &mut Backend,
+    opts: &RpnnOptions,
+    sums: &mut RpnnSums,
+) -> Result<StageTimes, RenderError> {
     if opts.spp == 0 {
         return Err(RenderError::Setting("spp must be at least 1".into()));
     }
     let t_all = Instant::now();
     let (w, h) = (scene.camera.width, scene.camera.height);
-    let majorants =
-        MajorantGrid::with_block(&scene.volume, nimbus_trace::integrator::MAJORANT_BLOCK);
-    let tracker = Tracker::new(&scene.volume, &majorants);
-    let mut sum = vec![DVec3::ZERO; w * h];
-    let mut sum_l2 = vec![0.0f64; w * h];
+    if (sums.width, sums.height) != (w, h) {
+        return Err(RenderError::Setting(format!(
+            "running sums of {}x{} for a {w}x{h} camera",
+            sums.width, sums.height
+        )));
+    }
+    let first = sums.samples as u64;
+    let tracker = Tracker::new(&scene.volume, majorants);
+    let sum = &mut sums.sum;
+    let sum_l2 = &mut sums.sum_l2;
     let mut times = StageTimes::default();
     for s in 0..opts.spp {
         let shades: Vec<Shade> = (0..w * h)
             .into_par_iter()
             .map(|p| {
-                let mut rng = Pcg32::for_sample(opts.seed, p as u64, s as u64);
+                let mut rng = Pcg32::for_sample(opts.seed, p as u64, first + s as u64);
                 shade(scene, &tracker, p, opts, &mut rng)
             })
             .collect();
@@ -183,24 +254,10 @@ pub fn render(
             sum_l2[sh.pixel] += lum * lum;
         }
     }
-    let n = opts.spp as f64;
-    let mut image = Image::new(w, h);
-    let mut variance = vec![0.0f32; w * h];
-    for p in 0..w * h {
-        let m = sum[p] / n;
-        image.pixels[p] = [m.x as f32, m.y as f32, m.z as f32];
-        if opts.spp > 1 {
-            let ml = (m.x + m.y + m.z) / 3.0;
-            variance[p] = ((sum_l2[p] / n - ml * ml).max(0.0) / (n - 1.0)) as f32;
-        }
-    }
+    sums.samples += opts.spp;
     times.total_ms = t_all.elapsed().as_secs_f64() * 1e3;
     times.rest_ms = (times.total_ms - times.descriptor_ms - times.inference_ms).max(0.0);
-    Ok(RpnnOutput {
-        image,
-        variance,
-        times,
-    })
+    Ok(times)
 }
 
 /// Sky radiance seen along `d` (no sun).

@@ -67,6 +67,9 @@ pub struct GpuPathTracer<'g> {
     params_buf: wgpu::Buffer,
     density: Density,
     max_depth: i32,
+    /// Progressive sums (R, G, B, Σ lum²) per pixel and the samples they hold.
+    acc: Option<wgpu::Buffer>,
+    samples: u32,
 }
 
 /// The density as the shader reads it.
@@ -187,7 +190,114 @@ impl<'g> GpuPathTracer<'g> {
                 .max_depth
                 .unwrap_or(crate::integrator::MAX_SCATTERINGS)
                 .min(i32::MAX as u32) as i32,
+            acc: None,
+            samples: 0,
         })
+    }
+
+    /// A new camera (position, orientation, field of view or image size): the progressive sums
+    /// start again.
+    pub fn set_camera(&mut self, camera: &nimbus_scene::Camera) {
+        let (forward, right, up, tan_half) = camera.basis();
+        self.params.cam_origin = f3(camera.origin);
+        self.params.cam_forward = f3(forward);
+        self.params.cam_right = f3(right);
+        self.params.cam_up = f3(up);
+        self.params.tan_half = tan_half as f32;
+        self.params.aspect = (camera.width as f64 / camera.height as f64) as f32;
+        if (self.params.width, self.params.height) != (camera.width as u32, camera.height as u32) {
+            self.acc = None;
+        }
+        self.params.width = camera.width as u32;
+        self.params.height = camera.height as u32;
+        self.samples = 0;
+    }
+
+    /// The scene's sun and sky as they are now (a moved sun, an atmosphere's new colours): the
+    /// progressive sums start again.
+    pub fn set_lights(&mut self, scene: &Scene) {
+        let sun = scene.sun.as_ref();
+        self.params.sun_dir = f3(sun.map_or(DVec3::Y, |s| s.dir));
+        self.params.sun_irradiance = f3(sun.map_or(DVec3::ZERO, |s| s.irradiance));
+        if let Some(Sky::Constant(c)) = &scene.sky {
+            self.params.sky_radiance = f3(*c);
+        }
+        self.samples = 0;
+    }
+
+    /// Empties the progressive sums; the next samples are drawn with `seed`.
+    pub fn reset(&mut self, seed: u64) -> Result<(), GpuPtError> {
+        self.params.seed = (seed ^ (seed >> 32)) as u32;
+        self.gpu
+            .queue
+            .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
+        let (w, h) = (self.params.width as usize, self.params.height as usize);
+        match &self.acc {
+            Some(b) => {
+                let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+                enc.clear_buffer(b, 0, None);
+                self.gpu.queue.submit([enc.finish()]);
+            }
+            None => {
+                self.gpu.check_storage("the image", (w * h) as u64 * 16)?;
+                self.acc = Some(self.gpu.zeroed("pt image", (w * h) as u64 * 16));
+            }
+        }
+        self.samples = 0;
+        Ok(())
+    }
+
+    /// Adds `spp` samples per pixel to the progressive sums (sample indices continue from the
+    /// samples already in them, so steps give the image one call gives).
+    pub fn add(&mut self, spp: u32) -> Result<(), GpuPtError> {
+        if self.acc.is_none() {
+            self.reset(self.params.seed as u64)?;
+        }
+        let (w, h) = (self.params.width as usize, self.params.height as usize);
+        let none = self.gpu.zeroed("no tasks", 48);
+        let out = self.acc.as_ref().expect("made by reset");
+        let mut done = 0;
+        while done < spp {
+            let n = SPP_PER_DISPATCH.min(spp - done);
+            let task = Task {
+                spp: n,
+                sample_offset: self.samples + done,
+                mode: 0,
+                max_depth: self.max_depth,
+                ..Default::default()
+            };
+            self.dispatch(task, &none, out, (w * h) as u32);
+            done += n;
+        }
+        self.samples += spp;
+        Ok(())
+    }
+
+    /// Samples per pixel in the progressive sums.
+    pub fn samples(&self) -> u32 {
+        self.samples
+    }
+
+    /// The mean image of the progressive sums and the variance of each pixel's mean luminance.
+    pub fn image(&self) -> Result<(Image, Vec<f32>), GpuPtError> {
+        let (w, h) = (self.params.width as usize, self.params.height as usize);
+        let Some(out) = &self.acc else {
+            return Ok((Image::new(w, h), vec![0.0; w * h]));
+        };
+        let sums: Vec<[f32; 4]> = self.gpu.read(out)?;
+        let spp = self.samples;
+        let n = spp.max(1) as f64;
+        let mut img = Image::new(w, h);
+        let mut var = vec![0.0f32; w * h];
+        for (i, s) in sums.iter().enumerate() {
+            let rgb = [s[0] as f64 / n, s[1] as f64 / n, s[2] as f64 / n];
+            img.pixels[i] = rgb.map(|v| v as f32);
+            let mean = (rgb[0] + rgb[1] + rgb[2]) / 3.0;
+            if spp > 1 {
+                var[i] = ((s[3] as f64 / n - mean * mean).max(0.0) / (n - 1.0)) as f32;
+            }
+        }
+        Ok((img, var))
     }
 
     fn dispatch(&self, task: Task, tasks: &wgpu::Buffer, out: &wgpu::Buffer, invocations: u32) {
@@ -211,40 +321,9 @@ impl<'g> GpuPathTracer<'g> {
     /// Renders `spp` samples per pixel with seed `seed`: (mean image, variance of each pixel's
     /// mean luminance).
     pub fn render(&mut self, spp: u32, seed: u64) -> Result<(Image, Vec<f32>), GpuPtError> {
-        self.params.seed = (seed ^ (seed >> 32)) as u32;
-        self.gpu
-            .queue
-            .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
-        let (w, h) = (self.params.width as usize, self.params.height as usize);
-        self.gpu.check_storage("the image", (w * h) as u64 * 16)?;
-        let out = self.gpu.zeroed("pt image", (w * h) as u64 * 16);
-        let none = self.gpu.zeroed("no tasks", 48);
-        let mut done = 0;
-        while done < spp {
-            let n = SPP_PER_DISPATCH.min(spp - done);
-            let task = Task {
-                spp: n,
-                sample_offset: done,
-                mode: 0,
-                max_depth: self.max_depth,
-                ..Default::default()
-            };
-            self.dispatch(task, &none, &out, (w * h) as u32);
-            done += n;
-        }
-        let sums: Vec<[f32; 4]> = self.gpu.read(&out)?;
-        let n = spp.max(1) as f64;
-        let mut img = Image::new(w, h);
-        let mut var = vec![0.0f32; w * h];
-        for (i, s) in sums.iter().enumerate() {
-            let rgb = [s[0] as f64 / n, s[1] as f64 / n, s[2] as f64 / n];
-            img.pixels[i] = rgb.map(|v| v as f32);
-            let mean = (rgb[0] + rgb[1] + rgb[2]) / 3.0;
-            if spp > 1 {
-                var[i] = ((s[3] as f64 / n - mean * mean).max(0.0) / (n - 1.0)) as f32;
-            }
-        }
-        Ok((img, var))
+        self.reset(seed)?;
+        self.add(spp)?;
+        self.image()
     }
 
     /// For each configuration, (Σ L_i, Σ L_i², n) over `samples` (rounded up to whole dispatches)

@@ -42,6 +42,17 @@ pub const MAX_SCATTERINGS: u32 = 1 << 18;
 /// Block size (voxels per majorant cell and axis) of the majorant grid.
 pub const MAJORANT_BLOCK: usize = 8;
 
+/// How a path left the medium ([`PathTracer::radiance_after_escape`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Escape {
+    /// Path throughput at the escape (albedos and Russian roulette).
+    pub beta: f64,
+    /// The direction it left along (the sky seen along it).
+    pub dir: DVec3,
+    /// Scattering events on the path, the starting vertex's count included.
+    pub scatterings: u32,
+}
+
 /// Counters of one path.
 #[derive(Debug, Default, Clone, Copy)]
 pub struct PathStats {
@@ -53,7 +64,7 @@ pub struct PathStats {
 /// The path tracer for one scene.
 pub struct PathTracer<'a> {
     pub scene: &'a Scene,
-    majorants: MajorantGrid,
+    majorants: std::borrow::Cow<'a, MajorantGrid>,
 }
 
 #[inline]
@@ -73,7 +84,19 @@ impl<'a> PathTracer<'a> {
 
     /// A tracer with a given majorant grid (a 1×1×1 grid disables empty-space skipping).
     pub fn with_majorants(scene: &'a Scene, majorants: MajorantGrid) -> Self {
-        Self { scene, majorants }
+        Self {
+            scene,
+            majorants: std::borrow::Cow::Owned(majorants),
+        }
+    }
+
+    /// A tracer over a majorant grid kept elsewhere (a progressive render that outlives its
+    /// scene borrows: the grid is built once per density, not per call).
+    pub fn borrowing(scene: &'a Scene, majorants: &'a MajorantGrid) -> Self {
+        Self {
+            scene,
+            majorants: std::borrow::Cow::Borrowed(majorants),
+        }
     }
 
     pub fn majorants(&self) -> &MajorantGrid {
@@ -91,12 +114,30 @@ impl<'a> PathTracer<'a> {
     /// when it escapes. Used to estimate indirect in-scattered radiance inside the medium.
     pub fn radiance_after(
         &self,
+        o: DVec3,
+        d: DVec3,
+        scatterings: u32,
+        first_pdf: Option<f64>,
+        rng: &mut Pcg32,
+        stats: &mut PathStats,
+    ) -> DVec3 {
+        self.radiance_after_escape(o, d, scatterings, first_pdf, rng, stats, &mut None)
+    }
+
+    /// [`PathTracer::radiance_after`], also telling how the path left the medium: `escape`
+    /// becomes its throughput, direction and scattering count when it escaped (the same path,
+    /// the same random numbers). The RPNN training records read it to estimate the sky's
+    /// transfer from the very paths that estimate the sun's (`nimbus_rpnn::datagen`).
+    #[allow(clippy::too_many_arguments)]
+    pub fn radiance_after_escape(
+        &self,
         mut o: DVec3,
         mut d: DVec3,
         scatterings: u32,
         first_pdf: Option<f64>,
         rng: &mut Pcg32,
         stats: &mut PathStats,
+        escape: &mut Option<Escape>,
     ) -> DVec3 {
         let scene = self.scene;
         let tracker = Tracker::new(&scene.volume, &self.majorants);
@@ -114,6 +155,11 @@ impl<'a> PathTracer<'a> {
                 .and_then(|(t0, t1)| tracker.sample_collision(o, d, t0, t1, factor, rng));
             let Some(t) = collision else {
                 l += beta * self.escaped(d, prev_pdf);
+                *escape = Some(Escape {
+                    beta,
+                    dir: d,
+                    scatterings,
+                });
                 break;
             };
             if scatterings >= scene.render.max_depth.unwrap_or(MAX_SCATTERINGS) {

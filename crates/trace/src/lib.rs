@@ -16,5 +16,5 @@ pub mod tau;
 pub mod tracking;
 
 pub use integrator::PathTracer;
-pub use render::{RenderOptions, RenderOutput, RenderStats, render, render_with};
+pub use render::{RenderOptions, RenderOutput, RenderStats, Sums, accumulate, render, render_with};
 pub use rng::Pcg32;

@@ -13,8 +13,8 @@ use crate::rng::Pcg32;
 
 const TILE: usize = 16;
 
-/// One rendered pixel: (index, mean RGB, variance of the mean luminance).
-type PixelResult = (usize, [f64; 3], f64);
+/// One pixel's sums over the samples of one call: (index, Σ RGB, Σ lum, Σ lum²).
+type PixelSums = (usize, [f64; 3], f64, f64);
 
 /// What to render.
 #[derive(Debug, Clone)]
@@ -63,10 +63,75 @@ pub fn render(scene: &Scene, opts: &RenderOptions) -> RenderOutput {
     render_with(&PathTracer::new(scene), opts)
 }
 
+/// Per-pixel running sums of a progressive render: Σ RGB, Σ lum, Σ lum² over `samples`
+/// samples per pixel.
+#[derive(Debug, Clone)]
+pub struct Sums {
+    pub width: usize,
+    pub height: usize,
+    pub rgb: Vec<[f64; 3]>,
+    pub lum: Vec<f64>,
+    pub lum2: Vec<f64>,
+    pub samples: u64,
+}
+
+impl Sums {
+    /// Empty sums for a `width`×`height` image.
+    pub fn new(width: usize, height: usize) -> Self {
+        let n = width * height;
+        Self {
+            width,
+            height,
+            rgb: vec![[0.0; 3]; n],
+            lum: vec![0.0; n],
+            lum2: vec![0.0; n],
+            samples: 0,
+        }
+    }
+
+    /// The mean image and the variance of each pixel's mean luminance (0 below two samples).
+    pub fn image(&self) -> (Image, Vec<f32>) {
+        let n = self.samples.max(1) as f64;
+        let mut image = Image::new(self.width, self.height);
+        let mut variance = vec![0.0f32; self.width * self.height];
+        for (i, (px, var)) in image.pixels.iter_mut().zip(&mut variance).enumerate() {
+            *px = self.rgb[i].map(|v| (v / n) as f32);
+            let mean = self.lum[i] / n;
+            *var = if self.samples > 1 {
+                ((self.lum2[i] / n - mean * mean).max(0.0) / (n - 1.0)) as f32
+            } else {
+                0.0
+            };
+        }
+        (image, variance)
+    }
+}
+
 /// Renders with a given tracer (for example one without empty-space skipping).
 pub fn render_with(tracer: &PathTracer, opts: &RenderOptions) -> RenderOutput {
     let cam = &tracer.scene.camera;
+    let mut sums = Sums::new(cam.width, cam.height);
+    let stats = accumulate(tracer, opts, &mut sums);
+    let (image, variance) = sums.image();
+    RenderOutput {
+        image,
+        variance,
+        stats,
+    }
+}
+
+/// Adds `opts.spp` samples per pixel to `sums` (progressive rendering): sample s of pixel p is
+/// sample `sums.samples + s` of its stream, so accumulating in steps gives the image one call
+/// gives.
+pub fn accumulate(tracer: &PathTracer, opts: &RenderOptions, sums: &mut Sums) -> RenderStats {
+    let cam = &tracer.scene.camera;
     let (w, h) = (cam.width, cam.height);
+    assert_eq!(
+        (sums.width, sums.height),
+        (w, h),
+        "sums of another image size"
+    );
+    let first = sums.samples;
     let tiles: Vec<(usize, usize)> = (0..h.div_ceil(TILE))
         .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
         .collect();
@@ -82,7 +147,7 @@ pub fn render_with(tracer: &PathTracer, opts: &RenderOptions) -> RenderOutput {
     );
     let start = Instant::now();
     let spp = opts.spp.max(1);
-    let results: Vec<(Vec<PixelResult>, u64)> = tiles
+    let results: Vec<(Vec<PixelSums>, u64)> = tiles
         .par_iter()
         .map(|&(x0, y0)| {
             let mut out = Vec::with_capacity(TILE * TILE);
@@ -92,8 +157,8 @@ pub fn render_with(tracer: &PathTracer, opts: &RenderOptions) -> RenderOutput {
                     let pixel = (y * w + x) as u64;
                     let mut sum = [0.0f64; 3];
                     let (mut ls, mut ls2) = (0.0f64, 0.0f64);
-                    for s in 0..spp {
-                        let mut rng = Pcg32::for_sample(opts.seed, pixel, s as u64);
+                    for s in 0..spp as u64 {
+                        let mut rng = Pcg32::for_sample(opts.seed, pixel, first + s);
                         let [jx, jy] = rng.next2();
                         let d = cam.ray_dir(x as f64 + jx, y as f64 + jy);
                         let mut st = PathStats::default();
@@ -106,14 +171,7 @@ pub fn render_with(tracer: &PathTracer, opts: &RenderOptions) -> RenderOutput {
                         ls += lum;
                         ls2 += lum * lum;
                     }
-                    let n = spp as f64;
-                    let mean = ls / n;
-                    let var = if spp > 1 {
-                        ((ls2 / n - mean * mean).max(0.0)) / (n - 1.0)
-                    } else {
-                        0.0
-                    };
-                    out.push((pixel as usize, sum.map(|v| v / n), var));
+                    out.push((pixel as usize, sum, ls, ls2));
                 }
             }
             bar.inc(1);
@@ -121,23 +179,21 @@ pub fn render_with(tracer: &PathTracer, opts: &RenderOptions) -> RenderOutput {
         })
         .collect();
     bar.finish_and_clear();
-    let mut image = Image::new(w, h);
-    let mut variance = vec![0.0f32; w * h];
     let mut stats = RenderStats {
         paths: (w * h) as u64 * spp as u64,
         ..Default::default()
     };
     for (tile, scat) in results {
         stats.scatterings += scat;
-        for (i, c, v) in tile {
-            image.pixels[i] = c.map(|v| v as f32);
-            variance[i] = v as f32;
+        for (i, c, l, l2) in tile {
+            for (s, v) in sums.rgb[i].iter_mut().zip(c) {
+                *s += v;
+            }
+            sums.lum[i] += l;
+            sums.lum2[i] += l2;
         }
     }
+    sums.samples += spp as u64;
     stats.seconds = start.elapsed().as_secs_f64();
-    RenderOutput {
-        image,
-        variance,
-        stats,
-    }
+    stats
 }

@@ -23,12 +23,16 @@
 
 use std::path::{Path, PathBuf};
 
-/// How the viewer shows a [`nimbus_render::Method`]: live or progressively. The viewer shows
-/// `pm`, `pt` and `rpnn`.
+/// How the viewer shows a [`nimbus_render::Method`]. The viewer shows `pm`, `pm-march`, `pt`
+/// and `rpnn`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ViewMode {
-    /// Photon mapping, live (Elek 2012): the ring follows every change.
+    /// Photon mapping with final gathering: the ring follows every change (Elek 2012 §4.1),
+    /// gathered samples accumulate while the view is still.
     Pm,
+    /// Ray-marched photon mapping, live (Elek 2012): the ring follows every change, impostors
+    /// (§4.4) stand in while the view changes little.
+    PmMarch,
     /// Progressive path tracing: one sample per pixel per frame, restarted on any change.
     Pt,
     /// RPNN (Kallweit 2017), progressive; needs a trained model.
@@ -44,19 +48,25 @@ impl ViewMode {
     pub fn method(self) -> nimbus_render::Method {
         match self {
             ViewMode::Pm => nimbus_render::Method::Pm,
-            ViewMode::Pt => nimbus_render::Method::Pt,
+            ViewMode::PmMarch => nimbus_render::Method::PmMarch,
+            // The GPU path tracer where it supports the scene (the viewer falls back to the
+            // CPU one).
+            ViewMode::Pt => nimbus_render::Method::PtGpu,
             ViewMode::Rpnn => nimbus_render::Method::Rpnn,
         }
     }
 
-    /// The mode of a method name (`pm`, `pt`, `rpnn`); an error for the others.
+    /// The mode of a method name (`pm`, `pm-march`, `pt`, `rpnn`); an error for the others.
     pub fn parse(s: &str) -> Result<Self, String> {
         let m: nimbus_render::Method = s.parse()?;
         match m {
             nimbus_render::Method::Pm => Ok(ViewMode::Pm),
+            nimbus_render::Method::PmMarch => Ok(ViewMode::PmMarch),
             nimbus_render::Method::Pt => Ok(ViewMode::Pt),
             nimbus_render::Method::Rpnn => Ok(ViewMode::Rpnn),
-            other => Err(format!("the viewer shows pm, pt or rpnn, not `{other}`")),
+            other => Err(format!(
+                "the viewer shows pm, pm-march, pt or rpnn, not `{other}`"
+            )),
         }
     }
 }
@@ -305,11 +315,11 @@ mod tests {
             ("0 zoom -1\n", "t:1: `zoom` factor must be positive, got -1"),
             (
                 "0 method foo\n",
-                "t:1: unknown method `foo` (expected pt, pt-gpu, pm, pm-elek2012 or rpnn)",
+                "t:1: unknown method `foo` (expected pt, pt-gpu, pm, pm-march, pm-elek2012 or rpnn)",
             ),
             (
                 "0 method pt-gpu\n",
-                "t:1: the viewer shows pm, pt or rpnn, not `pt-gpu`",
+                "t:1: the viewer shows pm, pm-march, pt or rpnn, not `pt-gpu`",
             ),
             ("0 fly\n", "t:1: unknown action `fly`"),
             ("0 sun NaN 3\n", "t:1: `sun`: `NaN` is not finite"),

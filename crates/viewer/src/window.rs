@@ -5,7 +5,8 @@
 //! Controls (also printed by `H`):
 //! - left drag: orbit; right drag (or Shift + left drag): pan; wheel: zoom;
 //! - Ctrl + left drag or arrow keys: sun azimuth / elevation; Space: play/pause the sun;
-//! - D: play/pause the density animation; 1 / 2 / 3: photon mapping / path tracing / RPNN;
+//! - D: play/pause the density animation; 1 / 2 / 3 / 4: photon mapping with final gathering /
+//!   path tracing / RPNN / ray-marched photon mapping;
 //! - + / −: exposure; P: screenshot (PNG); S: save camera and sun to a scene TOML; Esc / Q: quit.
 //!
 //! Robustness: a zero-sized (minimised) window renders nothing until it is restored; an
@@ -44,7 +45,8 @@ pub struct WindowOptions {
 pub const HELP: &str = "\
 nimbus view — left drag: orbit | right drag / Shift+drag: pan | wheel: zoom
   Ctrl+drag or arrows: sun azimuth/elevation | Space: play/pause sun | D: play/pause density
-  1/2/3: photon mapping / path tracing / RPNN | +/-: exposure | P: screenshot | S: save scene
+  1/2/3/4: photon mapping (gathered) / path tracing / RPNN / photon mapping (ray marched)
+  +/-: exposure | P: screenshot | S: save scene
   H: this help | Esc/Q: quit";
 
 /// Opens the window and runs until it is closed.
@@ -446,6 +448,7 @@ impl App {
                 "1" => Some(Action::Method(ViewMode::Pm)),
                 "2" => Some(Action::Method(ViewMode::Pt)),
                 "3" => Some(Action::Method(ViewMode::Rpnn)),
+                "4" => Some(Action::Method(ViewMode::PmMarch)),
                 "+" | "=" => {
                     r.viewer.scale_exposure(2f64.sqrt());
                     None

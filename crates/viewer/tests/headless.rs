@@ -1,5 +1,6 @@
 //! The viewer's loop without a window, on lavapipe or any GPU: convergence, impostors, sun and
-//! camera changes, progressive path tracing, scene saving.
+//! camera changes of the ray-marched photon map, the gathered photon map's progressive image,
+//! progressive path tracing and RPNN, scene saving.
 
 use std::path::Path;
 
@@ -32,6 +33,7 @@ fn scene() -> Scene {
     Scene::from_toml_str(SCENE, Path::new("."), Path::new("viewer-test.toml")).unwrap()
 }
 
+/// The ray-marched photon map (the tests of its ring, impostors and view words).
 fn options() -> ViewerOptions {
     ViewerOptions {
         pm: PmSettings {
@@ -40,7 +42,21 @@ fn options() -> ViewerOptions {
             seed: 5,
             ..Default::default()
         },
+        method: ViewMode::PmMarch,
         ..Default::default()
+    }
+}
+
+/// The photon map with final gathering (the viewer's default).
+fn gather_options() -> ViewerOptions {
+    ViewerOptions {
+        gather: nimbus_photon::GatherSettings {
+            ring: 4,
+            beams: 2048,
+            ..Default::default()
+        },
+        method: ViewMode::Pm,
+        ..options()
     }
 }
 
@@ -183,7 +199,7 @@ fn path_tracing_accumulates_and_restarts_on_change() {
     let mut v = Viewer::new(&gpu, scene(), None, opts).unwrap();
     v.apply(&Action::Method(ViewMode::Rpnn)).unwrap();
     frames(&mut v, 1);
-    assert_eq!(v.method(), ViewMode::Pm);
+    assert_eq!(v.method(), ViewMode::PmMarch);
     let note = v.stats().note.clone().unwrap();
     assert!(
         note.contains("RPNN unavailable") && note.contains("no/such/model.onnx"),
@@ -342,5 +358,92 @@ fn the_view_words_are_shown_once_the_ring_is_retraced() {
     assert!(
         last_refresh.is_some(),
         "the switch to the view words was not ray marched"
+    );
+}
+
+/// The gathered photon map: while the ring fills (m frames) each frame traces a generation and
+/// the image follows J; once the ring is fresh, still frames add one sample each; a camera
+/// move restarts the image without retracing; a sun change retraces the ring over m frames and
+/// the image starts over once it is fresh again.
+#[test]
+fn gathered_image_accumulates_while_still_and_restarts_on_change() {
+    let Some(gpu) = nimbus_gpu::testing::gpu(
+        "headless::gathered_image_accumulates_while_still_and_restarts_on_change",
+    ) else {
+        return;
+    };
+    let mut v = Viewer::new(&gpu, scene(), None, gather_options()).unwrap();
+    frames(&mut v, 4);
+    assert!(v.stats().beams.0 > 0);
+    assert_eq!(v.stats().ring_filled, 4);
+    // Fresh: the samples of the filling frames are dropped, then one per frame.
+    frames(&mut v, 3);
+    assert_eq!(v.stats().beams, (0, 0));
+    assert_eq!(v.stats().spp, 3);
+    assert!(v.status_line().contains("3 spp"), "{}", v.status_line());
+    v.apply(&Action::Orbit {
+        yaw_deg: 2.0,
+        pitch_deg: 0.0,
+    })
+    .unwrap();
+    frames(&mut v, 2);
+    assert_eq!(v.stats().beams, (0, 0), "a camera move retraces nothing");
+    assert_eq!(v.stats().spp, 2);
+    let before = v.image().clone();
+    v.apply(&Action::SetSun {
+        azimuth_deg: 60.0,
+        elevation_deg: 30.0,
+    })
+    .unwrap();
+    frames(&mut v, 1);
+    assert!(v.stats().beams.0 > 0, "a sun change retraces the ring");
+    // The single scattering follows the sun at once.
+    assert!(rel_diff(v.image(), &before) > 0.02);
+    frames(&mut v, 3);
+    assert!(v.stats().beams.0 > 0);
+    frames(&mut v, 2);
+    assert_eq!(v.stats().beams, (0, 0));
+    assert_eq!(v.stats().spp, 2);
+    assert!(
+        v.image()
+            .pixels
+            .iter()
+            .flatten()
+            .all(|c| c.is_finite() && *c >= 0.0)
+    );
+}
+
+/// After the ring is full the viewer's gathered image converges to what `render --method pm`
+/// makes of the same photon map (the same seeds trace the same ring): over the cloud their
+/// means agree within 4 standard errors (from both images' per-pixel variances).
+#[test]
+fn converged_gather_agrees_with_a_render() {
+    let Some(gpu) = nimbus_gpu::testing::gpu("headless::converged_gather_agrees_with_a_render")
+    else {
+        return;
+    };
+    let opts = gather_options();
+    let mut v = Viewer::new(&gpu, scene(), None, opts.clone()).unwrap();
+    frames(&mut v, 4 + 32);
+    assert_eq!(v.stats().spp, 32);
+    let o = nimbus_render::Options {
+        pm: opts.pm.clone(),
+        pm_gather: opts.gather,
+        ..Default::default()
+    };
+    let mut est = nimbus_render::prepare(&scene(), nimbus_render::Method::Pm, &o, &gpu).unwrap();
+    let r = est.render(32, 5).unwrap();
+    let var = r.variance.unwrap();
+    let lum = |p: &[f32; 3]| (p[0] + p[1] + p[2]) as f64 / 3.0;
+    let (mut a, mut b, mut s2) = (0.0, 0.0, 0.0);
+    for ((pv, pr), vr) in v.image().pixels.iter().zip(&r.image.pixels).zip(&var) {
+        a += lum(pv);
+        b += lum(pr);
+        s2 += 2.0 * *vr as f64;
+    }
+    assert!(
+        (a - b).abs() < 4.0 * s2.sqrt(),
+        "{a} vs {b} (σ {})",
+        s2.sqrt()
     );
 }

@@ -11,12 +11,14 @@
 //! | `photon_upsample.wgsl` `cells` | one coarse cell | [`cells()`] |
 //! | `photon_upsample.wgsl` `upsample` | one fine voxel (§4.3): J, and the flux lobes | [`upsample()`], [`upsample_dirs()`] |
 //! | `photon_raymarch.wgsl` `raymarch` | one pixel (§4.4, Appendix C) | [`raymarch()`] |
+//! | `photon_gather.wgsl` `gather` | one pixel's samples of the final gathering | [`gather()`], [`gather_sample()`] |
 
 use glam::{Vec3, Vec4};
 use nimbus_gpu::params::VolumeParams;
 use nimbus_scene::phase::hg::eval_f32 as hg;
 
 mod cells;
+mod gather;
 mod raymarch;
 mod sun_transmittance;
 mod trace;
@@ -24,6 +26,7 @@ mod update;
 mod upsample;
 
 pub use cells::{CellValue, cell_mean_density, cells};
+pub use gather::{GatherInputs, gather, gather_sample};
 pub use raymarch::{in_scattered, perturb, raymarch, single_scattered, sun_in_scatter};
 pub use sun_transmittance::sun_transmittance;
 pub use trace::{Rng, trace};

@@ -33,7 +33,7 @@ impl Rng {
 }
 
 /// `around` of `shaders/lib/math.wgsl`: unit vector at cosine `mu`, azimuth `phi` about `axis`.
-fn around(axis: Vec3, mu: f32, phi: f32) -> Vec3 {
+pub(crate) fn around(axis: Vec3, mu: f32, phi: f32) -> Vec3 {
     let sign = if axis.z >= 0.0 { 1.0f32 } else { -1.0 };
     let a = -1.0 / (sign + axis.z);
     let b = axis.x * axis.y * a;
@@ -88,7 +88,7 @@ pub fn view_phase(p: &VolumeParams, x: Vec3, d: Vec3) -> f32 {
     if l.is_nan() || l <= 1e-20 {
         return 1.0 / (4.0 * std::f32::consts::PI);
     }
-    hg(p.g, d.dot(v / l))
+    hg(if p.view_g == 0.0 { p.g } else { p.view_g }, d.dot(v / l))
 }
 
 /// Adds `v` to word `slot` of `h`; `true` when the u32 sum wraps (the shader's overflow flag).

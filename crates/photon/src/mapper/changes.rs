@@ -16,6 +16,8 @@ impl PhotonMapper<'_> {
         }
         self.params.d_max = max_value.max(1e-30);
         self.params.sigma_max = (self.params.density_scale * max_value).max(1e-30);
+        // The final gathering tracks the grid itself: its majorant covers every frame too.
+        self.grid_max = self.grid_max.max(max_value as f64);
     }
 
     /// Changes the sun irradiance and the constant sky radiance (e.g. an atmosphere recolouring

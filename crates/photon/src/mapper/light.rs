@@ -39,6 +39,15 @@ impl MarchDensity {
             MarchDensity::Bricks(_) => "photon_raymarch_bricks.wgsl",
         }
     }
+
+    /// The final-gathering stage for this density (the same bindings as the ray marcher's).
+    pub fn gather_stage(&self) -> &'static str {
+        match self {
+            MarchDensity::Work => "photon_gather_light.wgsl",
+            MarchDensity::Dense(_) => "photon_gather.wgsl",
+            MarchDensity::Bricks(_) => "photon_gather_bricks.wgsl",
+        }
+    }
 }
 
 /// Bytes per light voxel of the largest light volume (J), which must fit one storage binding.
@@ -252,6 +261,47 @@ pub fn cache_fill(map: &LightMap, i_res: [u32; 3]) -> f64 {
         / max
 }
 
+/// For each cache cell (of `i_res` over the box; each light voxel counts in the cell holding its
+/// centre): its mean work density over its largest, in [0, 1] (0 for an empty cell). 1 where the
+/// cell holds homogeneous cloud; small where the cloud's features are far smaller than the
+/// cell (its scattered light is averaged over mostly empty space): the final gathering reads the
+/// cache only in cells filled at least [`crate::mapper::GATHER_MIN_FILL`].
+pub fn cell_fills(map: &LightMap, i_res: [u32; 3]) -> Vec<f32> {
+    let l = map.res();
+    let i = i_res.map(|v| v as usize);
+    let counts = [0, 1, 2].map(|a| {
+        let mut c = vec![0usize; i[a]];
+        for v in 0..l[a] {
+            c[nimbus_scene::downsample::coarse_of(v, l[a], i[a])] += 1;
+        }
+        c
+    });
+    let n = i.iter().product();
+    let (mut sums, mut maxes) = (vec![0.0f64; n], vec![0.0f32; n]);
+    for (p, &d) in map.density.iter().enumerate() {
+        if d > 0.0
+            && let Some(v) = map.voxel_of(p)
+        {
+            let c: [usize; 3] =
+                std::array::from_fn(|a| nimbus_scene::downsample::coarse_of(v[a], l[a], i[a]));
+            let k = (c[2] * i[1] + c[1]) * i[0] + c[0];
+            sums[k] += d as f64;
+            maxes[k] = maxes[k].max(d);
+        }
+    }
+    (0..n)
+        .map(|k| {
+            let cnt =
+                counts[0][k % i[0]] * counts[1][(k / i[0]) % i[1]] * counts[2][k / (i[0] * i[1])];
+            if maxes[k] > 0.0 {
+                ((sums[k] / cnt.max(1) as f64) / maxes[k] as f64).min(1.0) as f32
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
 /// 1 for each cache cell (of `i_res` over the box) that no stage after the trace reads, given
 /// the work density in `map`: no non-zero light voxel within the cell's extent grown by one
 /// cell and three light voxels. The upsampling of a voxel reads the 3³ cells around its own,
@@ -431,6 +481,11 @@ impl PhotonMapper<'_> {
                 .write_buffer(&self.cell_skip, 0, bytemuck::cast_slice(&skip));
         }
         self.cache_fill = cache_fill(&map, self.params.i_res);
+        self.gpu.queue.write_buffer(
+            &self.cell_fill,
+            0,
+            bytemuck::cast_slice(&cell_fills(&map, self.params.i_res)),
+        );
         let mut map = map.with_capacity(self.map.pool_len());
         map.drop_values();
         self.map = map;

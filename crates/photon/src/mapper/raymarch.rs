@@ -20,15 +20,7 @@ impl PhotonMapper<'_> {
         // What J holds, whatever a trace since the last upsampling left in the uniform.
         self.params.view_mode = self.j_view_mode();
         let (w, h) = (camera.width, camera.height);
-        let (forward, right, up, tan_half) = camera.basis();
-        self.params.cam_origin = f3(camera.origin);
-        self.params.cam_forward = f3(forward);
-        self.params.cam_right = f3(right);
-        self.params.cam_up = f3(up);
-        self.params.tan_half = tan_half as f32;
-        self.params.aspect = (w as f64 / h as f64) as f32;
-        self.params.width = w as u32;
-        self.params.height = h as u32;
+        self.set_camera_params(camera);
         self.gpu
             .queue
             .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
@@ -94,6 +86,20 @@ impl PhotonMapper<'_> {
             *o = [p[0], p[1], p[2]];
         }
         Ok(img)
+    }
+
+    /// Writes `camera` into the uniform block (position, basis, field of view, image size).
+    pub(super) fn set_camera_params(&mut self, camera: &Camera) {
+        let (w, h) = (camera.width, camera.height);
+        let (forward, right, up, tan_half) = camera.basis();
+        self.params.cam_origin = f3(camera.origin);
+        self.params.cam_forward = f3(forward);
+        self.params.cam_right = f3(right);
+        self.params.cam_up = f3(up);
+        self.params.tan_half = tan_half as f32;
+        self.params.aspect = (w as f64 / h as f64) as f32;
+        self.params.width = w as u32;
+        self.params.height = h as u32;
     }
 
     /// Ray marches at half the resolution in both dimensions and upscales bilinearly

@@ -47,6 +47,11 @@ impl PhotonMapper<'_> {
         Ok(self.map.to_dense(&self.gpu.read::<[f32; 4]>(&self.j)?))
     }
 
+    /// Each cache cell's fill (`light::cell_fills`), as the final gathering reads it.
+    pub fn read_cell_fill(&self) -> Result<Vec<f32>, PmError> {
+        Ok(self.gpu.read(&self.cell_fill)?)
+    }
+
     /// The density the photon stages read (the grid's values, or its block means at the light
     /// resolution), dense.
     pub fn read_density(&self) -> Result<Vec<f32>, PmError> {

@@ -1,0 +1,118 @@
+//! The progressive interface every front end drives (`Estimator::accumulate`, `change`,
+//! `image`): samples added in steps give the image one render of the same budget gives, bit
+//! for bit; a change restarts the image with independent samples.
+
+use std::path::Path;
+
+use glam::DVec3;
+use nimbus_render::{Change, GpuSlot, Method, NetBackend, Options, RpnnSettings, prepare};
+use nimbus_scene::Scene;
+use nimbus_scene::build::{self, SceneBuilder};
+
+fn scene() -> Scene {
+    SceneBuilder::new(
+        build::generated(nimbus_scene::CloudKind::Cumulus, 3, [24, 18, 24], 20.0).unwrap(),
+    )
+    .sun(DVec3::new(1.0, 0.6, 0.3), DVec3::new(1.0, 0.9, 0.8))
+    .sky(DVec3::new(0.1, 0.15, 0.3))
+    .look(DVec3::new(0.3, 0.3, 3.0), DVec3::ZERO, 40.0, 24, 16)
+    .build()
+    .unwrap()
+}
+
+fn options() -> Options {
+    Options {
+        rpnn: RpnnSettings {
+            model: Some(
+                Path::new(env!("CARGO_MANIFEST_DIR")).join("../rpnn/tests/data/rpnn-tiny.onnx"),
+            ),
+            backend: NetBackend::Ort,
+            ..Default::default()
+        },
+        ..Default::default()
+    }
+}
+
+/// For `method`: `steps` samples accumulated after a restart equal a render of 8 (colour and
+/// variance, bit for bit); a camera change restarts the count and draws other samples.
+fn steps_equal_one_render(method: Method, gpu: &GpuSlot, steps: [u32; 2]) {
+    let s = scene();
+    let mut est = prepare(&s, method, &options(), gpu).unwrap();
+    let one = est.render(8, 9).unwrap();
+    est.restart(9).unwrap();
+    est.accumulate(steps[0]).unwrap();
+    let step = est.accumulate(steps[1]).unwrap();
+    assert_eq!(step.spp, 8, "{method}");
+    assert_eq!(est.samples(), 8, "{method}");
+    let steps = est.image().unwrap();
+    assert_eq!(steps.image.pixels, one.image.pixels, "{method}: colour");
+    assert_eq!(steps.variance, one.variance, "{method}: variance");
+    // The same view after a change of camera: a restart with other random numbers.
+    est.change(Change::Camera(s.camera.clone())).unwrap();
+    assert_eq!(est.samples(), 0, "{method}");
+    est.accumulate(8).unwrap();
+    let again = est.image().unwrap();
+    assert_ne!(
+        again.image.pixels, one.image.pixels,
+        "{method}: samples reused"
+    );
+}
+
+#[test]
+fn cpu_path_tracer_and_rpnn_accumulate_in_steps() {
+    let gpu = GpuSlot::new();
+    steps_equal_one_render(Method::Pt, &gpu, [3, 5]);
+    steps_equal_one_render(Method::Rpnn, &gpu, [3, 5]);
+}
+
+#[test]
+fn gpu_path_tracer_accumulates_in_steps() {
+    if !nimbus_gpu::testing::has_adapter("progressive::gpu_path_tracer_accumulates_in_steps") {
+        return;
+    }
+    // The GPU sums each dispatch's 4 samples per invocation in f32 first: steps on those
+    // boundaries add in the same order (3 + 5 differ in the last bits).
+    steps_equal_one_render(Method::PtGpu, &GpuSlot::new(), [4, 4]);
+}
+
+/// A change is taken into the estimator's scene: a new sun direction moves the path tracer's
+/// light (the image changes), a new density is rendered from (an empty grid leaves only the
+/// sky).
+#[test]
+fn changes_reach_the_estimator() {
+    let gpu = GpuSlot::new();
+    let s = scene();
+    let mut est = prepare(&s, Method::Pt, &options(), &gpu).unwrap();
+    est.accumulate(4).unwrap();
+    let before = est.image().unwrap().image;
+    est.change(Change::SunDir(DVec3::new(-1.0, 0.2, -0.5)))
+        .unwrap();
+    assert!(
+        (est.scene().sun.as_ref().unwrap().dir - DVec3::new(-1.0, 0.2, -0.5).normalize()).length()
+            < 1e-12
+    );
+    est.accumulate(4).unwrap();
+    assert_ne!(est.image().unwrap().image.pixels, before.pixels);
+    let v = s.volume.as_ref();
+    let empty = nimbus_scene::Volume::new(
+        nimbus_scene::DensityGrid::new(v.grid().res(), vec![0.0; v.grid().res().iter().product()])
+            .unwrap(),
+        *v.aabb(),
+        v.density_scale(),
+    )
+    .unwrap();
+    est.change(Change::Density(std::sync::Arc::new(empty)))
+        .unwrap();
+    est.accumulate(2).unwrap();
+    let img = est.image().unwrap().image;
+    let sky = s.sky.as_ref().map(|k| match k {
+        nimbus_scene::Sky::Constant(c) => *c,
+        _ => unreachable!(),
+    });
+    let sky = sky.unwrap().as_vec3().to_array();
+    assert!(
+        img.pixels
+            .iter()
+            .all(|p| (0..3).all(|c| (p[c] - sky[c]).abs() < 1e-6))
+    );
+}
