@@ -66,6 +66,11 @@ pub struct DatagenArgs {
     /// predictions move by < 1e-3 relative).
     #[arg(long)]
     f16: bool,
+    /// Also label every record with the sky's transfer: spherical-harmonic coefficients (degree
+    /// ≤ 4, the descriptor's frame) of the radiance per unit sky radiance from each direction,
+    /// from the same paths (25 more meta columns; CPU only).
+    #[arg(long)]
+    sky_transfer: bool,
     /// Sample cap per record (records that reach it are kept and flagged as not converged).
     #[arg(long, default_value_t = 1 << 18, value_parser = clap::value_parser!(u64).range(1..))]
     max_samples: u64,
@@ -165,11 +170,17 @@ pub fn datagen(a: DatagenArgs) -> Result<()> {
         seed: a.seed,
         max_samples: a.max_samples,
         albedo: 1.0,
-        gpu: dataset::datagen_on_gpu(a.device.map(|d| d == Device::Gpu), &a.phase),
+        // The sky's transfer is estimated on the CPU only: chosen automatically with it.
+        gpu: if a.sky_transfer && a.device.is_none() {
+            false
+        } else {
+            dataset::datagen_on_gpu(a.device.map(|d| d == Device::Gpu), &a.phase)
+        },
         phase: a.phase,
         progress: !a.quiet,
         part: a.shard,
         f16_descriptors: a.f16,
+        sky_transfer: a.sky_transfer,
     };
     let r = dataset::run(&set, &opts, &out)?;
     {

@@ -104,6 +104,12 @@ pub struct Estimate {
     pub rel_ci: f64,
     /// Estimated variance of `mean` (sample variance / samples): the label noise of a record.
     pub var_mean: f64,
+    /// With [`CloudData::sky_transfer`]: the sky's transfer t_lm in the descriptor's frame
+    /// (`crate::sky`), from the same paths: Σ β Y_lm(ω_esc) / n over the paths that leave the
+    /// cloud after at least one scattering beyond x (β their throughput, ω_esc the direction
+    /// they leave along); the paths that leave straight from x are the sky's single scattering,
+    /// which the renderer estimates itself.
+    pub sky: Option<[f32; crate::sky::SH_COEFFS]>,
 }
 
 /// Sample count of the second stage of a precise label: enough fresh samples for a relative
@@ -158,6 +164,7 @@ impl Estimate {
             converged: n >= MIN_SAMPLES && rel_ci <= converged_if_within,
             rel_ci,
             var_mean: var / nf,
+            sky: None,
         }
     }
 }
@@ -220,6 +227,8 @@ pub struct Record {
     /// Importance weight of the light direction relative to uniform sampling on the sphere
     /// (1 for uniform ω_l; π sin γ / 2 when γ is drawn uniformly in [0, π]).
     pub light_weight: f32,
+    /// The sky's transfer ([`Estimate::sky`]), when estimated.
+    pub sky: Option<[f32; crate::sky::SH_COEFFS]>,
 }
 
 /// Errors of data generation.
@@ -238,6 +247,8 @@ pub struct CloudData {
     pub scene: Scene,
     pub pyramid: Pyramid,
     majorants: nimbus_scene::MajorantGrid,
+    /// Estimate the sky's transfer with every label (`crate::sky`).
+    pub sky_transfer: bool,
 }
 
 impl CloudData {
@@ -268,7 +279,14 @@ impl CloudData {
             scene,
             pyramid,
             majorants,
+            sky_transfer: false,
         })
+    }
+
+    /// With `on`, every estimate also estimates the sky's transfer ([`Estimate::sky`]).
+    pub fn with_sky_transfer(mut self, on: bool) -> Self {
+        self.sky_transfer = on;
+        self
     }
 
     /// Samples a shading position and view direction as a camera ray entering the cloud would.
@@ -326,17 +344,42 @@ impl CloudData {
         let (mut n, mut s, mut s2) = (0u64, 0.0f64, 0.0f64);
         let mut stats = PathStats::default();
         let max_samples = max_samples.max(1);
+        // The sky's transfer in the descriptor's frame (the same frame the network sees).
+        let frame = crate::descriptor::frame(view.as_vec3(), to_light.as_vec3());
+        let (ex, ey, ez) = (frame.0.as_dvec3(), frame.1.as_dvec3(), frame.2.as_dvec3());
+        let mut t = [0.0f64; crate::sky::SH_COEFFS];
         loop {
             for _ in 0..BATCH.min(max_samples - n) {
                 let smp = phase.sample(view, rng.next2());
-                let l = tracer.radiance_after(x, smp.dir, 1, Some(smp.pdf), rng, &mut stats);
+                let mut esc = None;
+                let l = tracer.radiance_after_escape(
+                    x,
+                    smp.dir,
+                    1,
+                    Some(smp.pdf),
+                    rng,
+                    &mut stats,
+                    &mut esc,
+                );
+                if self.sky_transfer
+                    && let Some(e) = esc
+                    && e.scatterings >= 2
+                {
+                    let local = DVec3::new(ex.dot(e.dir), ey.dot(e.dir), ez.dot(e.dir));
+                    for (tj, yj) in t.iter_mut().zip(crate::sky::eval(local)) {
+                        *tj += e.beta * yj;
+                    }
+                }
                 let v = (l.x + l.y + l.z) / 3.0;
                 s += v;
                 s2 += v * v;
                 n += 1;
             }
-            let e = Estimate::from_sums(s, s2, n, rel_target);
+            let mut e = Estimate::from_sums(s, s2, n, rel_target);
             if e.converged || n >= max_samples {
+                if self.sky_transfer {
+                    e.sky = Some(t.map(|v| (v / n as f64) as f32));
+                }
                 return e;
             }
         }
@@ -425,7 +468,10 @@ impl CloudData {
             to_light.as_vec3(),
             &mut d,
         );
-        if !mean.is_finite() || d.iter().any(|v| !v.is_finite()) {
+        if !mean.is_finite()
+            || d.iter().any(|v| !v.is_finite())
+            || e.sky.is_some_and(|t| t.iter().any(|v| !v.is_finite()))
+        {
             return Err(DatagenError::Cloud {
                 cloud: self.name.clone(),
                 msg: "a non-finite value was produced; the record is not written".into(),
@@ -442,6 +488,7 @@ impl CloudData {
             rel_ci: e.rel_ci.min(f32::MAX as f64) as f32,
             var_mean: e.var_mean.min(f32::MAX as f64) as f32,
             light_weight: light.weight(view, to_light),
+            sky: e.sky,
         })
     }
 }

@@ -157,6 +157,11 @@ pub struct DatagenOptions {
     /// Write only part K of N of the set (see the module docs); `None`: all of it.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub part: Option<Part>,
+    /// Also label every record with the sky's transfer (`crate::sky`, `Estimate::sky`): the
+    /// meta rows get [`crate::sky::SH_COEFFS`] more columns, `sky_sh_0` … (CPU path tracer
+    /// only).
+    #[serde(skip_serializing_if = "std::ops::Not::not", default)]
+    pub sky_transfer: bool,
 }
 
 fn is_zero(v: &f64) -> bool {
@@ -219,6 +224,46 @@ pub struct ShardInfo {
 pub const FORMAT: &str = "nimbus-rpnn-records/2";
 /// Layout of a descriptor row, as written in `manifest.json`.
 pub const DESCRIPTOR_LAYOUT: &str = "level-major: [(k-1)*225 + p] = rho at stencil point p (p = ix + 5 iy + 25 iz) of level k = 1..10; [2250] = gamma (radians)";
+/// Names of the sky-transfer columns that follow [`META_NAMES`] with
+/// [`DatagenOptions::sky_transfer`]: coefficient l² + l + m of `crate::sky`.
+pub const SKY_META_NAMES: [&str; crate::sky::SH_COEFFS] = [
+    "sky_sh_0",
+    "sky_sh_1",
+    "sky_sh_2",
+    "sky_sh_3",
+    "sky_sh_4",
+    "sky_sh_5",
+    "sky_sh_6",
+    "sky_sh_7",
+    "sky_sh_8",
+    "sky_sh_9",
+    "sky_sh_10",
+    "sky_sh_11",
+    "sky_sh_12",
+    "sky_sh_13",
+    "sky_sh_14",
+    "sky_sh_15",
+    "sky_sh_16",
+    "sky_sh_17",
+    "sky_sh_18",
+    "sky_sh_19",
+    "sky_sh_20",
+    "sky_sh_21",
+    "sky_sh_22",
+    "sky_sh_23",
+    "sky_sh_24",
+];
+
+/// Columns of a set's meta rows: [`META_COLUMNS`], and the sky's transfer after them.
+pub fn meta_width(sky_transfer: bool) -> usize {
+    META_COLUMNS
+        + if sky_transfer {
+            crate::sky::SH_COEFFS
+        } else {
+            0
+        }
+}
+
 /// Names of the `_meta.npy` columns, as written in `manifest.json`.
 pub const META_NAMES: [&str; META_COLUMNS] = [
     "cloud",
@@ -243,7 +288,7 @@ pub(crate) struct Manifest<S: Serialize> {
     pub format: &'static str,
     pub descriptor_len: usize,
     pub descriptor_layout: &'static str,
-    pub meta_columns: [&'static str; META_COLUMNS],
+    pub meta_columns: Vec<&'static str>,
     pub settings: S,
     pub clouds: Vec<CloudSpec>,
     pub shards: Vec<ShardInfo>,
@@ -261,6 +306,7 @@ impl<S: Serialize> Manifest<S> {
         shards: Vec<ShardInfo>,
         seconds: f64,
         computed: usize,
+        sky_transfer: bool,
     ) -> Self {
         let records = shards.iter().map(|s| s.records).sum();
         let converged = shards.iter().map(|s| s.converged).sum();
@@ -268,7 +314,15 @@ impl<S: Serialize> Manifest<S> {
             format: FORMAT,
             descriptor_len: DESCRIPTOR_LEN,
             descriptor_layout: DESCRIPTOR_LAYOUT,
-            meta_columns: META_NAMES,
+            meta_columns: META_NAMES
+                .iter()
+                .chain(if sky_transfer {
+                    &SKY_META_NAMES[..]
+                } else {
+                    &[]
+                })
+                .copied()
+                .collect(),
             settings,
             clouds,
             shards,
@@ -479,6 +533,13 @@ pub fn run(
     if opts.shard_size == 0 {
         return Err(err("shard size must be at least 1".into()));
     }
+    if opts.sky_transfer && opts.gpu {
+        return Err(err(
+            "--sky-transfer needs the CPU path tracer (--device cpu): the GPU's indirect-radiance \
+             pass estimates the sun's label only"
+                .into(),
+        ));
+    }
     let counts = [opts.records, opts.val_records, opts.test_records];
     // Every requested split must have clouds: said before any work (and before the folder and
     // its settings.json exist, so a corrected rerun into it is not refused).
@@ -593,7 +654,10 @@ pub fn run(
         // Build the clouds of this split (volume + pyramid), in parallel.
         let data: Vec<CloudData> = members
             .par_iter()
-            .map(|&i| CloudData::new(&clouds[i].name, build_volume(&clouds[i])?, medium.clone()))
+            .map(|&i| {
+                CloudData::new(&clouds[i].name, build_volume(&clouds[i])?, medium.clone())
+                    .map(|c| c.with_sky_transfer(opts.sky_transfer))
+            })
             .collect::<Result<_, _>>()?;
         let owned_records: usize = owned
             .iter()
@@ -724,7 +788,8 @@ pub fn run(
             };
             let mut xs = Vec::with_capacity(records.len() * DESCRIPTOR_LEN);
             let mut ys = Vec::with_capacity(records.len());
-            let mut ms = Vec::with_capacity(records.len() * META_COLUMNS);
+            let width = meta_width(opts.sky_transfer);
+            let mut ms = Vec::with_capacity(records.len() * width);
             let mut conv = 0;
             for (ci, r) in &records {
                 xs.extend_from_slice(&r.descriptor);
@@ -740,6 +805,12 @@ pub fn run(
                     r.var_mean,
                     r.light_weight,
                 ]);
+                if opts.sky_transfer {
+                    let Some(t) = r.sky else {
+                        return Err(err("a record has no sky transfer".into()));
+                    };
+                    ms.extend_from_slice(&t);
+                }
                 conv += r.converged as usize;
             }
             let _ = std::fs::remove_file(&sidecar);
@@ -749,7 +820,7 @@ pub fn run(
                 write_npy(&px, &[n, DESCRIPTOR_LEN as u64], &xs)?;
             }
             write_npy(&py, &[n], &ys)?;
-            write_npy(&pm, &[n, META_COLUMNS as u64], &ms)?;
+            write_npy(&pm, &[n, width as u64], &ms)?;
             let info = shard(conv)?;
             write_sidecar(&sidecar, &info.sha256)?;
             computed += n as usize;
@@ -760,7 +831,14 @@ pub fn run(
         bar.finish_and_clear();
     }
     let seconds = start.elapsed().as_secs_f64();
-    let manifest = Manifest::new(opts.clone(), clouds.to_vec(), shards, seconds, computed);
+    let manifest = Manifest::new(
+        opts.clone(),
+        clouds.to_vec(),
+        shards,
+        seconds,
+        computed,
+        opts.sky_transfer,
+    );
     // A run that found every record in place keeps the manifest as it was: model cards name
     // its sha256, and a run that changed no record must not change it.
     if computed > 0 || !same_set(&manifest, out) {

@@ -17,6 +17,7 @@ pub mod pyramid;
 pub mod render;
 mod shard_files;
 pub mod shards;
+pub mod sky;
 
 pub use descriptor::{Config, DESCRIPTOR_LEN, LEVELS, POINTS, descriptor, descriptors};
 pub use pyramid::{Pyramid, PyramidError};

@@ -393,7 +393,12 @@ pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeSummary, DatagenError
     let shards: Vec<ShardInfo> = order.iter().map(|(_, s)| (*s).clone()).collect();
     let seconds = dirs.iter().map(|d| d.seconds).sum();
     let records = shards.iter().map(|s| s.records).sum();
-    Manifest::new(first.run_settings.clone(), clouds, shards, seconds, 0).write(out)?;
+    let sky = first
+        .run_settings
+        .get("sky_transfer")
+        .and_then(Value::as_bool)
+        .unwrap_or(false);
+    Manifest::new(first.run_settings.clone(), clouds, shards, seconds, 0, sky).write(out)?;
     Ok(MergeSummary {
         parts: dirs.len(),
         shards: order.len(),

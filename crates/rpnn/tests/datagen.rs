@@ -98,6 +98,7 @@ fn opts(seed: u64) -> DatagenOptions {
         gpu: false,
         part: None,
         f16_descriptors: false,
+        sky_transfer: false,
     }
 }
 
@@ -679,6 +680,7 @@ fn precise_count_from_the_pilot() {
         converged: false,
         rel_ci: 0.0,
         var_mean,
+        sky: None,
     };
     assert_eq!(precise_count(&p(1.0, 0.01), 0.05, 1 << 20), 4000);
     // 4 001 needed rounds up to 5 pilots.

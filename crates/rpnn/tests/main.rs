@@ -5,3 +5,4 @@ mod datagen;
 mod descriptor;
 mod model;
 mod render;
+mod sky;
