@@ -7,6 +7,8 @@
   points, width 2, 1 head layer; ≈ 2 kB), so the reader is tested on another shape and the
   `onnx` fuzz target mutates a whole valid model quickly;
 - not-rpnn.onnx: a vanilla MLP on the whole descriptor (the reader must refuse it);
+- rpnn-tiny-sky.onnx, rpnn-tiny-sky-io.npy: rpnn-tiny with a sky head (`train_sky.py`'s
+  architecture: 2 ReLU layers of 16 and 25 linear outputs), its output [n, 1 + 25];
 
     training/.venv/bin/python training/make_fixtures.py
 """
@@ -63,4 +65,16 @@ v = Vanilla().eval()
 v.input_len = DESCRIPTOR_LEN
 v.config = lambda: {"kind": "vanilla"}
 export.export_onnx(v, out / "not-rpnn.onnx")
+
+from train_sky import SkyHead, SkyRPNN  # noqa: E402
+
+torch.manual_seed(44)
+sky = SkyRPNN(m, SkyHead(16, 3)).eval()
+with torch.no_grad():
+    for p in sky.head.parameters():
+        p.uniform_(-0.3, 0.3)
+export.export_onnx(sky, out / "rpnn-tiny-sky.onnx", {"nimbus.rpnn.phase": "hg", "nimbus.rpnn.sky": "sh4"})
+with torch.no_grad():
+    ys = sky(torch.from_numpy(x)).numpy()
+np.save(out / "rpnn-tiny-sky-io.npy", np.concatenate([x, ys], axis=1))
 print(f"wrote fixtures to {out}")

@@ -289,7 +289,7 @@ pub(crate) fn flags_for_other_methods(cmd: &clap::Command, m: &clap::ArgMatches)
     }
     let names: Vec<String> = methods.iter().map(|m| m.to_string()).collect();
     let pm = methods.iter().any(|m| m.is_photon_mapping());
-    let rpnn = methods.contains(&Method::Rpnn);
+    let rpnn = methods.iter().any(|m| m.is_rpnn());
     // The photon map's flags: render's groups, compare's --beams and --ring and the
     // gathering's group.
     let group = |id: &str| -> Vec<String> {

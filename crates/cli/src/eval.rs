@@ -116,6 +116,7 @@ impl EvalArgs {
                 model: self.rpnn.model.clone(),
                 rpnn_backend: self.rpnn.backend.into(),
                 sky_dirs: self.rpnn.sky_dirs,
+                sky_degree: self.rpnn.sky_degree as usize,
             },
             reference: ReferenceSettings {
                 spp: self.ref_spp,
@@ -155,7 +156,7 @@ fn preflight(opts: &CompareOptions, out: &Path, model: impl FnOnce() -> PathBuf)
             cache.display()
         );
     }
-    if opts.methods.contains(&nimbus_eval::method::Method::Rpnn) {
+    if opts.methods.iter().any(|m| m.is_rpnn()) {
         let path = opts.run.model.clone().unwrap_or_else(model);
         nimbus_rpnn::model::Rpnn::load(&path)?;
     }

@@ -302,11 +302,7 @@ fn run(cli: Cli) -> Result<()> {
                 (Method::Pt | Method::PtGpu, Device::Gpu) => Method::PtGpu,
                 (m, Device::Gpu) => bail!(
                     "--device gpu applies to --method pt (as pt-gpu); `{m}` chooses its own device{}",
-                    if m == Method::Rpnn {
-                        " (see --backend)"
-                    } else {
-                        ""
-                    }
+                    if m.is_rpnn() { " (see --backend)" } else { "" }
                 ),
             };
             let options = nimbus_render::Options {

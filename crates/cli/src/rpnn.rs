@@ -35,9 +35,13 @@ pub(crate) struct RpnnArgs {
     /// RPNN: where the network runs.
     #[arg(long, value_enum, default_value = "auto")]
     pub(crate) backend: NetBackend,
-    /// RPNN: sky directions per shading point and sample (network queries for sky light).
+    /// RPNN: sky directions per shading point and sample (network queries for sky light) of
+    /// the paper's sky (`rpnn-dirs`, or a model without a sky head).
     #[arg(long, default_value_t = 4)]
     pub(crate) sky_dirs: u32,
+    /// RPNN with a sky head: the spherical-harmonic degree (0 … 4) the sky is contracted with.
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u8).range(0..=4))]
+    pub(crate) sky_degree: u8,
     /// RPNN: refuse (instead of warning) when the scene's phase function or albedo differs
     /// from the model's training data.
     #[arg(long)]
@@ -52,6 +56,7 @@ impl RpnnArgs {
             backend: self.backend.into(),
             sky_dirs: self.sky_dirs,
             strict: self.strict,
+            sky_degree: self.sky_degree as usize,
         }
     }
 }

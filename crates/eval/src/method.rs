@@ -72,6 +72,8 @@ pub struct RunSettings {
     pub rpnn_backend: NetBackend,
     /// RPNN: sky directions per shading point and sample.
     pub sky_dirs: u32,
+    /// RPNN with a sky head: the sky's spherical-harmonic degree.
+    pub sky_degree: usize,
 }
 
 impl Default for RunSettings {
@@ -83,6 +85,7 @@ impl Default for RunSettings {
             model: None,
             rpnn_backend: NetBackend::Auto,
             sky_dirs: 4,
+            sky_degree: nimbus_rpnn::sky::SH_DEGREE,
         }
     }
 }
@@ -156,6 +159,7 @@ impl RunSettings {
                 backend: self.rpnn_backend,
                 sky_dirs: self.sky_dirs,
                 strict: false,
+                sky_degree: self.sky_degree,
             },
         }
     }

@@ -384,8 +384,8 @@ pub fn run_child(scene_path: &Path, method: Method) -> ChildReport {
         }
     };
     let budget = match method {
-        Method::Pm | Method::PmElek2012 => 4,
-        Method::Rpnn => 1,
+        Method::Pm | Method::PmMarch | Method::PmElek2012 => 4,
+        Method::Rpnn | Method::RpnnDirs => 1,
         _ => 4,
     };
     let settings = RunSettings {

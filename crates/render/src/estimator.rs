@@ -33,6 +33,9 @@ pub struct RpnnSettings {
     /// Refuse, instead of warning, when the scene's phase function or albedo differs from the
     /// model's training data.
     pub strict: bool,
+    /// Spherical-harmonic degree (0 … 4) of the sky the sky head's transfer is contracted
+    /// with ([`Method::Rpnn`] with a sky and a model with a sky head).
+    pub sky_degree: usize,
 }
 
 impl Default for RpnnSettings {
@@ -42,6 +45,7 @@ impl Default for RpnnSettings {
             backend: NetBackend::Auto,
             sky_dirs: 4,
             strict: false,
+            sky_degree: nimbus_rpnn::sky::SH_DEGREE,
         }
     }
 }
@@ -256,7 +260,7 @@ pub fn prepare<'g>(
                 g.describe(),
             )
         }
-        Method::Rpnn => {
+        Method::Rpnn | Method::RpnnDirs => {
             let r = &opts.rpnn;
             if scene.sky.is_some() && !(1..=1024).contains(&r.sky_dirs) {
                 bail!(
@@ -264,10 +268,17 @@ pub fn prepare<'g>(
                     r.sky_dirs
                 );
             }
-            let model_path = r
-                .model
-                .clone()
-                .unwrap_or_else(|| nimbus_rpnn::model::model_path_for(&scene.phase_desc));
+            // Under a sky the sky head's model (when shipped and not the paper's directions
+            // asked for), else the sun model; without a sky never the sky head.
+            let want_sky = method == Method::Rpnn && scene.sky.is_some();
+            let model_path = r.model.clone().unwrap_or_else(|| {
+                let sun = nimbus_rpnn::model::model_path_for(&scene.phase_desc);
+                let sky = nimbus_rpnn::model::sky_model_path_for(&scene.phase_desc);
+                match sky {
+                    Some(p) if want_sky => p,
+                    _ => sun,
+                }
+            });
             let model = Rpnn::load(&model_path)?;
             let mismatches = [
                 nimbus_rpnn::render::phase_mismatch(scene, &model.phase),
@@ -293,9 +304,40 @@ pub fn prepare<'g>(
             };
             let (backend, device) =
                 rpnn_backend(r.backend, adapter, &model_path, &model, &pyramid)?;
+            // The sky head runs where ONNX Runtime runs the network (the WGSL network computes
+            // the sun's head only).
+            let sky_sh = if want_sky && model.sky_coeffs() > 0 {
+                if matches!(backend, nimbus_rpnn::render::Backend::Ort(_)) {
+                    nimbus_rpnn::render::SkySh::of(scene, r.sky_degree, 64)
+                } else {
+                    warnings.push(format!(
+                        "warning: {}: the WGSL network has no sky head; the sky is sampled in \
+                         --sky-dirs directions (--backend ort uses the sky head)",
+                        model_path.display()
+                    ));
+                    None
+                }
+            } else {
+                if want_sky && r.model.is_none() {
+                    warnings.push(format!(
+                        "warning: {}: no sky head; the sky is sampled in --sky-dirs directions",
+                        model_path.display()
+                    ));
+                }
+                None
+            };
             (
                 Box::new(engine::rpnn::RpnnEngine::new(
-                    scene, model_path, model, pyramid, backend, adapter, r,
+                    scene,
+                    engine::rpnn::Network {
+                        path: model_path,
+                        model,
+                        backend,
+                        adapter,
+                    },
+                    pyramid,
+                    r,
+                    sky_sh,
                 )),
                 device,
             )

@@ -25,18 +25,23 @@ pub enum Method {
     /// default's improvements are measured against the paper.
     PmElek2012,
     /// Radiance-predicting neural network (Kallweit 2017): Monte Carlo direct light, network
-    /// indirect light.
+    /// indirect light; a sky through the model's sky head, one query per shading point for sun
+    /// and sky (`nimbus_rpnn::sky`), where the model has one.
     Rpnn,
+    /// RPNN with the paper's sky: `--sky-dirs` network queries per shading point, each a sky
+    /// direction (Kallweit 2017 §4.4), so the sky head is measured against it.
+    RpnnDirs,
 }
 
 impl Method {
-    pub const ALL: [Method; 6] = [
+    pub const ALL: [Method; 7] = [
         Method::Pt,
         Method::PtGpu,
         Method::Pm,
         Method::PmMarch,
         Method::PmElek2012,
         Method::Rpnn,
+        Method::RpnnDirs,
     ];
 
     /// The name on the command line and in reports.
@@ -48,6 +53,7 @@ impl Method {
             Method::PmMarch => "pm-march",
             Method::PmElek2012 => "pm-elek2012",
             Method::Rpnn => "rpnn",
+            Method::RpnnDirs => "rpnn-dirs",
         }
     }
 
@@ -60,6 +66,7 @@ impl Method {
             Method::PmMarch => "photon mapping (ray marched)",
             Method::PmElek2012 => "photon mapping (Elek 2012 as published)",
             Method::Rpnn => "RPNN",
+            Method::RpnnDirs => "RPNN (the paper's sky directions)",
         }
     }
 
@@ -81,7 +88,7 @@ impl Method {
             Method::PtGpu => vec![4, 16, 64, 256],
             Method::Pm => vec![2, 8, 32],
             Method::PmMarch | Method::PmElek2012 => vec![4, 16, 100],
-            Method::Rpnn => vec![2, 8, 32],
+            Method::Rpnn | Method::RpnnDirs => vec![2, 8, 32],
         }
     }
 
@@ -99,6 +106,10 @@ impl Method {
     /// samples per pixel.
     pub fn budget_is_ring(self) -> bool {
         matches!(self, Method::PmMarch | Method::PmElek2012)
+    }
+
+    pub fn is_rpnn(self) -> bool {
+        matches!(self, Method::Rpnn | Method::RpnnDirs)
     }
 
     /// Whether the method always needs a GPU adapter (RPNN uses one only when its backend
@@ -125,7 +136,7 @@ impl FromStr for Method {
             .find(|m| m.name() == s.trim())
             .ok_or_else(|| {
                 format!(
-                    "unknown method `{s}` (expected pt, pt-gpu, pm, pm-march, pm-elek2012 or rpnn)"
+                    "unknown method `{s}` (expected pt, pt-gpu, pm, pm-march, pm-elek2012, rpnn or rpnn-dirs)"
                 )
             })
     }

@@ -5,7 +5,10 @@
 //! The graph is not executed generically: it is matched, node by node, against the architecture
 //! of Kallweit 2017 §4.3 — for k = 1..K, z_k = Concat(Slice(x, level k), Slice(x, γ)),
 //! F1 = Relu(Gemm(z_k, V, b1) [+ MatMul(o_{k−1}, W1ᵀ)]), o_k = Relu(Gemm(F1, W2, b2) [+ o_{k−1}]),
-//! then Relu(Gemm(·)) head layers — and the weights are taken from the initializers. Anything
+//! then Relu(Gemm(·)) head layers — and the weights are taken from the initializers; a model with
+//! a sky head (`training/train_sky.py`) has a second chain on the last block's output,
+//! Relu(Gemm(·)) layers and a last plain Gemm, and its output is Concat(sun head, sky head).
+//! Anything
 //! else (another op, another wiring, a shape mismatch) is refused with a message naming the
 //! file and the node, so a model that is not an RPNN cannot be rendered silently wrong.
 
@@ -33,6 +36,16 @@ pub fn model_path_for(phase_desc: &str) -> std::path::PathBuf {
         }
     }
     default_model_path()
+}
+
+/// The shipped model with a sky head for a scene's phase function
+/// (`models/rpnn-hg-sky.onnx`, HG g = 0.857), when it is there.
+pub fn sky_model_path_for(phase_desc: &str) -> Option<std::path::PathBuf> {
+    if phase_desc.starts_with("mie") {
+        return None;
+    }
+    let p = find_model("models/rpnn-hg-sky.onnx");
+    p.is_file().then_some(p)
 }
 
 /// `rel` in the working directory or the executable's folder, or one of their ancestors.
@@ -102,6 +115,9 @@ pub struct Rpnn {
     pub outputs: usize,
     pub blocks: Vec<Block>,
     pub head: Vec<Dense>,
+    /// The sky head (`crate::sky`): ReLU layers and a last linear one from the last block's
+    /// output to the sky's transfer coefficients; empty for a sun-only model.
+    pub sky_head: Vec<Dense>,
     /// `nimbus.rpnn.phase` from the metadata (`hg`, `mie`, or `unknown`).
     pub phase: String,
     /// The single-scattering albedo of the training data: `nimbus.rpnn.albedo` from the
@@ -121,7 +137,17 @@ impl Rpnn {
             // W1 has no bias (its zero bias is an implementation detail).
             .map(|b| d(&b.v) + b.w1.as_ref().map_or(0, |w| w.w.len()) + d(&b.w2))
             .sum::<usize>()
-            + self.head.iter().map(d).sum::<usize>()
+            + self.head.iter().chain(&self.sky_head).map(d).sum::<usize>()
+    }
+
+    /// Coefficients of the sky's transfer the model predicts after its `outputs` (0: none).
+    pub fn sky_coeffs(&self) -> usize {
+        self.sky_head.last().map_or(0, |l| l.outputs)
+    }
+
+    /// Values per query: the sun head's outputs, then the sky head's.
+    pub fn outputs_per_query(&self) -> usize {
+        self.outputs + self.sky_coeffs()
     }
 
     /// Multiply-adds per query (2 FLOPs each).
@@ -131,7 +157,7 @@ impl Rpnn {
             .iter()
             .map(|b| m(&b.v) + b.w1.as_ref().map_or(0, m) + m(&b.w2))
             .sum::<usize>()
-            + self.head.iter().map(m).sum::<usize>()
+            + self.head.iter().chain(&self.sky_head).map(m).sum::<usize>()
     }
 
     /// CPU forward pass of one descriptor (f32, the reference of the GPU kernels).
@@ -157,11 +183,24 @@ impl Rpnn {
             next.iter_mut().for_each(|v| *v = v.max(0.0));
             o = next;
         }
+        let trunk = o.clone();
         for l in &self.head {
             let mut next = vec![0.0; l.outputs];
             l.apply(&o, &mut next);
             next.iter_mut().for_each(|v| *v = v.max(0.0));
             o = next;
+        }
+        let mut s = trunk;
+        for (i, l) in self.sky_head.iter().enumerate() {
+            let mut next = vec![0.0; l.outputs];
+            l.apply(&s, &mut next);
+            if i + 1 < self.sky_head.len() {
+                next.iter_mut().for_each(|v| *v = v.max(0.0));
+            }
+            s = next;
+        }
+        if !self.sky_head.is_empty() {
+            o.extend_from_slice(&s);
         }
         o
     }
@@ -296,6 +335,8 @@ enum Sym {
     /// `W · src + b` with the layer's index in [`Matcher::denses`] (weights are kept out of
     /// the tree: residual blocks share subtrees, so cloning weights would be exponential).
     Lin(Box<Sym>, usize),
+    /// Computed values concatenated (the sun and sky heads' outputs).
+    Out(Vec<Sym>),
     Add(Box<Sym>, Box<Sym>),
     Relu(Box<Sym>),
 }
@@ -452,14 +493,29 @@ impl<'a> Matcher<'a> {
                 if Self::attr_i(n, "axis", 0) != 1 && Self::attr_i(n, "axis", 0) != -1 {
                     return Err(bad("concatenation along another axis than the features"));
                 }
-                let mut parts = Vec::new();
-                for i in 0..n.input.len() {
-                    match self.value(n, i)? {
-                        Sym::Cols(a, b) => parts.push((a, b)),
-                        _ => return Err(bad("only input slices may be concatenated")),
-                    }
+                let values: Vec<Sym> = (0..n.input.len())
+                    .map(|i| self.value(n, i))
+                    .collect::<Result<_, _>>()?;
+                if values.iter().all(|v| matches!(v, Sym::Cols(..))) {
+                    Sym::Cat(
+                        values
+                            .into_iter()
+                            .map(|v| match v {
+                                Sym::Cols(a, b) => (a, b),
+                                _ => unreachable!("checked above"),
+                            })
+                            .collect(),
+                    )
+                } else if values
+                    .iter()
+                    .any(|v| matches!(v, Sym::Cols(..) | Sym::Input))
+                {
+                    return Err(bad(
+                        "input slices and computed values concatenated together",
+                    ));
+                } else {
+                    Sym::Out(values)
                 }
-                Sym::Cat(parts)
             }
             "Gemm" | "MatMul" => {
                 let src = self.value(n, 0)?;
@@ -531,6 +587,38 @@ fn structure(out: Sym, denses: Vec<Dense>) -> Result<Rpnn, String> {
             .and_then(Option::take)
             .ok_or_else(|| not_rpnn("a layer is used twice"))
     };
+    // With a sky head: Concat(sun head, sky head), both on the last block's output.
+    let (out, sky) = match out {
+        Sym::Out(mut parts) if parts.len() == 2 => {
+            let sky = parts.pop().expect("two parts");
+            (parts.pop().expect("two parts"), Some(sky))
+        }
+        Sym::Out(_) => return Err(not_rpnn("the output concatenates other than (sun, sky)")),
+        o => (o, None),
+    };
+    // Sky head: a last Lin, then Relu(Lin(…)) layers down to a block output.
+    let mut sky_head = Vec::new();
+    let mut sky_base = None;
+    if let Some(s) = sky {
+        let Sym::Lin(mut src, d) = s else {
+            return Err(not_rpnn("the sky head's last layer is not W x + b"));
+        };
+        sky_head.push(take(d)?);
+        while !is_block(&src) {
+            match *src {
+                Sym::Relu(inner) => match *inner {
+                    Sym::Lin(s2, d) => {
+                        sky_head.push(take(d)?);
+                        src = s2;
+                    }
+                    _ => return Err(not_rpnn("a sky head layer is not ReLU(W x + b)")),
+                },
+                _ => return Err(not_rpnn("the sky head does not start at a block output")),
+            }
+        }
+        sky_head.reverse();
+        sky_base = Some(format!("{src:?}"));
+    }
     // Head: Relu(Lin(…)) layers down to the last block's output.
     let mut head = Vec::new();
     let mut cur = out;
@@ -549,6 +637,11 @@ fn structure(out: Sym, denses: Vec<Dense>) -> Result<Rpnn, String> {
     head.reverse();
     if head.is_empty() {
         return Err(not_rpnn("no fully connected head layers"));
+    }
+    if sky_base.is_some_and(|b| b != format!("{cur:?}")) {
+        return Err(not_rpnn(
+            "the sun and sky heads read different block outputs",
+        ));
     }
     // Blocks, last to first.
     let mut blocks = Vec::new();
@@ -660,6 +753,17 @@ fn structure(out: Sym, denses: Vec<Dense>) -> Result<Rpnn, String> {
         }
         inputs = l.outputs;
     }
+    let mut sky_inputs = width;
+    for (i, l) in sky_head.iter().enumerate() {
+        if l.inputs != sky_inputs {
+            return Err(not_rpnn(&format!(
+                "sky head layer {} reads {} values, expected {sky_inputs}",
+                i + 1,
+                l.inputs
+            )));
+        }
+        sky_inputs = l.outputs;
+    }
     Ok(Rpnn {
         levels,
         points,
@@ -667,6 +771,7 @@ fn structure(out: Sym, denses: Vec<Dense>) -> Result<Rpnn, String> {
         outputs: inputs,
         blocks,
         head,
+        sky_head,
         phase: String::new(),
         albedo: None,
     })

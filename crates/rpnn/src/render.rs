@@ -55,8 +55,48 @@ impl Backend<'_> {
 pub struct RpnnOptions {
     pub spp: u32,
     pub seed: u64,
-    /// Sky directions per shading point and sample (ignored without a sky).
+    /// Sky directions per shading point and sample (ignored without a sky, and with
+    /// `sky_sh`).
     pub sky_dirs: u32,
+    /// The sky through the model's sky head (`crate::sky`): one query per shading point gives
+    /// the sun's indirect light and the sky's transfer, contracted with these coefficients;
+    /// `None`: the paper's directional sampling (`sky_dirs` queries).
+    pub sky_sh: Option<SkySh>,
+    /// Values per query of the model: the sun head's outputs (1 grey, 3 RGB), then
+    /// `sky_sh`'s coefficients when it is set.
+    pub sun_outputs: usize,
+}
+
+impl RpnnOptions {
+    /// `spp` samples from `seed` with the paper's directional sky sampling and a grey sun head.
+    pub fn new(spp: u32, seed: u64, sky_dirs: u32) -> Self {
+        Self {
+            spp,
+            seed,
+            sky_dirs,
+            sky_sh: None,
+            sun_outputs: 1,
+        }
+    }
+}
+
+/// The sky for the sky head: its coefficients in the world (`crate::sky::project`) and the
+/// degree the product keeps.
+#[derive(Debug, Clone)]
+pub struct SkySh {
+    pub world: [[f64; 3]; crate::sky::SH_COEFFS],
+    pub degree: usize,
+}
+
+impl SkySh {
+    /// The scene's sky projected with `n` Gauss–Legendre nodes (none without a sky).
+    pub fn of(scene: &Scene, degree: usize, n: usize) -> Option<Self> {
+        scene.sky.as_ref()?;
+        Some(Self {
+            world: crate::sky::project(|d| sky_radiance(scene, d), n),
+            degree: degree.min(crate::sky::SH_DEGREE),
+        })
+    }
 }
 
 /// Milliseconds per stage, summed over the samples.
@@ -94,8 +134,9 @@ struct Shade {
     pixel: usize,
     /// Radiance known without the network (background, or albedo × direct).
     known: DVec3,
-    /// Queries: (configuration, RGB weight including the albedo).
-    queries: Vec<(Config, DVec3)>,
+    /// Queries: (configuration, RGB weight of the sun head's prediction including the albedo,
+    /// weight of the sky head's contraction (the albedo; 0 without)).
+    queries: Vec<(Config, DVec3, f64)>,
 }
 
 /// Per-pixel running sums of a progressive RPNN render: Σ RGB and Σ lum² over `samples`
@@ -230,20 +271,35 @@ pub fn accumulate(
         } else {
             y.len() / configs.len()
         };
+        let sky_cols = opts.sky_sh.as_ref().map_or(0, |_| crate::sky::SH_COEFFS);
+        if !configs.is_empty() && outputs != opts.sun_outputs + sky_cols {
+            return Err(RenderError::Setting(format!(
+                "the network gave {outputs} values per query, expected {} ({} of the sun{})",
+                opts.sun_outputs + sky_cols,
+                opts.sun_outputs,
+                if sky_cols > 0 {
+                    " and 25 sky coefficients"
+                } else {
+                    ""
+                }
+            )));
+        }
         let mut k = 0;
         for sh in &shades {
             let mut l = sh.known;
-            for (_, wgt) in &sh.queries {
-                let pred = if outputs >= 3 {
-                    DVec3::new(
-                        y[k * outputs] as f64,
-                        y[k * outputs + 1] as f64,
-                        y[k * outputs + 2] as f64,
-                    )
+            for (cfg, wgt, sky_w) in &sh.queries {
+                let row = &y[k * outputs..(k + 1) * outputs];
+                let pred = if opts.sun_outputs >= 3 {
+                    DVec3::new(row[0] as f64, row[1] as f64, row[2] as f64)
                 } else {
-                    DVec3::splat(y[k * outputs] as f64)
+                    DVec3::splat(row[0] as f64)
                 };
                 l += *wgt * pred;
+                if let Some(s) = &opts.sky_sh
+                    && *sky_w != 0.0
+                {
+                    l += *sky_w * sky_product(s, cfg, &row[opts.sun_outputs..]);
+                }
                 k += 1;
             }
             if !l.is_finite() {
@@ -258,6 +314,22 @@ pub fn accumulate(
     times.total_ms = t_all.elapsed().as_secs_f64() * 1e3;
     times.rest_ms = (times.total_ms - times.descriptor_ms - times.inference_ms).max(0.0);
     Ok(times)
+}
+
+/// Σ t_lm c_lm for the transfer `t` the sky head predicted in `cfg`'s frame: the transfer taken
+/// to the world (the frame's inverse rotation) and contracted with the sky's own coefficients,
+/// up to `s.degree`.
+fn sky_product(s: &SkySh, cfg: &Config, t: &[f32]) -> DVec3 {
+    let n = crate::sky::coeffs(s.degree);
+    let (ex, ey, ez) = crate::descriptor::frame(cfg.view, cfg.to_light);
+    let frame = (ex.as_dvec3(), ey.as_dvec3(), ez.as_dvec3());
+    let local: Vec<f64> = t[..n].iter().map(|&v| v as f64).collect();
+    let world = crate::sky::Rotation::new(crate::sky::transposed(frame)).apply(&local);
+    let mut out = DVec3::ZERO;
+    for (w, c) in world.iter().zip(&s.world) {
+        out += DVec3::from_array(*c) * *w;
+    }
+    out
 }
 
 /// Sky radiance seen along `d` (no sun).
@@ -310,7 +382,7 @@ fn shade(
         }
     };
     let mut direct = DVec3::ZERO;
-    let mut queries = Vec::new();
+    let mut queries: Vec<(Config, DVec3, f64)> = Vec::new();
     let cfg = |to_light: DVec3| Config {
         x: x.as_vec3(),
         view: d.as_vec3(),
@@ -325,7 +397,7 @@ fn shade(
             direct += phase.eval(d.dot(wi)) / pdf * shadow(wi, rng) * sun.radiance();
         }
         if sun.irradiance.max_element() > 0.0 {
-            queries.push((cfg(sun.dir), albedo * sun.irradiance));
+            queries.push((cfg(sun.dir), albedo * sun.irradiance, 0.0));
         }
     }
     if let Some(sky) = &scene.sky {
@@ -335,9 +407,22 @@ fn shade(
         if l.max_element() > 0.0 {
             direct += shadow(smp.dir, rng) * l;
         }
-        // Multiple scattering of sky light: network predictions integrated over the sphere.
+        // Multiple scattering of sky light through the sky head: the sun's query when there is
+        // one (its frame), else one in the frame of the zenith; the paper's directional
+        // sampling otherwise.
+        if opts.sky_sh.is_some() {
+            match queries.first_mut() {
+                Some(q) => q.2 = albedo,
+                None => queries.push((cfg(DVec3::Y), DVec3::ZERO, albedo)),
+            }
+        }
         let n = opts.sky_dirs.max(1) as f64;
-        for _ in 0..opts.sky_dirs {
+        let dirs = if opts.sky_sh.is_some() {
+            0
+        } else {
+            opts.sky_dirs
+        };
+        for _ in 0..dirs {
             let (wi, weight) = match sky {
                 Sky::Constant(c) => (
                     uniform_sphere(rng.next2()),
@@ -349,7 +434,7 @@ fn shade(
                 },
             };
             if weight.max_element() > 0.0 {
-                queries.push((cfg(wi), albedo * weight / n));
+                queries.push((cfg(wi), albedo * weight / n, 0.0));
             }
         }
     }
@@ -392,5 +477,55 @@ pub fn albedo_mismatch(scene: &Scene, model_albedo: Option<f64>) -> Option<Strin
         None => Some(format!(
             "warning: the model does not state its training albedo; the scene has albedo {a}"
         )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The contraction takes the transfer from the query's frame to the world: for a transfer
+    /// T given as a band-limited function of the local direction and a band-limited sky L,
+    /// `sky_product` equals ∫ T(local(ω)) L(ω) dω by quadrature (to 1e-6 relative).
+    #[test]
+    fn sky_product_is_the_integral_in_the_world() {
+        let cfg = Config {
+            x: glam::Vec3::ZERO,
+            view: glam::Vec3::new(0.3, -0.2, -1.0).normalize(),
+            to_light: glam::Vec3::new(0.5, 0.7, 0.1).normalize(),
+        };
+        let (ex, ey, ez) = crate::descriptor::frame(cfg.view, cfg.to_light);
+        let (ex, ey, ez) = (ex.as_dvec3(), ey.as_dvec3(), ez.as_dvec3());
+        let t_fn = |l: DVec3| 0.8 + 0.3 * l.z + 0.1 * l.x * l.y - 0.05 * l.z * l.z * l.x;
+        let l_fn = |w: DVec3| DVec3::new(1.0 + 0.5 * w.y, 0.7 - 0.2 * w.x * w.z, 0.3 + w.y * w.y);
+        let t: Vec<f32> = crate::sky::project(|l| DVec3::splat(t_fn(l)), 16)
+            .iter()
+            .map(|v| v[0] as f32)
+            .collect();
+        let s = SkySh {
+            world: crate::sky::project(l_fn, 16),
+            degree: crate::sky::SH_DEGREE,
+        };
+        let got = sky_product(&s, &cfg, &t);
+        // ∫ T(local(ω)) L(ω) dω over a fine Fibonacci set.
+        let n = 200_000;
+        let mut want = DVec3::ZERO;
+        for i in 0..n {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let r = (1.0 - z * z).sqrt();
+            let p = std::f64::consts::PI * (3.0 - 5f64.sqrt()) * i as f64;
+            let w = DVec3::new(r * p.cos(), r * p.sin(), z);
+            let local = DVec3::new(ex.dot(w), ey.dot(w), ez.dot(w));
+            want += l_fn(w) * t_fn(local);
+        }
+        want *= 4.0 * std::f64::consts::PI / n as f64;
+        for c in 0..3 {
+            assert!(
+                (got[c] / want[c] - 1.0).abs() < 1e-4,
+                "channel {c}: {} vs {}",
+                got[c],
+                want[c]
+            );
+        }
     }
 }

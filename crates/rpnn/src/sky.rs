@@ -137,6 +137,66 @@ fn invert(a: &[f64], n: usize) -> Option<Vec<f64>> {
     Some(inv)
 }
 
+/// The rotation of coefficients into a frame, band by band (see [`rotate_to_frame`]).
+pub struct Rotation {
+    /// Per band l, D (row-major, (2l + 1)²).
+    d: Vec<Vec<f64>>,
+}
+
+impl Rotation {
+    /// For the frame with columns `ex`, `ey`, `ez` (local → world): coefficients of
+    /// f_local(ω) = f(M ω) are D c.
+    pub fn new((ex, ey, ez): (DVec3, DVec3, DVec3)) -> Self {
+        let d = bands()
+            .iter()
+            .enumerate()
+            .map(|(l, band)| {
+                let n = 2 * l + 1;
+                let o = l * l;
+                let mut a = vec![0.0; n * n];
+                for (i, d) in band.dirs.iter().enumerate() {
+                    let w = ex * d.x + ey * d.y + ez * d.z;
+                    a[i * n..(i + 1) * n].copy_from_slice(&eval(w)[o..o + n]);
+                }
+                let mut dm = vec![0.0; n * n];
+                for m in 0..n {
+                    for mp in 0..n {
+                        dm[m * n + mp] = (0..n).map(|i| band.inv[m * n + i] * a[i * n + mp]).sum();
+                    }
+                }
+                dm
+            })
+            .collect();
+        Self { d }
+    }
+
+    /// D c for one channel of coefficients (any length up to [`SH_COEFFS`]: whole bands).
+    pub fn apply(&self, c: &[f64]) -> Vec<f64> {
+        let mut out = vec![0.0; c.len()];
+        for (l, dm) in self.d.iter().enumerate() {
+            let (n, o) = (2 * l + 1, l * l);
+            if o + n > c.len() {
+                break;
+            }
+            for m in 0..n {
+                out[o + m] = (0..n).map(|mp| dm[m * n + mp] * c[o + mp]).sum();
+            }
+        }
+        out
+    }
+}
+
+/// The inverse frame's columns: for `frame` local → world, the frame world → local (an
+/// orthonormal frame's transpose), so [`Rotation::new`] of it takes coefficients given in
+/// `frame` back to the world.
+pub fn transposed((ex, ey, ez): (DVec3, DVec3, DVec3)) -> (DVec3, DVec3, DVec3) {
+    (
+        DVec3::new(ex.x, ey.x, ez.x),
+        DVec3::new(ex.y, ey.y, ez.y),
+        DVec3::new(ex.z, ey.z, ez.z),
+    )
+}
+
 /// Coefficients of f_local(ω) = f(M ω) from those of f (world), M the frame with columns
 /// `ex`, `ey`, `ez` (local → world): band by band, c_local = D c with D = B⁻¹ A,
 /// A_im = Y_lm(M n_i).

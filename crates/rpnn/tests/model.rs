@@ -201,6 +201,7 @@ fn random_paper_model(seed: u64) -> Rpnn {
         outputs: 1,
         blocks,
         head,
+        sky_head: Vec::new(),
         phase: "hg".into(),
         albedo: Some(1.0),
     }
@@ -320,4 +321,55 @@ fn the_model_follows_the_phase_function() {
     assert_eq!(Rpnn::load(&hg).unwrap().phase, "hg");
     assert_eq!(Rpnn::load(&mie).unwrap().phase, "mie");
     assert_eq!(nimbus_rpnn::model::model_path_for("isotropic"), hg);
+}
+
+/// A model with a sky head (`training/train_sky.py`'s architecture) reads with both heads: its
+/// output is the sun head's value and the 25 coefficients, and ONNX Runtime, torch and the CPU
+/// forward pass agree on all 26 to 1e-5 of the outputs' scale; the sun column equals the model
+/// without the head (the same weights).
+#[test]
+fn a_sky_head_model_reads_and_agrees_everywhere() {
+    use nimbus_rpnn::ort_backend::OrtModel;
+    let m = Rpnn::load(&data("rpnn-tiny-sky.onnx")).unwrap();
+    assert_eq!(
+        (m.outputs, m.sky_coeffs(), m.outputs_per_query()),
+        (1, 25, 26)
+    );
+    assert_eq!(m.sky_head.len(), 3);
+    let plain = Rpnn::load(&data("rpnn-tiny.onnx")).unwrap();
+    assert!(plain.sky_head.is_empty() && plain.outputs_per_query() == 1);
+    let f = std::fs::File::open(data("rpnn-tiny-sky-io.npy")).unwrap();
+    let npy = npyz::NpyFile::new(std::io::BufReader::new(f)).unwrap();
+    let cols = npy.shape()[1] as usize;
+    assert_eq!(cols, 2251 + 26);
+    let v: Vec<f32> = npy.into_vec().unwrap();
+    let rows: Vec<&[f32]> = v.chunks(cols).collect();
+    let flat: Vec<f32> = rows
+        .iter()
+        .flat_map(|r| r[..2251].iter().copied())
+        .collect();
+    let mut ort = OrtModel::load(&data("rpnn-tiny-sky.onnx"), 1).unwrap();
+    let got = ort.predict(&flat, rows.len()).unwrap();
+    assert_eq!(got.len(), rows.len() * 26);
+    let scale = rows
+        .iter()
+        .flat_map(|r| r[2251..].iter())
+        .fold(0.0f32, |a, v| a.max(v.abs()))
+        .max(1.0);
+    for (i, r) in rows.iter().enumerate() {
+        let cpu = m.forward(&r[..2251]);
+        assert_eq!(cpu.len(), 26);
+        assert_eq!(cpu[0], plain.forward(&r[..2251])[0], "row {i}: sun column");
+        for j in 0..26 {
+            let (t, o, c) = (r[2251 + j], got[i * 26 + j], cpu[j]);
+            assert!(
+                (o - t).abs() <= 1e-5 * scale,
+                "row {i} col {j}: ort {o} vs torch {t}"
+            );
+            assert!(
+                (o - c).abs() <= 1e-5 * scale,
+                "row {i} col {j}: ort {o} vs cpu {c}"
+            );
+        }
+    }
 }

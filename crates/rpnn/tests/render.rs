@@ -52,11 +52,7 @@ fn wgpu_and_ort_backends_render_the_same_image() {
     let pyr = Pyramid::new(&s.volume).unwrap();
     let path = data("rpnn-tiny.onnx");
     let model = Rpnn::load(&path).unwrap();
-    let opts = RpnnOptions {
-        spp: 2,
-        seed: 1,
-        sky_dirs: 3,
-    };
+    let opts = RpnnOptions::new(2, 1, 3);
     let Some(gpu) = nimbus_gpu::testing::gpu("render::wgpu_and_ort_backends_render_the_same_image")
     else {
         return;
@@ -97,17 +93,7 @@ fn no_sky_means_no_sky_queries() {
     let s = scene(false, 16, 12, 5);
     let pyr = Pyramid::new(&s.volume).unwrap();
     let mut o = Backend::Ort(OrtModel::load(&data("rpnn-tiny.onnx"), 1).unwrap());
-    let out = render(
-        &s,
-        &pyr,
-        &mut o,
-        &RpnnOptions {
-            spp: 1,
-            seed: 1,
-            sky_dirs: 8,
-        },
-    )
-    .unwrap();
+    let out = render(&s, &pyr, &mut o, &RpnnOptions::new(1, 1, 8)).unwrap();
     // One query (the sun) per camera ray that hits the cloud, never more.
     assert!(out.times.queries > 0 && out.times.queries <= 16 * 12);
     assert!(
@@ -126,17 +112,7 @@ fn shipped_model_against_the_path_tracer() {
     let s = scene(true, 48, 32, 901);
     let pyr = Pyramid::new(&s.volume).unwrap();
     let mut o = Backend::Ort(OrtModel::load(&model, 0).unwrap());
-    let rp = render(
-        &s,
-        &pyr,
-        &mut o,
-        &RpnnOptions {
-            spp: 32,
-            seed: 1,
-            sky_dirs: 4,
-        },
-    )
-    .unwrap();
+    let rp = render(&s, &pyr, &mut o, &RpnnOptions::new(32, 1, 4)).unwrap();
     let pt = nimbus_trace::render(
         &s,
         &nimbus_trace::RenderOptions {
@@ -189,3 +165,45 @@ const MEAN_BOUND: f64 = 0.06;
 /// 4×4-block relative RMSE allowed: the model's bias plus the noise of 32 spp RPNN and 512 spp
 /// path tracing (≈ 3 % at this size).
 const RMSE_BOUND: f64 = 0.10;
+
+/// With a sky head, a sky costs no query of its own: one query per shading point (the sun's,
+/// whose output also carries the sky's transfer) where the paper's sampling asks 1 + sky_dirs;
+/// the image is finite and non-negative, and a sun-only scene never asks the sky head.
+#[test]
+fn a_sky_head_answers_sun_and_sky_in_one_query() {
+    let s = scene(true, 16, 12, 5);
+    assert!(s.sky.is_some() && s.sun.is_some());
+    let pyr = Pyramid::new(&s.volume).unwrap();
+    let mut o = Backend::Ort(OrtModel::load(&data("rpnn-tiny-sky.onnx"), 1).unwrap());
+    let head = RpnnOptions {
+        sky_sh: nimbus_rpnn::render::SkySh::of(&s, 4, 16),
+        ..RpnnOptions::new(1, 1, 8)
+    };
+    let out = render(&s, &pyr, &mut o, &head).unwrap();
+    let dirs = render(
+        &s,
+        &pyr,
+        &mut Backend::Ort(OrtModel::load(&data("rpnn-tiny.onnx"), 1).unwrap()),
+        &RpnnOptions::new(1, 1, 8),
+    )
+    .unwrap();
+    assert!(out.times.queries > 0);
+    assert_eq!(
+        dirs.times.queries,
+        9 * out.times.queries,
+        "1 + 8 queries per shading point"
+    );
+    assert!(
+        out.image
+            .pixels
+            .iter()
+            .flatten()
+            .all(|v| v.is_finite() && *v >= 0.0)
+    );
+    // The sky model without asking for the head: its 26 outputs are refused by name.
+    let e = render(&s, &pyr, &mut o, &RpnnOptions::new(1, 1, 2))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("26 values per query, expected 1"), "{e}");
+}

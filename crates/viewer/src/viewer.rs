@@ -157,6 +157,7 @@ fn options(opts: &ViewerOptions, density_max: Option<f32>) -> Options {
             backend: NetBackend::Auto,
             sky_dirs: 4,
             strict: false,
+            sky_degree: nimbus_rpnn::sky::SH_DEGREE,
         },
     }
 }

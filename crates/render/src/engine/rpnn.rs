@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 use nimbus_gpu::Gpu;
 use nimbus_rpnn::Pyramid;
 use nimbus_rpnn::model::Rpnn;
-use nimbus_rpnn::render::{Backend, RpnnOptions, RpnnSums, StageTimes};
+use nimbus_rpnn::render::{Backend, RpnnOptions, RpnnSums, SkySh, StageTimes};
 use nimbus_scene::Scene;
 use nimbus_scene::volume::MajorantGrid;
 
@@ -28,40 +28,50 @@ pub(crate) struct RpnnEngine<'g> {
     sums: RpnnSums,
     seed: u64,
     sky_dirs: u32,
+    /// The sky through the sky head (`None`: the paper's directions).
+    sky_sh: Option<SkySh>,
     /// Stage times since the last restart.
     times: StageTimes,
+}
+
+/// The network an [`RpnnEngine`] runs: the model, its file, where it runs and on which
+/// adapter it was chosen.
+pub(crate) struct Network<'g> {
+    pub path: PathBuf,
+    pub model: Rpnn,
+    pub backend: Backend<'g>,
+    pub adapter: Option<&'g Gpu>,
 }
 
 impl<'g> RpnnEngine<'g> {
     pub(crate) fn new(
         scene: &Scene,
-        model_path: PathBuf,
-        model: Rpnn,
+        net: Network<'g>,
         pyramid: Pyramid,
-        backend: Backend<'g>,
-        adapter: Option<&'g Gpu>,
         settings: &RpnnSettings,
+        sky_sh: Option<SkySh>,
     ) -> Self {
         Self {
-            model_path,
-            model,
+            model_path: net.path,
+            model: net.model,
             pyramid,
-            backend,
-            adapter,
+            backend: net.backend,
+            adapter: net.adapter,
             choice: settings.backend,
             majorants: nimbus_rpnn::render::majorants(scene),
             sums: RpnnSums::new(scene.camera.width, scene.camera.height),
             seed: scene.render.seed,
             sky_dirs: settings.sky_dirs,
+            sky_sh,
             times: StageTimes::default(),
         }
     }
 
     fn add(&mut self, scene: &Scene, spp: u32) -> Result<()> {
         let ro = RpnnOptions {
-            spp,
-            seed: self.seed,
-            sky_dirs: self.sky_dirs,
+            sky_sh: self.sky_sh.clone(),
+            sun_outputs: self.model.outputs,
+            ..RpnnOptions::new(spp, self.seed, self.sky_dirs)
         };
         let t = nimbus_rpnn::render::accumulate(
             scene,
@@ -148,9 +158,14 @@ impl Engine for RpnnEngine<'_> {
         let n = budget.max(1) as f64;
         Ok(Rendered {
             summary: format!(
-                "RPNN ({}, {}) {}x{} at {} spp in {:.2} s — {:.1} ms per spp, {} network queries",
+                "RPNN ({}, {}{}) {}x{} at {} spp in {:.2} s — {:.1} ms per spp, {} network queries",
                 self.model_path.display(),
                 self.backend.name(),
+                match &self.sky_sh {
+                    Some(s) => format!(", sky head of degree {}", s.degree),
+                    None if scene.sky.is_some() => format!(", {} sky directions", self.sky_dirs),
+                    None => String::new(),
+                },
                 cam.width,
                 cam.height,
                 budget,
