@@ -196,7 +196,9 @@ pub(crate) struct SuiteArgs {
     /// Sun placements: front (behind the camera), side, back (behind the cloud).
     #[arg(long, default_value = "front,side,back")]
     lights: String,
-    /// Lighting conditions: sun (sun only), sun+sky.
+    /// Lighting conditions: sun (sun only), sun+sky (a constant sky), sun+env (an environment
+    /// map: a clear sky with a ground; the GPU path tracer and photon mapping cannot take one
+    /// and are left out of it).
     #[arg(long, default_value = "sun,sun+sky")]
     skies: String,
     /// Image size WxH.
@@ -226,7 +228,7 @@ fn parse_size(s: &str) -> Result<(usize, usize)> {
 }
 
 pub(crate) fn bench_suite(args: &SuiteArgs) -> Result<()> {
-    use nimbus_eval::suite::{Lighting, SuiteOptions, run};
+    use nimbus_eval::suite::{Lighting, SkyCondition, SuiteOptions, run};
     let (width, height) = parse_size(&args.size)?;
     let lightings = args
         .lights
@@ -236,11 +238,7 @@ pub(crate) fn bench_suite(args: &SuiteArgs) -> Result<()> {
     let skies = args
         .skies
         .split(',')
-        .map(|s| match s.trim() {
-            "sun" => Ok(false),
-            "sun+sky" => Ok(true),
-            o => bail!("--skies: unknown condition `{o}` (expected sun or sun+sky)"),
-        })
+        .map(SkyCondition::parse)
         .collect::<Result<Vec<_>>>()?;
     let twice = |names: Vec<&str>| (1..names.len()).any(|i| names[..i].contains(&names[i]));
     if twice(lightings.iter().map(|l| l.name()).collect()) {

@@ -312,7 +312,7 @@ fn bench_suite_writes_the_table() {
         "--lights",
         "back",
         "--skies",
-        "sun+sky",
+        "sun+sky,sun+env",
         "--size",
         "32x18",
         "--methods",
@@ -345,6 +345,14 @@ fn bench_suite_writes_the_table() {
     assert!(md.contains("| cumulus_004 | back | sun+sky |"), "{md}");
     assert!(
         md.contains("bias rpnn") && md.contains("speed-up pm"),
+        "{md}"
+    );
+    // The environment-map condition: its lat-long sky is written once, and only the methods
+    // that take an environment map run under it (pm has no environment photons).
+    assert!(md.contains("| cumulus_004 | back | sun+env |"), "{md}");
+    assert!(d.join("work/skies/sky_back.exr").is_file());
+    assert!(
+        md.contains("| rpnn | sun+env |") && !md.contains("| pm | sun+env |"),
         "{md}"
     );
     let scene_dir = d.join("results/scenes/cumulus_004_back_sunsky");

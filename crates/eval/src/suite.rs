@@ -54,14 +54,79 @@ impl Lighting {
     }
 }
 
+/// The sky of a suite condition.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SkyCondition {
+    /// The sun alone.
+    Sun,
+    /// The sun and a constant sky.
+    SunSky,
+    /// The sun and an environment map: a clear sky of `nimbus_rpnn::sky::SkyModel` (gradient,
+    /// glow about the sun, a ground below the horizon) as a lat-long EXR.
+    SunEnv,
+}
+
+impl SkyCondition {
+    pub const ALL: [SkyCondition; 3] = [
+        SkyCondition::Sun,
+        SkyCondition::SunSky,
+        SkyCondition::SunEnv,
+    ];
+
+    /// The condition's name on the command line and in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            SkyCondition::Sun => "sun",
+            SkyCondition::SunSky => "sun+sky",
+            SkyCondition::SunEnv => "sun+env",
+        }
+    }
+
+    /// The scene names' suffix.
+    fn suffix(self) -> &'static str {
+        match self {
+            SkyCondition::Sun => "sun",
+            SkyCondition::SunSky => "sunsky",
+            SkyCondition::SunEnv => "sunenv",
+        }
+    }
+
+    pub fn parse(s: &str) -> Result<Self> {
+        SkyCondition::ALL
+            .into_iter()
+            .find(|c| c.name() == s.trim())
+            .with_context(|| {
+                format!("--skies: unknown condition `{s}` (expected sun, sun+sky or sun+env)")
+            })
+    }
+}
+
+/// The environment map of the `sun+env` condition for `lighting`: its sun at the suite's sun
+/// direction, written once into `dir`; returns its path.
+pub fn env_map(lighting: Lighting, dir: &Path) -> Result<PathBuf> {
+    let d = glam::DVec3::from_array(lighting.sun_dir()).normalize();
+    let model = nimbus_rpnn::sky::SkyModel {
+        sun_elevation_deg: d.y.asin().to_degrees(),
+        sun_azimuth_deg: d.x.atan2(d.z).to_degrees(),
+        turbidity: 3.0,
+        zenith: glam::DVec3::new(0.08, 0.16, 0.36),
+        ground: glam::DVec3::new(0.06, 0.055, 0.05),
+    };
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let path = dir.join(format!("sky_{}.exr", lighting.name()));
+    model.latlong(256, 128).write_exr(&path, None)?;
+    path.canonicalize()
+        .with_context(|| format!("cannot resolve {}", path.display()))
+}
+
 /// Suite settings.
 #[derive(Debug, Clone)]
 pub struct SuiteOptions {
     /// Held-out clouds (1 ..= 8, the test split of the 40-cloud training set).
     pub clouds: usize,
     pub lightings: Vec<Lighting>,
-    /// `false`: sun only; `true`: sun and sky. Each entry is one condition.
-    pub skies: Vec<bool>,
+    /// The sky conditions, each run once.
+    pub skies: Vec<SkyCondition>,
     pub width: usize,
     pub height: usize,
     pub compare: CompareOptions,
@@ -75,7 +140,7 @@ pub struct SuiteScene {
     pub name: String,
     pub cloud: String,
     pub lighting: Lighting,
-    pub sky: bool,
+    pub sky: SkyCondition,
     pub toml: String,
 }
 
@@ -116,23 +181,28 @@ pub fn held_out_clouds(n: usize, dir: &Path) -> Result<Vec<HeldOut>> {
     Ok(out)
 }
 
-/// The scene description of one suite case.
+/// The scene description of one suite case; `env` is the environment map of `sun+env`.
+#[allow(clippy::too_many_arguments)]
 pub fn scene_toml(
     vol: &Path,
     density_scale: f64,
     lighting: Lighting,
-    sky: bool,
+    sky: SkyCondition,
+    env: Option<&Path>,
     w: usize,
     h: usize,
     seed: u64,
-) -> String {
+) -> Result<String> {
     let d = lighting.sun_dir();
-    let sky = if sky {
-        "[sky]\nradiance = [0.12, 0.2, 0.38]\n"
-    } else {
-        ""
+    let sky = match (sky, env) {
+        (SkyCondition::Sun, _) => String::new(),
+        (SkyCondition::SunSky, _) => "[sky]\nradiance = [0.12, 0.2, 0.38]\n".to_string(),
+        (SkyCondition::SunEnv, Some(e)) => {
+            format!("[sky]\nenvmap = {:?}\n", e.display().to_string())
+        }
+        (SkyCondition::SunEnv, None) => bail!("the sun+env condition needs its environment map"),
     };
-    format!(
+    Ok(format!(
         "[volume]\nfile = {:?}\ndensity_scale = {density_scale}\nalbedo = 1.0\nphase = {{ kind = \"hg\", g = 0.857 }}\n\n\
          [sun]\ndirection = [{}, {}, {}]\nirradiance = [3.0, 2.85, 2.6]\nangular_radius_deg = 0.27\n\n{sky}\n\
          [camera]\norigin = [0.0, 1.25, 3.45]\ntarget = [0.0, 0.0, 0.0]\nvfov_deg = 38.0\nwidth = {w}\nheight = {h}\n\n\
@@ -141,7 +211,7 @@ pub fn scene_toml(
         d[0],
         d[1],
         d[2]
-    )
+    ))
 }
 
 /// Runs the suite; per-scene reports go to `out/results/scenes/<name>/`, the summary to
@@ -161,30 +231,35 @@ pub fn run(opts: &SuiteOptions, out: &Path, log: &mut dyn FnMut(String)) -> Resu
     for cloud in &clouds {
         for &l in &opts.lightings {
             for &sky in &opts.skies {
-                let name = format!(
-                    "{}_{}_{}",
-                    cloud.name,
-                    l.name(),
-                    if sky { "sunsky" } else { "sun" }
-                );
+                let name = format!("{}_{}_{}", cloud.name, l.name(), sky.suffix());
+                let env = match sky {
+                    SkyCondition::SunEnv => Some(env_map(l, &opts.work_dir.join("skies"))?),
+                    _ => None,
+                };
                 let text = scene_toml(
                     &cloud.path,
                     cloud.density_scale,
                     l,
                     sky,
+                    env.as_deref(),
                     opts.width,
                     opts.height,
                     opts.compare.run.seed,
-                );
+                )?;
                 let toml_path = opts.work_dir.join("scenes").join(format!("{name}.toml"));
                 std::fs::create_dir_all(toml_path.parent().expect("has a parent"))?;
                 std::fs::write(&toml_path, &text)
                     .with_context(|| format!("cannot write {}", toml_path.display()))?;
                 let scene = Scene::load(&toml_path)?;
+                // An environment map is left to the methods that take one.
+                let mut compare = opts.compare.clone();
+                if sky == SkyCondition::SunEnv {
+                    compare.methods.retain(|m| m.supports_env_map());
+                }
                 let c = compare_scene(
                     &scene,
                     &name,
-                    &opts.compare,
+                    &compare,
                     &work.join("scenes").join(&name),
                     &mut gpu,
                     log,
@@ -213,18 +288,17 @@ pub fn run(opts: &SuiteOptions, out: &Path, log: &mut dyn FnMut(String)) -> Resu
 }
 
 fn condition(scene: &str) -> &'static str {
-    if scene.ends_with("_sunsky") {
-        "sun+sky"
-    } else {
-        "sun"
-    }
+    SkyCondition::ALL
+        .into_iter()
+        .find(|c| scene.ends_with(&format!("_{}", c.suffix())))
+        .map_or("sun", SkyCondition::name)
 }
 
 /// Per method and sky condition, the median time and median relative RMSE of each budget.
 pub fn median_series(rows: &[Row]) -> Vec<Series> {
     let mut out = Vec::new();
     for m in Method::ALL {
-        for cond in ["sun", "sun+sky"] {
+        for cond in SkyCondition::ALL.map(SkyCondition::name) {
             let sel: Vec<&Row> = rows
                 .iter()
                 .filter(|r| r.method == m && condition(&r.scene) == cond)
@@ -300,11 +374,11 @@ fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> St
             .collect::<Vec<_>>()
             .join(", "),
         english_list(opts.lightings.iter().map(|l| l.name())),
-        english_list(
-            opts.skies
-                .iter()
-                .map(|&sky| if sky { "sun + sky" } else { "sun only" })
-        ),
+        english_list(opts.skies.iter().map(|&sky| match sky {
+            SkyCondition::Sun => "sun only",
+            SkyCondition::SunSky => "sun + sky",
+            SkyCondition::SunEnv => "sun + environment map (a clear sky with its ground)",
+        })),
         opts.width,
         opts.height,
         c.reference.spp,
@@ -315,7 +389,7 @@ fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> St
     s += "## Summary (largest budget of each method, all clouds and sun placements)\n\n";
     s += "| method | condition | mean ratio median [min, max] | bias median [min, max] | bias floor median | within the floor | speed-up, time to equal error: median [min, max] | speed-up, TTUV (variance only): median |\n|---|---|---|---|---|---|---|---|\n";
     for m in &methods {
-        for cond in ["sun", "sun+sky"] {
+        for cond in SkyCondition::ALL.map(SkyCondition::name) {
             let top: Vec<&Row> = rows
                 .iter()
                 .filter(|r| r.method == *m && r.bias.is_some() && condition(&r.scene) == cond)

@@ -108,6 +108,12 @@ impl Method {
         matches!(self, Method::PmMarch | Method::PmElek2012)
     }
 
+    /// Whether the method takes a sky given as an environment map (the GPU path tracer and
+    /// photon mapping take a constant sky only).
+    pub fn supports_env_map(self) -> bool {
+        matches!(self, Method::Pt | Method::Rpnn | Method::RpnnDirs)
+    }
+
     pub fn is_rpnn(self) -> bool {
         matches!(self, Method::Rpnn | Method::RpnnDirs)
     }

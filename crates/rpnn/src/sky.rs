@@ -333,6 +333,23 @@ impl SkyModel {
         DVec3::new(e.cos() * a.sin(), e.sin(), e.cos() * a.cos())
     }
 
+    /// The model as a `w`×`h` lat-long environment map (`nimbus_scene::EnvMap`'s layout),
+    /// each texel the radiance at its centre.
+    pub fn latlong(&self, w: usize, h: usize) -> nimbus_scene::Image {
+        let mut img = nimbus_scene::Image::new(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                let d = nimbus_scene::EnvMap::dir_of(
+                    (x as f64 + 0.5) / w as f64,
+                    (y as f64 + 0.5) / h as f64,
+                );
+                let l = self.radiance(d);
+                img.pixels[y * w + x] = [l.x as f32, l.y as f32, l.z as f32];
+            }
+        }
+        img
+    }
+
     /// Radiance seen looking along `d`.
     pub fn radiance(&self, d: DVec3) -> DVec3 {
         let d = d.normalize();

@@ -270,7 +270,8 @@ impl EnvMap {
         DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64) * self.scale
     }
 
-    fn dir_of(u: f64, v: f64) -> DVec3 {
+    /// The direction of texel coordinates (u, v) ∈ [0, 1]² (the inverse of the texel lookup).
+    pub fn dir_of(u: f64, v: f64) -> DVec3 {
         let phi = (u - 0.5) * 2.0 * PI;
         let theta = v * PI;
         DVec3::new(
