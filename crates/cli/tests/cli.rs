@@ -545,8 +545,9 @@ fn rpnn_render_and_missing_model() {
         .unwrap();
     let t = text(&o);
     assert!(o.status.success(), "{t}");
+    // The demo scene has a sky: the default model is the one with a sky head.
     assert!(
-        t.contains("models/rpnn-hg.onnx") && t.contains("inference"),
+        t.contains("models/rpnn-hg-sky.onnx") && t.contains("sky head") && t.contains("inference"),
         "{t}"
     );
     let img = nimbus_scene::Image::read_exr(&out).unwrap();
@@ -555,6 +556,26 @@ fn rpnn_render_and_missing_model() {
             .iter()
             .flatten()
             .all(|v| v.is_finite() && *v >= 0.0)
+    );
+    // The paper's sky directions query the sun-only model.
+    let o = Command::new(env!("CARGO_BIN_EXE_nimbus"))
+        .current_dir(root())
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .args([
+            "render",
+            "scenes/demo-cumulus.toml",
+            "--method",
+            "rpnn-dirs",
+        ])
+        .args(["--backend", "ort", "--spp", "1", "--timings", "-q"])
+        .args(["-o", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(
+        t.contains("models/rpnn-hg.onnx") && !t.contains("sky head"),
+        "{t}"
     );
     let scene = root().join("scenes/demo-cumulus.toml");
     let o = nimbus(&[

@@ -14,7 +14,7 @@
 //! 5        sun-move      10 0       # add to azimuth, elevation
 //! 6        play-sun                 # toggle the sun's motion
 //! 6        play-density             # toggle the density animation
-//! 7        method        pt         # pm | pt | rpnn
+//! 7        method        pt         # pm | pm-march | pt | rpnn
 //! 8        resize        640 400
 //! 9        screenshot    out/a.png
 //! 9        save-scene    out/a.toml
@@ -315,7 +315,7 @@ mod tests {
             ("0 zoom -1\n", "t:1: `zoom` factor must be positive, got -1"),
             (
                 "0 method foo\n",
-                "t:1: unknown method `foo` (expected pt, pt-gpu, pm, pm-march, pm-elek2012 or rpnn)",
+                "t:1: unknown method `foo` (expected pt, pt-gpu, pm, pm-march, pm-elek2012, rpnn or rpnn-dirs)",
             ),
             (
                 "0 method pt-gpu\n",
