@@ -10,6 +10,7 @@
 //! - [`stress`]: the stiff-case matrix (phase asymmetry, density, albedo, sun placement,
 //!   degenerate grids, invalid voxels) with per-case time limits and physical bounds.
 
+pub mod blocks;
 pub mod compare;
 pub mod method;
 pub mod metrics;

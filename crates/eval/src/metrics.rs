@@ -23,8 +23,10 @@
 //!   cloud blocks left after the run's and the reference's noise are taken out,
 //!   √max(0, MSE₄ₓ₄ − noise₄ₓ₄ − noise_ref₄ₓ₄) / mean; `bias_floor` = √(noise₄ₓ₄ +
 //!   noise_ref₄ₓ₄) / mean, the noise that was removed: a bias below 2× its floor is reported as
-//!   "within the floor". The photon map has no noise estimate; its bias keeps its own residual
-//!   noise and is an upper bound.
+//!   "within the floor". The ray-marched photon maps (`pm-march`, `pm-elek2012`: ring-frame
+//!   budgets) have no noise estimate; their bias keeps their own residual noise and is an upper
+//!   bound. `pm`'s halves each trace their own photon map (their seeds differ), so its noise
+//!   holds the photon map's as well as the gather's.
 
 use nimbus_trace::compare::compare;
 use serde::Serialize;
@@ -95,45 +97,7 @@ pub fn cloud_mask(reference: &Reference) -> Vec<bool> {
     nimbus_trace::tau::cloud_mask(&reference.tau)
 }
 
-/// Fewest cloud pixels of a 4×4 tile that counts as a block: half of it.
-pub const MIN_BLOCK_PIXELS: usize = 8;
-
-/// The 4×4 tiles with at least [`MIN_BLOCK_PIXELS`] pixels inside `mask`, each as the indices
-/// of its cloud pixels (block means are taken over those). Tiles only partly in the cloud
-/// count: a thin cloud (cirrus at 128×72: 4 tiles lie fully inside it, ≈ 40 at least half)
-/// would otherwise be judged on a handful of blocks, whose noise estimate from two halves is
-/// itself too uncertain for a bias to be told from noise.
-pub fn cloud_blocks(mask: &[bool], w: usize, h: usize) -> Vec<Vec<usize>> {
-    let mut out = Vec::new();
-    for by in 0..h / 4 {
-        for bx in 0..w / 4 {
-            let b: Vec<usize> = (0..16)
-                .map(|k| (by * 4 + k / 4) * w + bx * 4 + k % 4)
-                .filter(|&i| mask[i])
-                .collect();
-            if b.len() >= MIN_BLOCK_PIXELS {
-                out.push(b);
-            }
-        }
-    }
-    out
-}
-
-/// Mean over blocks of `v` averaged over each block's pixels, squared: the block MSE of a
-/// per-pixel difference.
-pub fn block_mean_square(v: impl Fn(usize) -> f64, blocks: &[Vec<usize>]) -> f64 {
-    if blocks.is_empty() {
-        return 0.0;
-    }
-    blocks
-        .iter()
-        .map(|b| {
-            let m = b.iter().map(|&i| v(i)).sum::<f64>() / b.len() as f64;
-            m * m
-        })
-        .sum::<f64>()
-        / blocks.len() as f64
-}
+pub use crate::blocks::{MIN_BLOCK_PIXELS, block_mean_square, cloud_blocks};
 
 /// Mean over blocks of (block mean of `d`)² / 4: the variance of the block means of (A + B)/2
 /// when `d` = A − B.

@@ -319,7 +319,7 @@ fn round_seed(seed: u64, round: u32, k: usize) -> u64 {
 }
 
 /// Relative noise of the mean (A + B)/2 over 4×4 blocks at least half in the cloud
-/// ([`crate::metrics::cloud_blocks`]): √(mean over blocks of (Ā_b − B̄_b)²/4) / mean cloud
+/// ([`crate::blocks::cloud_blocks`]): √(mean over blocks of (Ā_b − B̄_b)²/4) / mean cloud
 /// luminance. Without such a block
 /// (a tiny or thin cloud) the same per pixel; without cloud pixels 0 (nothing to converge).
 pub fn block_noise(a: &[f64], b: &[f64], mask: &[bool], w: usize, h: usize) -> f64 {
@@ -331,7 +331,7 @@ pub fn block_noise(a: &[f64], b: &[f64], mask: &[bool], w: usize, h: usize) -> f
     if mean_cloud <= 0.0 {
         return 0.0;
     }
-    let blocks = crate::metrics::cloud_blocks(mask, w, h);
+    let blocks = crate::blocks::cloud_blocks(mask, w, h);
     if blocks.is_empty() {
         let px = cloud
             .iter()
@@ -339,7 +339,7 @@ pub fn block_noise(a: &[f64], b: &[f64], mask: &[bool], w: usize, h: usize) -> f
             .sum::<f64>();
         return (px / cloud.len() as f64).sqrt() / mean_cloud;
     }
-    (crate::metrics::block_mean_square(|i| a[i] - b[i], &blocks) / 4.0).sqrt() / mean_cloud
+    (crate::blocks::block_mean_square(|i| a[i] - b[i], &blocks) / 4.0).sqrt() / mean_cloud
 }
 
 fn load(files: [&PathBuf; 4], key: &str, w: usize, h: usize) -> Result<Reference> {

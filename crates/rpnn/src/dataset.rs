@@ -62,12 +62,10 @@ pub use crate::clouds::{
 };
 use crate::datagen::{CloudData, DatagenError, LightSampling, Record};
 use crate::descriptor::DESCRIPTOR_LEN;
+pub use crate::shard_files::META_COLUMNS;
 use crate::shard_files::{
     lock_out, sha256_file, verify_shard, write_npy, write_npy_f16, write_sidecar, write_text,
 };
-
-/// Columns of the `_meta.npy` arrays.
-pub const META_COLUMNS: usize = 15;
 
 /// The splits of a data set, in the order they are written.
 pub const SPLITS: [&str; 3] = ["train", "val", "test"];

@@ -6,7 +6,9 @@
 use std::path::{Path, PathBuf};
 
 use crate::datagen::DatagenError;
-use crate::dataset::META_COLUMNS;
+
+/// Columns of the `_meta.npy` arrays (`crate::dataset` names them), before any sky transfer.
+pub const META_COLUMNS: usize = 15;
 
 /// Writes `text` to `path` through a temporary beside it and a rename.
 pub(crate) fn write_text(path: &Path, text: &str) -> Result<(), DatagenError> {

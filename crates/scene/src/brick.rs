@@ -15,6 +15,12 @@
 use crate::error::FieldError;
 use crate::memory;
 
+/// Grids of more voxels than this (256 MiB as dense f32) are generated as sparse 8³ bricks, and
+/// read as bricks from `.vol` files: memory then grows with the cloud, not with its box. Smaller
+/// ones stay dense (a dense lookup is the cheaper one for the path tracer; the values are the
+/// same either way).
+pub const SPARSE_ABOVE_VOXELS: usize = 1 << 26;
+
 /// Voxels along a brick's edge.
 pub const DIM: usize = 8;
 /// Voxels in a brick.

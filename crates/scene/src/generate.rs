@@ -361,10 +361,7 @@ fn make_field(kind: CloudKind, seed: u64, res: [usize; 3], fast: bool) -> (Field
     }
 }
 
-/// Grids of more voxels than this (256 MiB as dense f32) are generated as sparse 8³ bricks, and
-/// read as bricks from `.vol` files: memory then grows with the cloud, not with its box. Smaller ones stay dense (a dense lookup
-/// is the cheaper one for the path tracer; the values are the same either way).
-pub const SPARSE_ABOVE_VOXELS: usize = 1 << 26;
+pub use crate::brick::SPARSE_ABOVE_VOXELS;
 
 /// Generates a cloud of `kind` with `seed` at resolution `res` (voxels along x, y, z), dense or
 /// as bricks (see [`SPARSE_ABOVE_VOXELS`]).

@@ -109,11 +109,11 @@ fn parse_header(bytes: &[u8], path: &Path) -> Result<Header> {
 
 /// Reads a `.vol` file, streaming its voxels straight into the grid (the file's bytes are
 /// never held beside it: a 6.9 GB file needs at most 6.9 GB). A grid of more than
-/// [`crate::generate::SPARSE_ABOVE_VOXELS`] voxels is read as 8³ bricks, 8 planes at a time,
+/// [`crate::brick::SPARSE_ABOVE_VOXELS`] voxels is read as 8³ bricks, 8 planes at a time,
 /// keeping only the bricks that hold a non-zero value: its memory grows with the cloud, not
 /// with its box (the same values, see the tests).
 pub fn read(path: &Path) -> Result<GridFile> {
-    read_with(path, crate::generate::SPARSE_ABOVE_VOXELS)
+    read_with(path, crate::brick::SPARSE_ABOVE_VOXELS)
 }
 
 fn read_with(path: &Path, sparse_above: usize) -> Result<GridFile> {
