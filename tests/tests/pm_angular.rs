@@ -109,7 +109,7 @@ fn photon_mapping_follows_the_path_tracer_at_every_angle() {
                     ..Default::default()
                 };
                 let mut pm = PhotonMapper::new(&gpu, &scenes[0], settings).unwrap();
-                pm.converge();
+                pm.converge().unwrap();
                 pm.upsample();
                 pm
             })
@@ -128,7 +128,7 @@ fn photon_mapping_follows_the_path_tracer_at_every_angle() {
             // cache serves every view).
             let pm0 = &mut mappers[0];
             pm0.set_view(s.camera.origin);
-            pm0.converge();
+            pm0.converge().unwrap();
             pm0.upsample();
             assert!(pm0.view_ready());
             let r: Vec<f64> = mappers

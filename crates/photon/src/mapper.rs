@@ -669,10 +669,16 @@ impl<'g> PhotonMapper<'g> {
 
     /// Traces until every ring slot holds a generation (m frames) — with view-dependent words,
     /// one traced for the current view point.
-    pub fn converge(&mut self) {
+    ///
+    /// The overflow flag is read after every generation (one 4-byte read back each), so a
+    /// cache that overflows stops the fill at once with [`PmError::Overflow`] instead of after
+    /// the whole ring (on a very dense medium one generation can take tens of seconds).
+    pub fn converge(&mut self) -> Result<(), PmError> {
         while !self.ring_full() || self.view_pending() {
             self.trace_frame(None);
+            self.check_overflow()?;
         }
+        Ok(())
     }
 
     fn update_norms(&mut self) {
@@ -747,8 +753,7 @@ impl<'g> PhotonMapper<'g> {
     /// error.
     pub fn render(&mut self, camera: &Camera) -> Result<Image, PmError> {
         self.set_view(camera.origin);
-        self.converge();
-        self.check_overflow()?;
+        self.converge()?;
         self.upsample();
         self.raymarch(camera)
     }

@@ -46,7 +46,7 @@ fn mapper<'g>(
     );
     let mut pm = PhotonMapper::new(gpu, scene, settings).unwrap();
     pm.set_view(scene.camera.origin);
-    pm.converge();
+    pm.converge().unwrap();
     pm.upsample();
     pm
 }

@@ -268,7 +268,7 @@ fn deposited_energy_matches_slab_solution() {
     // Exact single scattering: the cache holds only scattered light, and with albedo 0 nothing
     // scatters: no sun deposit at all.
     let mut pm = PhotonMapper::new(&gpu, &s, settings(PmVariant::Exact)).unwrap();
-    pm.converge();
+    pm.converge().unwrap();
     assert!(
         pm.read_total()
             .unwrap()
@@ -278,7 +278,7 @@ fn deposited_energy_matches_slab_solution() {
     // The paper's single cache deposits the unscattered beam: its sums are the estimator
     // checked here.
     let mut pm = PhotonMapper::new(&gpu, &s, settings(PmVariant::Elek2012)).unwrap();
-    pm.converge();
+    pm.converge().unwrap();
     let total = pm.read_total().unwrap();
     let w: f64 = total.chunks(cpu::CELL_WORDS).map(|c| c[0] as f64).sum();
     let (n_sun, _) = pm.ring_beams();
@@ -351,7 +351,7 @@ fn shared_and_global_accumulation_agree_exactly() {
         )
         .unwrap();
         assert_eq!(pm.uses_shared_memory(), !force);
-        pm.converge();
+        pm.converge().unwrap();
         pm.read_total().unwrap()
     };
     assert_eq!(run(false), run(true));
@@ -386,7 +386,7 @@ fn equal_resolution_skips_the_filter() {
     )
     .unwrap();
     assert_eq!(pm.params.filtered, 0);
-    pm.converge();
+    pm.converge().unwrap();
     pm.upsample();
     let (j, total) = (pm.read_j().unwrap(), pm.read_total().unwrap());
     for (i, v) in j.iter().enumerate() {
@@ -648,7 +648,7 @@ fn cache_overflow_is_an_error() {
     let Some(gpu) = nimbus_gpu::testing::gpu("gpu::cache_overflow_is_an_error") else {
         return;
     };
-    let render = |scale: f64, beams: u32, ring: u32| {
+    let mapper = |scale: f64, beams: u32, ring: u32| {
         let grid = DensityGrid::constant([8, 8, 8], 1.0).unwrap();
         let aabb = Aabb::new(DVec3::splat(-0.5), DVec3::splat(0.5)).unwrap();
         let s = scene(
@@ -659,7 +659,7 @@ fn cache_overflow_is_an_error() {
             None,
             Camera::new(DVec3::new(0.0, 0.0, 3.0), DVec3::ZERO, DVec3::Y, 30.0, 8, 8).unwrap(),
         );
-        let mut pm = PhotonMapper::new(
+        let pm = PhotonMapper::new(
             &gpu,
             &s,
             PmSettings {
@@ -670,7 +670,11 @@ fn cache_overflow_is_an_error() {
             },
         )
         .unwrap();
-        pm.render(&s.camera).map(|_| ())
+        (pm, s.camera)
+    };
+    let render = |scale: f64, beams: u32, ring: u32| {
+        let (mut pm, camera) = mapper(scale, beams, ring);
+        pm.render(&camera).map(|_| ())
     };
     for (beams, ring) in [(4096, 1), (1024, 4)] {
         let e = render(1e7, beams, ring)
@@ -682,6 +686,11 @@ fn cache_overflow_is_an_error() {
         );
     }
     render(1.0, 4096, 1).unwrap();
+    // A generation that overflows on its own stops the fill at once: one frame traced of a
+    // ring of four, not four.
+    let (mut pm, _) = mapper(1e7, 4096, 4);
+    assert!(pm.converge().is_err());
+    assert_eq!(pm.frames(), 1);
 }
 
 /// Beam tracing and the ring update, GPU against their CPU twins (`cpu::trace`, `cpu::update`):

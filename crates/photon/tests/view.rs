@@ -42,7 +42,7 @@ fn isotropic_view_words_are_the_fluence_over_four_pi() {
     };
     let s = cloud(0.0, DVec3::new(0.3, 0.3, 3.0));
     let mut pm = PhotonMapper::new(&gpu, &s, settings()).unwrap();
-    pm.converge();
+    pm.converge().unwrap();
     let total = pm.read_total().unwrap();
     let four_pi = 4.0 * std::f64::consts::PI;
     let (mut cells_checked, mut sky_cells) = (0, 0);

@@ -143,8 +143,7 @@ impl Engine for GatherEngine<'_> {
         let pm = self.mapper(scene)?;
         let setup_s = t0.elapsed().as_secs_f64();
         let t1 = Instant::now();
-        pm.converge();
-        pm.check_overflow()?;
+        pm.converge()?;
         pm.upsample();
         let mut gpu_ms = stage_sum(&pm.last_times);
         let ring_s = t1.elapsed().as_secs_f64();
