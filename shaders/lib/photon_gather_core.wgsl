@@ -66,7 +66,7 @@ fn cache_resolves(x: vec3<f32>, scat: u32) -> bool {
 
 // In-scattered radiance per unit σ_s at x for light arriving along d (scattered towards −d),
 // from the photon map: sun light of order ≥ 1 and sky light — the view-dependent words traced
-// for this terminal (phase HG(g^(k+1)) towards the camera) when J holds them, else the lobes.
+// for this terminal (phase HG(g^(1 + k c)) towards the camera) when J holds them, else the lobes.
 fn cache_in_scatter(x: vec3<f32>, d: vec3<f32>) -> vec3<f32> {
     let lc = light_corners(x);
     let jv = j_at(lc);

@@ -55,8 +55,8 @@ pub(crate) struct GatherArgs {
     #[arg(long, value_enum, default_value = "auto")]
     pub(crate) pm_shadow: ShadowArg,
     /// Photon mapping with final gathering: what a gather path reads where it ends: `view`
-    /// (view-dependent words with the phase function HG(g^(k+1)) towards the camera) or
-    /// `lobes` (each cell's two flux lobes towards the previous vertex).
+    /// (view-dependent words with the phase function HG(g^(1 + k c)) towards the camera, c of
+    /// `--gather-spread`) or `lobes` (each cell's two flux lobes towards the previous vertex).
     #[arg(long, value_enum, default_value = "view")]
     pub(crate) gather_terminal: TerminalArg,
     /// Photon mapping with final gathering, `view` terminal: the share c ∈ [0, 1] of the

@@ -57,7 +57,7 @@ pub enum SunShadow {
     /// [`SunShadow::Volume`] where the light volumes have the grid's resolution, else
     /// [`SunShadow::Rays`]: coarser light volumes hold T_sun of the grid's block means, too
     /// smooth for features of a few light voxels (the far-spheres file, 12 grid voxels wide in
-    /// light voxels of 4: its image 17 % bright with the volume, 4 % with rays).
+    /// light voxels of 4: its image 17 % bright with the volume, 5 % with rays).
     #[default]
     Auto,
     /// The sun-transmittance volume (trilinear at light resolution; a disc sun as a delta
@@ -144,7 +144,7 @@ impl GatherSettings {
     }
 
     /// The photon map's settings for gathering from it: view-dependent words with the phase
-    /// function HG(g^(k+1)) ([`Terminal::View`]), or none (the lobes).
+    /// function HG(g^(1 + k c)) ([`Terminal::View`]), or none (the lobes).
     pub fn pm_settings(&self, pm: &PmSettings, g: f64) -> PmSettings {
         let mut s = pm.clone();
         s.ring = self.ring;

@@ -397,8 +397,14 @@ impl PhotonMapper<'_> {
             let w = (0..3)
                 .map(|a| self.fine_res[a] as f64 / self.params.i_res[a] as f64)
                 .fold(0.0, f64::max);
+            let consequence = if self.gather.is_some() {
+                // Final gathering bounces on through such cells (`GATHER_MIN_FILL`).
+                "so gather paths bounce on through them instead of ending there (slower)"
+            } else {
+                "so scattered light is averaged over mostly empty space and the image comes out too dark (a finer --cache-res, --method pm, or the path tracer)"
+            };
             format!(
-                "the densest cache cell is only {:.1} % filled: the cloud's features are far smaller than a cache cell (≈ {w:.0} grid voxels wide), so scattered light is averaged over mostly empty space and the image comes out too dark (a finer --cache-res, or the path tracer)",
+                "the densest cache cell is only {:.1} % filled: the cloud's features are far smaller than a cache cell (≈ {w:.0} grid voxels wide), {consequence}",
                 100.0 * self.cache_fill
             )
         })
