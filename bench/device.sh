@@ -12,7 +12,14 @@
 #   6. memory at scale: a generated 1200³ cumulus (Kallweit 2017 §5's largest) written as
 #      `.vol` and rendered by every estimator (CPU and GPU path tracers, photon map, RPNN at
 #      2 spp), wall time, peak RSS and (nvidia-smi) GPU memory, as bench/volumes.sh measures
-#      them on lavapipe.
+#      them on lavapipe;
+#   7. photon mapping with final gathering (`pm`) on the Table 1 scenes at 1920×1080: ms per
+#      gathered sample over the converged ring, and the live frame of the viewer (a generation
+#      traced and upsampled and one sample gathered per frame, the sun turning);
+#   8. error against time on the GPU: `nimbus compare` of pt-gpu, pm, pm-march and rpnn (WGSL
+#      network) on the cumulus congestus against a pt-gpu reference — per method the time of
+#      the first budget whose 4×4 relative error is ≤ 5 % and the speed-up at equal error of
+#      its largest budget (report in DIR/compare/).
 #
 #   bash bench/device.sh [--small] [--out DIR]
 #
@@ -33,7 +40,7 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --small) small=1 ;;
     --out) out="$2"; shift ;;
-    -h|--help) sed -n '2,26p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,34p' "$0"; exit 0 ;;
     *) echo "bench/device.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
   shift
@@ -50,11 +57,17 @@ if [ "$small" = 1 ]; then
   W=240; H=150; FRAMES=3; BEAMS=1024; RW=64; RH=36; RSPP=1; PW=128; PH=96; PTSPP=4; GPTSPP=16
   DG_RECORDS=16; DG_SAMPLES=256; VOLRES=96; TR_RECORDS=3000; TR_EPOCHS=1; TR_BATCH="1000"
   SCALE_PM="--method pm --beams 1024 --ring 20"  # the converged ring is 100 × 8 192 beams
+  GW=192; GH=108; GSPP=4; CW=96; CH=54
+  CMP_BUDGETS="--budgets pt-gpu=4,16,64 --budgets pm=1,4,16 --budgets pm-march=4,16 --budgets rpnn=1,4"
+  CMP_REF="--ref-spp 64 --ref-time-cap 60"
 else
   W=1920; H=1200; FRAMES=12; BEAMS=8192; RW=1280; RH=720; RSPP=2; PW=1280; PH=720; PTSPP=4; GPTSPP=64
   DG_RECORDS=2000; DG_SAMPLES=1024; VOLRES=1200; TR_RECORDS=200000; TR_EPOCHS=3
   TR_BATCH="1000 8000"
   SCALE_PM="--method pm"
+  GW=1920; GH=1080; GSPP=64; CW=960; CH=540
+  CMP_BUDGETS="--budgets pt-gpu=4,16,64,256,1024 --budgets pm=1,4,16,64,256 --budgets pm-march=4,16,100 --budgets rpnn=1,4,16"
+  CMP_REF="--ref-spp 1024 --ref-time-cap 300"
 fi
 # The training environment of training/setup.sh where there is one, else python3 (with torch).
 py=${PYTHON:-$([ -x training/.venv/bin/python ] && echo training/.venv/bin/python || echo python3)}
@@ -172,6 +185,42 @@ for m in "0 --method pt" "1 --device gpu" "1 $SCALE_PM" "1 --method rpnn --spp 2
   scale_row "${m%% *}" "${m#* }" "$nimbus" render "$out/scenes/scale.toml" ${m#* } -o "$out/scale_img"
 done
 rm -f "$out/scale.vol"
+
+# 7. Photon mapping with final gathering on the Table 1 scenes: the converged ring, then GSPP
+# gathered samples (ms per sample: wall time of the dispatches, synchronised), and the viewer's
+# live frame with the sun turning (every frame traces and upsamples a generation and gathers one
+# sample; the mean over the frames, the first included).
+for s in altostratus cumulus_congestus wide_cloud; do
+  scene=$(sized "scenes/bench/$s.toml" "$GW" "$GH")
+  "$nimbus" render "$scene" --method pm --spp "$GSPP" --timings -q -o "$out/pmg_$s" > "$out/pmg_$s.txt"
+  ms=$(grep -m1 "gathering .* ms per spp" "$out/pmg_$s.txt" | awk '{ print $2 }')
+  row pm_gather_ms_per_spp "$s" "${GW}x${GH} k=1 spp=$GSPP" "$ms" ms
+  ms=$(grep -m1 "ring + upsampling" "$out/pmg_$s.txt" | awk '{ print $4 }')
+  row pm_gather_ring_ms "$s" "${GW}x${GH} whole ring" "$ms" ms
+  line=$("$nimbus" view "$scene" --headless --method pm --size "${GW}x${GH}" --frames 8 --play-sun | tail -1)
+  ms=$(echo "$line" | sed -E 's/.* ([0-9.]+) ms per frame.*/\1/')
+  row pm_live_frame_ms "$s" "${GW}x${GH} pm sun turning 8 frames" "$ms" ms
+done
+
+# 8. Error against time on this GPU (the users' table for choosing an estimator): every GPU
+# estimator on one scene against a GPU path-traced reference.
+cmp_scene=$(sized scenes/bench/cumulus_congestus.toml "$CW" "$CH")
+# shellcheck disable=SC2086
+"$nimbus" compare "$cmp_scene" --methods pt-gpu,pm,pm-march,rpnn --backend wgpu --ref-device gpu \
+  $CMP_BUDGETS $CMP_REF --ref-noise 0.01 --no-cache --out "$out/compare" > "$out/compare.log" 2>&1
+# report.csv (quoted fields: the device's name holds commas) → the first budget at ≤ 5 % and
+# the largest budget's speed-up, per method.
+"$py" - "$out/compare/report.csv" "${CW}x${CH}" >> "$csv" <<'PY'
+import csv, sys
+rows = list(csv.DictReader(open(sys.argv[1])))
+for m in dict.fromkeys(r["method"] for r in rows):
+    rs = sorted((r for r in rows if r["method"] == m), key=lambda r: int(r["budget"]))
+    hit = next((r for r in rs if float(r["rel_rmse_4x4"]) <= 0.05), None)
+    if hit:
+        print(f"time_to_5pct_s,cumulus_congestus,{sys.argv[2]} {m} at {hit['budget']} {hit['budget_unit']},{hit['time_s']},s")
+    if rs[-1]["speedup_error"]:
+        print(f"speedup_equal_error,cumulus_congestus,{sys.argv[2]} {m} at {rs[-1]['budget']} {rs[-1]['budget_unit']},{rs[-1]['speedup_error']},x")
+PY
 
 # The Markdown table.
 {

@@ -450,6 +450,14 @@ fn device_benchmark_script_small() {
     assert_eq!(measures.get("train_records_per_s"), Some(&1), "{csv}");
     assert_eq!(measures.get("scale_wall_s"), Some(&5), "{csv}");
     assert_eq!(measures.get("scale_peak_rss"), Some(&5), "{csv}");
+    // Final gathering on the 3 Table 1 scenes: ms per gathered sample, the ring, the live frame.
+    assert_eq!(measures.get("pm_gather_ms_per_spp"), Some(&3), "{csv}");
+    assert_eq!(measures.get("pm_gather_ring_ms"), Some(&3), "{csv}");
+    assert_eq!(measures.get("pm_live_frame_ms"), Some(&3), "{csv}");
+    // Error against time on the GPU: the speed-up of each of the 4 GPU estimators (the small
+    // run's errors stay above 5 %, so no time_to_5pct_s row is expected there).
+    assert_eq!(measures.get("speedup_equal_error"), Some(&4), "{csv}");
+    assert!(d.join("compare/report.md").is_file());
     assert!(
         std::fs::read_to_string(d.join("device.md"))
             .unwrap()
