@@ -30,7 +30,8 @@ use nimbus_scene::{
     Camera, DensityGrid, Scene,
     build::{self, SceneBuilder},
 };
-use nimbus_trace::{RenderOptions, compare, render, tau};
+use nimbus_scene::{compare, tau};
+use nimbus_trace::{RenderOptions, render};
 
 const N: usize = 24;
 

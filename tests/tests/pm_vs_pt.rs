@@ -12,8 +12,9 @@
 
 use std::path::Path;
 
+use nimbus_scene::compare;
 use nimbus_scene::{Image, Scene};
-use nimbus_trace::{RenderOptions, compare, render};
+use nimbus_trace::{RenderOptions, render};
 
 #[test]
 fn photon_mapping_agrees_with_path_tracing_on_cumulus() {

@@ -11,8 +11,9 @@
 
 use std::path::{Path, PathBuf};
 
+use nimbus_scene::compare;
 use nimbus_scene::{Image, Scene};
-use nimbus_trace::{RenderOptions, compare, render};
+use nimbus_trace::{RenderOptions, render};
 
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
@@ -83,7 +84,7 @@ fn optical_depth_matches_the_references() {
         let (w, h) = (scene.camera.width, scene.camera.height);
         let (_, theirs) =
             nimbus_scene::io::npy::read_array(&refs().join(format!("{case}_tau.npy"))).unwrap();
-        let ours = nimbus_trace::tau::optical_depth_image(&scene);
+        let ours = nimbus_scene::tau::optical_depth_image(&scene);
         assert_eq!(ours.len(), w * h);
         let (mut disagree, mut worst) = (0usize, 0.0f64);
         for (a, b) in ours.iter().zip(&theirs) {

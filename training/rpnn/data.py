@@ -1,4 +1,4 @@
-"""Reading ``nimbus datagen`` record sets (layout: crates/rpnn/src/dataset.rs).
+"""Reading ``nimbus datagen`` record sets (layout: crates/rpnn/src/data/dataset.rs).
 
 Shards are memory-mapped (``np.load(mmap_mode="r")``) so a set larger than memory trains without
 being read in full; minibatches gather their rows shard by shard in sorted order. With

@@ -1,12 +1,12 @@
 //! `nimbus datagen` and `nimbus datagen merge`: arguments, checked and handed to
-//! [`nimbus_rpnn::dataset`] and [`nimbus_rpnn::shards`].
+//! [`nimbus_rpnn::data::dataset`] and [`nimbus_rpnn::data::shards`].
 
 use std::path::PathBuf;
 
 use anyhow::{Result, bail};
 use clap::{Args, Subcommand};
-use nimbus_rpnn::datagen::LightSampling;
-use nimbus_rpnn::dataset::{self, Part};
+use nimbus_rpnn::data::datagen::LightSampling;
+use nimbus_rpnn::data::dataset::{self, Part};
 
 use crate::Device;
 
@@ -103,7 +103,7 @@ enum DatagenAction {
 
 pub fn datagen(a: DatagenArgs) -> Result<()> {
     if let Some(DatagenAction::Merge { parts, out, quiet }) = a.action {
-        let m = nimbus_rpnn::shards::merge(&parts, &out)?;
+        let m = nimbus_rpnn::data::shards::merge(&parts, &out)?;
         if !quiet {
             say!(
                 "{} parts, {} shards, {} records ({} files linked, {} copied) -> {}",

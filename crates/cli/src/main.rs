@@ -6,8 +6,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 use glam::DVec3;
+use nimbus_scene::compare;
 use nimbus_scene::{CloudKind, Scene, generate, io};
-use nimbus_trace::{RenderOptions, compare};
+use nimbus_trace::RenderOptions;
 
 /// Prints a line to stdout, ignoring a closed pipe (`nimbus … | head` must not panic).
 macro_rules! say {
@@ -342,8 +343,8 @@ fn run(cli: Cli) -> Result<()> {
             if let Some((img, r)) = reference {
                 // Cloud pixels from the scene's own camera optical depth (τ ≥ 0.1), unless the
                 // reference comes with its `_tau.npy`.
-                let tau = nimbus_trace::tau::optical_depth_image(&s);
-                let mask = Some(nimbus_trace::tau::cloud_mask(&tau));
+                let tau = nimbus_scene::tau::optical_depth_image(&s);
+                let mask = Some(nimbus_scene::tau::cloud_mask(&tau));
                 print_metrics(&exr, &r, img, None, mask)?;
             }
         }

@@ -1,6 +1,6 @@
 //! From runs and a reference to the numbers of a report (Kallweit 2017 §6).
 //!
-//! Over the **cloud pixels** — camera optical depth τ ≥ 0.1 ([`nimbus_trace::tau`]), a mask
+//! Over the **cloud pixels** — camera optical depth τ ≥ 0.1 ([`nimbus_scene::tau`]), a mask
 //! from the geometry, not from brightness (with a sky every pixel is bright) — with luminance =
 //! mean of R, G, B:
 //! - `rmse`: RMSE of luminance (absolute, as Kallweit Table 1); `rel_rmse`: RMSE / mean
@@ -28,7 +28,7 @@
 //!   bound. `pm`'s halves each trace their own photon map (their seeds differ), so its noise
 //!   holds the photon map's as well as the gather's.
 
-use nimbus_trace::compare::compare;
+use nimbus_scene::compare::compare;
 use serde::Serialize;
 
 use crate::method::{Method, Run};
@@ -94,7 +94,7 @@ fn lum(p: [f32; 3]) -> f64 {
 
 /// The cloud mask: camera optical depth τ ≥ 0.1.
 pub fn cloud_mask(reference: &Reference) -> Vec<bool> {
-    nimbus_trace::tau::cloud_mask(&reference.tau)
+    nimbus_scene::tau::cloud_mask(&reference.tau)
 }
 
 pub use crate::blocks::{MIN_BLOCK_PIXELS, block_mean_square, cloud_blocks};

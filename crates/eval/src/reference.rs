@@ -9,7 +9,7 @@
 //! variance underestimates the heavy-tailed noise of a delta sun seen through an HG g = 0.857
 //! lobe (the Mitsuba references in `shared/refs` are made the same way).
 //!
-//! The cloud mask is geometric: camera optical depth τ ≥ 0.1 ([`nimbus_trace::tau`]), stored
+//! The cloud mask is geometric: camera optical depth τ ≥ 0.1 ([`nimbus_scene::tau`]), stored
 //! with the reference.
 //!
 //! ## Cache
@@ -178,8 +178,8 @@ pub fn reference(
         }
     }
     let t0 = Instant::now();
-    let tau = nimbus_trace::tau::optical_depth_image(scene);
-    let mask = nimbus_trace::tau::cloud_mask(&tau);
+    let tau = nimbus_scene::tau::optical_depth_image(scene);
+    let mask = nimbus_scene::tau::cloud_mask(&tau);
     let mut gpt = if use_gpu {
         Some(nimbus_trace::gpu::GpuPathTracer::new(gpu.get()?, scene)?)
     } else {

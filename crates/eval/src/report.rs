@@ -194,7 +194,7 @@ pub fn strip(reference: &Image, best: &[&Run], range: f64) -> Image {
     put(reference, 0, 0, e);
     for (k, r) in best.iter().enumerate() {
         put(&r.image, k + 1, 0, e);
-        let d = nimbus_trace::compare::diff_false_colour(&r.image, reference, None, range);
+        let d = nimbus_scene::compare::diff_false_colour(&r.image, reference, None, range);
         put(&d, k + 1, 1, 1.0);
     }
     out

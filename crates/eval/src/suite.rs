@@ -7,7 +7,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use nimbus_rpnn::dataset::{build_volume, generated_set};
+use nimbus_rpnn::data::dataset::{build_volume, generated_set};
 use nimbus_scene::{Scene, io};
 
 use crate::compare::{CompareOptions, compare_scene};

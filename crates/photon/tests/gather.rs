@@ -224,8 +224,8 @@ fn unbounded_gather_is_the_path_tracer_on_the_refs_scenes() {
                 progress: false,
             },
         );
-        let tau = nimbus_trace::tau::optical_depth_image(&s);
-        let mask = nimbus_trace::tau::cloud_mask(&tau);
+        let tau = nimbus_scene::tau::optical_depth_image(&s);
+        let mask = nimbus_scene::tau::cloud_mask(&tau);
         let (mut a, mut b, mut va, mut vb, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0);
         for (i, &m) in mask.iter().enumerate() {
             if m {

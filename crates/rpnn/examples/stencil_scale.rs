@@ -6,7 +6,7 @@
 //! f32, from `descriptor::descriptor_scaled` (Kallweit 2017 §4.2 with level k's points
 //! S · 0.5 · 2^(k−1) mean free paths apart; S = 1 is the stored records' descriptor).
 use glam::Vec3;
-use nimbus_rpnn::clouds::{CloudSpec, build_volume};
+use nimbus_rpnn::data::clouds::{CloudSpec, build_volume};
 use nimbus_rpnn::descriptor::{DESCRIPTOR_LEN, descriptor_scaled};
 use nimbus_rpnn::pyramid::Pyramid;
 use rayon::prelude::*;

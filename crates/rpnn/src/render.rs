@@ -11,7 +11,7 @@
 //!   uniform on the sphere for a constant sky (weight 4π L_sky / N), importance-sampled from
 //!   the map for an environment map (weight L(ω_j) / (N pdf(ω_j))). The network predicts
 //!   indirect radiance per unit irradiance from one direction (the training data's definition,
-//!   `crate::datagen`), so integrating L_sky(ω) g dω gives the sky's indirect part.
+//!   `crate::data::datagen`), so integrating L_sky(ω) g dω gives the sky's indirect part.
 //!   No sky → no sky directions are queried.
 //!
 //! Rays that leave the volume see the sky and the sun disc. All queries of one sample pass are

@@ -2,8 +2,8 @@
 //! bad clouds.
 
 use glam::DVec3;
-use nimbus_rpnn::datagen::{CloudData, LightSampling};
-use nimbus_rpnn::dataset::{self, DatagenOptions};
+use nimbus_rpnn::data::datagen::{CloudData, LightSampling};
+use nimbus_rpnn::data::dataset::{self, DatagenOptions};
 use nimbus_scene::{Aabb, DensityGrid, Medium, Phase, Volume};
 use nimbus_trace::Pcg32;
 
@@ -210,8 +210,9 @@ fn gpu_estimator_matches_cpu() {
         (g_mean - c_mean).abs() < 4.5 * (g_var + c_var).sqrt(),
         "GPU {g_mean} vs CPU {c_mean}"
     );
-    let est = nimbus_rpnn::datagen::estimate_gpu(&mut gpt, &[(X, VIEW, light())], 1 << 20, 0.02, 3)
-        .unwrap();
+    let est =
+        nimbus_rpnn::data::datagen::estimate_gpu(&mut gpt, &[(X, VIEW, light())], 1 << 20, 0.02, 3)
+            .unwrap();
     assert!(
         est[0].converged && est[0].rel_ci <= 0.02 && (est[0].mean / c_mean - 1.0).abs() < 0.03,
         "{:?}",
@@ -219,7 +220,8 @@ fn gpu_estimator_matches_cpu() {
     );
     // Fixed count on the GPU: exactly the requested samples, not converged by definition.
     let fixed =
-        nimbus_rpnn::datagen::estimate_gpu(&mut gpt, &[(X, VIEW, light())], 5000, 0.0, 4).unwrap();
+        nimbus_rpnn::data::datagen::estimate_gpu(&mut gpt, &[(X, VIEW, light())], 5000, 0.0, 4)
+            .unwrap();
     assert_eq!((fixed[0].samples, fixed[0].converged), (5000, false));
 }
 
@@ -397,8 +399,8 @@ fn small_set() -> Vec<dataset::CloudSpec> {
 
 #[test]
 fn parts_merge_into_the_single_run() {
-    use nimbus_rpnn::dataset::Part;
-    use nimbus_rpnn::shards::merge;
+    use nimbus_rpnn::data::dataset::Part;
+    use nimbus_rpnn::data::shards::merge;
     let set = small_set();
     let o = |part: Option<Part>| DatagenOptions {
         records: 7,
@@ -446,7 +448,7 @@ fn parts_merge_into_the_single_run() {
         std::fs::read(single.join("settings.json")).unwrap(),
         std::fs::read(merged.join("settings.json")).unwrap()
     );
-    fn msg<T: std::fmt::Debug>(r: Result<T, nimbus_rpnn::datagen::DatagenError>) -> String {
+    fn msg<T: std::fmt::Debug>(r: Result<T, nimbus_rpnn::data::datagen::DatagenError>) -> String {
         r.unwrap_err().to_string()
     }
     // A part folder refuses to be resumed as another part.
@@ -671,7 +673,7 @@ fn generated_set_with_chosen_kinds() {
 /// to whole pilots, capped; a zero pilot mean gives one pilot's count.
 #[test]
 fn precise_count_from_the_pilot() {
-    use nimbus_rpnn::datagen::{Estimate, precise_count};
+    use nimbus_rpnn::data::datagen::{Estimate, precise_count};
     // 1 000 samples, mean 1, variance of the mean 0.01: per-sample relative variance 10; for a
     // relative error of 0.05 that is 10 / 0.0025 = 4 000 samples (four pilots).
     let p = |mean: f64, var_mean: f64| Estimate {

@@ -121,7 +121,7 @@ fn shipped_model_against_the_path_tracer() {
             progress: false,
         },
     );
-    let m = nimbus_trace::compare::compare(&rp.image, &pt.image, None);
+    let m = nimbus_scene::compare::compare(&rp.image, &pt.image, None);
     eprintln!(
         "shipped RPNN vs path tracer: rel RMSE {:.3} (4x4 {:.3}), mean ratio {:.3}",
         m.rel_rmse_cloud, m.rel_rmse_cloud_4x4, m.mean_lum_ratio
@@ -139,7 +139,7 @@ fn shipped_model_against_the_path_tracer() {
             progress: false,
         },
     );
-    let m1 = nimbus_trace::compare::compare(&ss.image, &pt.image, None);
+    let m1 = nimbus_scene::compare::compare(&ss.image, &pt.image, None);
     eprintln!(
         "single scattering vs path tracer: mean ratio {:.3}",
         m1.mean_lum_ratio

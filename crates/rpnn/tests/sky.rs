@@ -2,8 +2,8 @@
 //! frame they live in, and their columns in a data set.
 
 use glam::DVec3;
-use nimbus_rpnn::datagen::{CloudData, LightSampling};
-use nimbus_rpnn::dataset::{self, DatagenOptions};
+use nimbus_rpnn::data::datagen::{CloudData, LightSampling};
+use nimbus_rpnn::data::dataset::{self, DatagenOptions};
 use nimbus_rpnn::sky::{self, SH_COEFFS};
 use nimbus_scene::{Aabb, DensityGrid, Medium, Phase, Volume};
 use nimbus_trace::Pcg32;

@@ -23,6 +23,7 @@ pub mod atmosphere;
 pub mod brick;
 pub mod build;
 pub mod camera;
+pub mod compare;
 pub mod downsample;
 pub mod error;
 pub mod frame;
@@ -35,6 +36,7 @@ pub mod medium;
 pub mod memory;
 pub mod phase;
 pub mod scene;
+pub mod tau;
 pub mod volume;
 
 pub use camera::Camera;

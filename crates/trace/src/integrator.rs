@@ -127,7 +127,7 @@ impl<'a> PathTracer<'a> {
     /// [`PathTracer::radiance_after`], also telling how the path left the medium: `escape`
     /// becomes its throughput, direction and scattering count when it escaped (the same path,
     /// the same random numbers). The RPNN training records read it to estimate the sky's
-    /// transfer from the very paths that estimate the sun's (`nimbus_rpnn::datagen`).
+    /// transfer from the very paths that estimate the sun's (`nimbus_rpnn::data::datagen`).
     #[allow(clippy::too_many_arguments)]
     pub fn radiance_after_escape(
         &self,

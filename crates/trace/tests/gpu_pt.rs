@@ -3,8 +3,9 @@
 use std::path::Path;
 
 use nimbus_scene::Scene;
+use nimbus_scene::compare;
 use nimbus_trace::gpu::GpuPathTracer;
-use nimbus_trace::{RenderOptions, compare, render};
+use nimbus_trace::{RenderOptions, render};
 
 /// Same scene, independent estimators: the mean luminance over the cloud agrees within 4.5
 /// combined standard errors, and the 4×4-block error stays at the noise level (GPU f32 vs CPU

@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use nimbus_scene::{Image, Result};
+use crate::{Image, Result};
 
 /// Errors of a test image against a reference.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -24,9 +24,9 @@ pub struct Metrics {
 
 /// Cloud mask from a reference optical-depth array (`<case>_tau.npy`).
 pub fn tau_mask(path: &Path, width: usize, height: usize) -> Result<Vec<bool>> {
-    let (shape, data) = nimbus_scene::io::npy::read_array(path)?;
+    let (shape, data) = crate::io::npy::read_array(path)?;
     if shape != [height, width] {
-        return Err(nimbus_scene::Error::invalid(
+        return Err(crate::Error::invalid(
             path,
             "header.shape",
             format!("expected [{height}, {width}], found {shape:?}"),

@@ -1,4 +1,4 @@
-//! The clouds of a data set: generated (`gen:N`, `gen:N:KIND,…`; see [`crate::dataset`]'s
+//! The clouds of a data set: generated (`gen:N`, `gen:N:KIND,…`; see [`crate::data::dataset`]'s
 //! module docs for the set's rules) or read from a folder, with the split each belongs to, and
 //! the volume each is built into.
 
@@ -8,7 +8,7 @@ use nimbus_scene::{Aabb, CloudKind, DensityGrid, Volume, generate, io};
 use nimbus_trace::rng::mix64;
 use serde::Serialize;
 
-use crate::datagen::DatagenError;
+use crate::data::datagen::DatagenError;
 
 /// The split of generated or folder cloud i (see the module docs).
 fn split_of(i: usize) -> String {

@@ -15,9 +15,9 @@ use std::path::{Path, PathBuf};
 
 use serde_json::Value;
 
-use crate::datagen::DatagenError;
-use crate::dataset::{CloudSpec, Manifest, Part, SPLITS, ShardInfo};
-use crate::shard_files::{lock_out, rows_of, sha256_file, write_text};
+use crate::data::datagen::DatagenError;
+use crate::data::dataset::{CloudSpec, Manifest, Part, SPLITS, ShardInfo};
+use crate::data::shard_files::{lock_out, rows_of, sha256_file, write_text};
 
 /// What [`merge`] assembled.
 #[derive(Debug, Clone, PartialEq)]
@@ -69,13 +69,13 @@ fn read_part(dir: &Path) -> Result<PartDir, DatagenError> {
             .get(name)
             .ok_or_else(|| fail(mp.display(), format!("field `{name}` is missing")))
     };
-    if field("format")? != crate::dataset::FORMAT {
+    if field("format")? != crate::data::dataset::FORMAT {
         return Err(fail(
             mp.display(),
             format!(
                 "field `format` is {}, expected \"{}\"",
                 field("format")?,
-                crate::dataset::FORMAT
+                crate::data::dataset::FORMAT
             ),
         ));
     }

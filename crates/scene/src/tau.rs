@@ -7,7 +7,7 @@
 //! τ ≥ [`CLOUD_TAU`]. Unlike a brightness threshold it does not depend on the lighting: with a
 //! sky every pixel is bright, but only the ones that see the medium are cloud.
 
-use nimbus_scene::Scene;
+use crate::Scene;
 use rayon::prelude::*;
 
 /// Optical depth from which a pixel counts as cloud (as in `shared/refs`).

@@ -1,13 +1,13 @@
-//! The files of a data set on disk (layout in [`crate::dataset`]): `.npy` shards written
+//! The files of a data set on disk (layout in [`crate::data::dataset`]): `.npy` shards written
 //! through a temporary and a rename (float32 or float16), SHA-256 checksums and the per-shard
 //! checksum files that let a resume keep only intact shards, and the advisory lock on the
 //! output folder.
 
 use std::path::{Path, PathBuf};
 
-use crate::datagen::DatagenError;
+use crate::data::datagen::DatagenError;
 
-/// Columns of the `_meta.npy` arrays (`crate::dataset` names them), before any sky transfer.
+/// Columns of the `_meta.npy` arrays (`crate::data::dataset` names them), before any sky transfer.
 pub const META_COLUMNS: usize = 15;
 
 /// Writes `text` to `path` through a temporary beside it and a rename.

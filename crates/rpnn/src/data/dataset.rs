@@ -25,7 +25,7 @@
 //! A run with [`DatagenOptions::part`] = K/N writes only the shards whose global index (train
 //! shards first, then validation, then test) is ≡ K − 1 mod N — byte for byte the files a
 //! single run with the same settings writes for them — into its own folder, resumable on its
-//! own. [`crate::shards::merge`] checks N such folders (same settings, every shard exactly once,
+//! own. [`crate::data::shards::merge`] checks N such folders (same settings, every shard exactly once,
 //! checksums) and assembles the single run's folder.
 //!
 //! ## Labels: converged or fixed-count
@@ -40,7 +40,7 @@
 //! ## The generated cloud set (`gen:N`, `gen:N:KIND,KIND,…`)
 //! Cloud i: kind cycles cumulus, stratus, cirrus, mixture (max of a cumulus and a 0.6-scaled
 //! stratus), or the kinds listed after a second colon (e.g. `gen:150:congestus,stratus,cirrus`,
-//! see [`crate::clouds::generated_set_of`]); x-resolution cycles 48, 64, 80, 96 (with the kind's proportions),
+//! see [`crate::data::clouds::generated_set_of`]); x-resolution cycles 48, 64, 80, 96 (with the kind's proportions),
 //! advancing once per cycle of kinds; density scale
 //! lo × (hi/lo)^u with u from the seed (default 10 × 2^(3u), 10…80); every fifth cloud
 //! (i mod 5 = 4) is a test cloud and every tenth (i mod 10 = 2) a validation cloud; neither
@@ -56,16 +56,16 @@ use nimbus_trace::rng::mix64;
 use rayon::prelude::*;
 use serde::Serialize;
 
-pub use crate::clouds::{
+pub use crate::data::clouds::{
     CloudSource, CloudSpec, DEFAULT_KINDS, build_volume, folder_set, generated_set,
     generated_set_in, generated_set_of,
 };
-use crate::datagen::{CloudData, DatagenError, LightSampling, Record};
-use crate::descriptor::DESCRIPTOR_LEN;
-pub use crate::shard_files::META_COLUMNS;
-use crate::shard_files::{
+use crate::data::datagen::{CloudData, DatagenError, LightSampling, Record};
+pub use crate::data::shard_files::META_COLUMNS;
+use crate::data::shard_files::{
     lock_out, sha256_file, verify_shard, write_npy, write_npy_f16, write_sidecar, write_text,
 };
+use crate::descriptor::DESCRIPTOR_LEN;
 
 /// The splits of a data set, in the order they are written.
 pub const SPLITS: [&str; 3] = ["train", "val", "test"];
@@ -133,7 +133,7 @@ pub struct DatagenOptions {
     pub eval_samples: u64,
     /// Validation and test labels in two stages when > 0: a pilot of `eval_samples` samples
     /// sets how many fresh samples give this relative standard error (capped at
-    /// `max_samples`); the label is their mean ([`crate::datagen::precise_count`]).
+    /// `max_samples`); the label is their mean ([`crate::data::datagen::precise_count`]).
     #[serde(skip_serializing_if = "is_zero", default)]
     pub eval_noise: f64,
     /// How the light direction of a record is drawn.
@@ -480,19 +480,19 @@ fn check_settings(
 }
 
 /// The second stage of precise labels on the GPU: configurations grouped by their fresh
-/// sample count ([`crate::datagen::precise_count`] of their pilot), each group estimated with
+/// sample count ([`crate::data::datagen::precise_count`] of their pilot), each group estimated with
 /// its own random streams (independent of the pilot's).
 fn precise_gpu(
     gpt: &mut nimbus_trace::gpu::GpuPathTracer,
     cfgs: &[(glam::DVec3, glam::DVec3, glam::DVec3)],
-    pilots: &[crate::datagen::Estimate],
+    pilots: &[crate::data::datagen::Estimate],
     rel: f64,
     max_samples: u64,
     seed: u64,
-) -> Result<Vec<crate::datagen::Estimate>, nimbus_trace::gpu::GpuPtError> {
+) -> Result<Vec<crate::data::datagen::Estimate>, nimbus_trace::gpu::GpuPtError> {
     let counts: Vec<u64> = pilots
         .iter()
-        .map(|p| crate::datagen::precise_count(p, rel, max_samples))
+        .map(|p| crate::data::datagen::precise_count(p, rel, max_samples))
         .collect();
     let mut out = pilots.to_vec();
     let mut distinct = counts.clone();
@@ -501,7 +501,7 @@ fn precise_gpu(
     for n in distinct {
         let idx: Vec<usize> = (0..cfgs.len()).filter(|&i| counts[i] == n).collect();
         let group: Vec<_> = idx.iter().map(|&i| cfgs[i]).collect();
-        let est = crate::datagen::estimate_gpu(gpt, &group, n, 0.0, mix64(seed ^ mix64(n)))?;
+        let est = crate::data::datagen::estimate_gpu(gpt, &group, n, 0.0, mix64(seed ^ mix64(n)))?;
         for (&i, mut e) in idx.iter().zip(est) {
             e.converged = e.rel_noise() <= rel;
             out[i] = e;
@@ -588,7 +588,7 @@ pub fn run(
             "cannot create the folder: a file of that name is in the way".into(),
         ));
     }
-    if let Err(e) = crate::shard_files::check_disk(
+    if let Err(e) = crate::data::shard_files::check_disk(
         out,
         all.div_ceil(part.count as u128),
         &what,
@@ -761,7 +761,7 @@ pub fn run(
                         let mut gpt = nimbus_trace::gpu::GpuPathTracer::new(gpu, &cloud.scene)
                             .map_err(|e| err(e.to_string()))?;
                         let seed = mix64(opts.seed ^ (k as u64) ^ ((ci as u64) << 32));
-                        let mut est = crate::datagen::estimate_gpu(
+                        let mut est = crate::data::datagen::estimate_gpu(
                             &mut gpt,
                             &cfgs,
                             cap,

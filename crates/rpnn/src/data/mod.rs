@@ -1,0 +1,17 @@
+//! The training-data pipeline (Kallweit 2017 §5.1): everything that makes records for the
+//! bundled PyTorch script, none of it needed to render.
+//!
+//! - [`clouds`]: the clouds of a set (generated `gen:N`, or a folder) with their splits;
+//! - [`datagen`]: one record — a shading configuration, its descriptor and the indirect
+//!   radiance L_i path-traced to a stated confidence (the sun's, and with `--sky-transfer` the
+//!   sky's spherical-harmonic transfer from the same paths);
+//! - [`dataset`]: a set on disk — sharded `.npy` records, the manifest, deterministic resume;
+//! - [`shards`]: sets assembled from parts written on several machines (`datagen --part`,
+//!   `datagen --merge`);
+//! - `shard_files`: the file-level helpers the two share (locks, row counts, SHA-256 sidecars).
+
+pub mod clouds;
+pub mod datagen;
+pub mod dataset;
+mod shard_files;
+pub mod shards;
