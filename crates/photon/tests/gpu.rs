@@ -771,3 +771,83 @@ fn tracing_and_ring_update_match_cpu() {
     );
     println!("trace twin: worst class L1 {worst:.2e}, {identical}/{compared} words 0–10 identical");
 }
+
+/// The buffer plan is what is allocated (`mapper/plan.rs`): for the default variant, the
+/// paper's, flux lobes split by order, an amortised sun rebuild, skipped empty cells, and light
+/// volumes coarser than the grid (the ray marcher's own dense density), every buffer the mapper
+/// holds after a render (the image, or the gathering's sums) has the size the memory checks sum.
+#[test]
+fn the_buffer_plan_is_what_is_allocated() {
+    use nimbus_photon::mapper::Buf;
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu::the_buffer_plan_is_what_is_allocated") else {
+        return;
+    };
+    let s = small_cloud();
+    let base = PmSettings {
+        beams_per_frame: 256,
+        ring: 2,
+        ..Default::default()
+    };
+    let configs = [
+        base.clone(),
+        PmSettings {
+            variant: PmVariant::Elek2012,
+            ..base.clone()
+        },
+        PmSettings {
+            lobe_axis: Some(nimbus_photon::LobeAxis::Flux),
+            lobe_split: Some(2),
+            view_dependent: Some(false),
+            sun_chunks: 3,
+            ..base.clone()
+        },
+        PmSettings {
+            skip_empty: Some(true),
+            light_res: Some([12, 9, 12]),
+            ..base.clone()
+        },
+    ];
+    let gather = nimbus_photon::GatherSettings {
+        ring: 2,
+        beams: 256,
+        ..Default::default()
+    };
+    for (k, settings) in configs.into_iter().enumerate() {
+        let mut pm = PhotonMapper::new(&gpu, &s, settings).unwrap();
+        if k % 2 == 0 {
+            pm.render(&s.camera).unwrap();
+        } else {
+            pm.converge().unwrap();
+            pm.upsample();
+            let mut g = gather;
+            g.bounces = 0;
+            pm.gather(&s.camera, &g, 1).unwrap();
+        }
+        let plan = *pm.plan();
+        let mut seen = 0;
+        for (b, bytes) in plan.entries() {
+            let Some(buf) = pm.buffer(b) else {
+                // Only the ray marcher's bricks and an unamortised sun rebuild have none.
+                assert!(
+                    b == Buf::March || (b == Buf::SunTBack && bytes == 0),
+                    "config {k}: {b:?} planned {bytes} bytes but not allocated"
+                );
+                continue;
+            };
+            assert_eq!(
+                buf.size(),
+                bytes.max(4).next_multiple_of(4),
+                "config {k}: {b:?}"
+            );
+            seen += 1;
+        }
+        // Every buffer but the bricks' and the unamortised back buffer is there.
+        assert!(seen >= 16, "config {k}: only {seen} buffers");
+        if k == 2 {
+            assert!(plan.bytes(Buf::SunTBack) > 0 && plan.bytes(Buf::JHigh) > 16);
+        }
+        if k == 3 {
+            assert!(pm.buffer(Buf::March).is_some() && plan.bytes(Buf::CellSkip) > 4);
+        }
+    }
+}

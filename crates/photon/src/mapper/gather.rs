@@ -402,6 +402,13 @@ impl PhotonMapper<'_> {
     }
 }
 
+impl GatherState {
+    /// The running sums (the planned [`super::plan::Buf::Image`]).
+    pub(super) fn sums(&self) -> &wgpu::Buffer {
+        &self.acc
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -341,10 +341,7 @@ pub fn skippable_cells(map: &LightMap, i_res: [u32; 3]) -> Vec<u32> {
 impl PhotonMapper<'_> {
     /// The uniform block of the ray marcher: the work parameters with the grid's resolution.
     pub fn march_params(&self) -> VolumeParams {
-        VolumeParams {
-            d_res: self.fine_res,
-            ..self.params
-        }
+        super::params::march(&self.params, self.fine_res)
     }
 
     /// Whether the light volumes are coarser than the density grid.

@@ -1,6 +1,8 @@
 //! The GPU pipeline of temporally-coherent photon mapping (Elek 2012 §3.2): per frame, trace n_g
 //! beams into H_new, update the ring I = I − H_old + H_new; per image, upsample I → J and ray
-//! march. Compute pipelines are data: one entry per stage, each with its shader and bindings.
+//! march. Compute pipelines are data: one entry per stage, each with its shader, bindings and
+//! CPU twin (`stages.rs`); every buffer is allocated at the size of one plan that the memory
+//! checks sum (`plan.rs`).
 
 use std::f64::consts::PI;
 
@@ -14,9 +16,11 @@ use nimbus_gpu::params::VolumeParams;
 mod changes;
 mod gather;
 pub mod light;
-mod memory;
+mod params;
+mod plan;
 mod raymarch;
 mod readback;
+pub mod stages;
 mod sun;
 mod view;
 
@@ -24,8 +28,7 @@ pub use gather::{
     DEFAULT_GATHER_BEAMS, DEFAULT_GATHER_BOUNCES, DEFAULT_GATHER_RING, DEFAULT_GATHER_SPREAD,
     GATHER_MAX_EXTRA, GATHER_MIN_FILL, GatherParams, GatherSettings, SunShadow, Terminal,
 };
-pub use memory::buffer_bytes;
-use memory::check_host_memory;
+pub use plan::{Buf, BufferPlan};
 
 pub use crate::cache_layout::{
     CELL_BYTES, CELL_WORDS, SHARED_CELLS, W_SCALE, shared_cells, trace_constants, trace_source,
@@ -104,6 +107,8 @@ pub struct PhotonMapper<'g> {
     sun_stage: Stage,
     /// The amortised rebuild's state (see `mapper/sun.rs`).
     sun: sun::SunRebuild,
+    cell_vals: wgpu::Buffer,
+    cell_aux: wgpu::Buffer,
     cell_dir: wgpu::Buffer,
     j_dir: wgpu::Buffer,
     j_hi: wgpu::Buffer,
@@ -128,6 +133,8 @@ pub struct PhotonMapper<'g> {
     march_density: light::MarchDensity,
     /// The final gathering's pipeline and running sums (`mapper/gather.rs`), made on first use.
     gather: Option<gather::GatherState>,
+    /// Every buffer's planned size (`mapper/plan.rs`).
+    plan: BufferPlan,
 }
 
 fn f3(v: DVec3) -> [f32; 3] {
@@ -227,8 +234,6 @@ impl<'g> PhotonMapper<'g> {
         let (march_plan, march_bytes) = light::march_plan(gpu, vol.grid(), light_res);
         let aabb = vol.aabb();
         let d_max = map.max() as f64;
-        let sigma_max = (vol.density_scale() * d_max).max(1e-30);
-        let centre = aabb.center();
         let radius = 0.5 * aabb.extent().length();
         let cell = aabb.extent() / DVec3::new(i_res[0] as f64, i_res[1] as f64, i_res[2] as f64);
         // Beam budget split by incident power (per unit area of the bounding sphere).
@@ -248,113 +253,26 @@ impl<'g> PhotonMapper<'g> {
         };
         let shared_cap = shared_cells(gpu.limits.max_compute_workgroup_storage_size);
         let use_shared = !settings.force_global_atomics && cells <= shared_cap;
-        let (forward, right, up, tan_half) = scene.camera.basis();
-        let sun = scene.sun.as_ref();
-        let params = VolumeParams {
-            aabb_min: f3(aabb.min),
-            density_scale: vol.density_scale() as f32,
-            aabb_max: f3(aabb.max),
-            albedo: scene.medium.albedo as f32,
-            d_res: d_res.map(|v| v as u32),
-            g: g as f32,
-            i_res,
-            sigma_max: sigma_max as f32,
-            sun_dir: f3(sun.map_or(DVec3::Y, |s| s.dir)),
-            sun_cos_max: sun.map_or(1.0, |s| s.angular_radius.cos() as f32),
-            sun_irradiance: f3(sun.map_or(DVec3::ZERO, |s| s.irradiance)),
-            bound_radius: radius as f32,
-            sky_radiance: match &scene.sky {
-                Some(Sky::Constant(c)) => f3(*c),
-                _ => [0.0; 3],
-            },
-            d_max: d_max.max(1e-30) as f32,
-            bound_center: f3(centre),
-            sun_disc_radiance: sun.filter(|s| !s.is_delta()).map_or(0.0, |s| {
-                (1.0 / (PI * s.angular_radius.sin().powi(2))) as f32
-            }),
-            cam_origin: f3(scene.camera.origin),
-            tan_half: tan_half as f32,
-            cam_forward: f3(forward),
-            aspect: (scene.camera.width as f64 / scene.camera.height as f64) as f32,
-            cam_right: f3(right),
-            step: (aabb.extent().length() * settings.step_fraction) as f32,
-            cam_up: f3(up),
-            early_exit: settings.early_exit,
-            n_sun: 0,
-            n_sky: 0,
-            seed: settings.seed,
-            frame: 0,
-            similarity_order: similarity_order(g, settings.similarity_t),
-            max_order: settings.max_order,
-            use_shared: use_shared as u32,
-            filtered: (i_res != d_res.map(|v| v as u32)) as u32,
-            width: scene.camera.width as u32,
-            height: scene.camera.height as u32,
-            beam_threshold: settings.beam_threshold,
-            reduced_factor: if settings
-                .similarity_linear
-                .unwrap_or(settings.variant == PmVariant::Exact)
-            {
-                (1.0 - g).max(0.0) as f32
-            } else {
-                (1.0 - g).max(0.0).sqrt() as f32
-            },
-            sun_norm: 0.0,
-            sky_norm: 0.0,
-            noise_amplitude: {
-                let voxel = vol.cell_size().min_element();
-                (settings.detail_noise as f64 * voxel) as f32
-            },
-            noise_frequency: (1.0 / (4.0 * vol.cell_size().min_element())) as f32,
-            single_scatter: (settings.variant == PmVariant::Exact) as u32,
-            density_weighted: settings.density_weighted.unwrap_or(false) as u32,
-            lobe_axis: (settings.effective_lobe_axis() == LobeAxis::Flux) as u32,
-            lobe_split: if settings.effective_lobe_axis() == LobeAxis::Flux {
-                settings.effective_lobe_split()
-            } else {
-                0
-            },
-            upsample_mean: settings.upsample_mean as u32,
-            upsample_g_extrapolate: settings.upsample_g_extrapolate as u32,
-            sun_first: 0,
-            sun_count: 0,
-            view_origin: f3(scene.camera.origin),
-            view_mode: settings.effective_view() as u32,
-            light_res,
-            near_radius: light::near_radius(fine_res, light_res),
-            skip_empty: settings
-                .skip_empty
-                .unwrap_or(light_res != fine_res || !map.is_full()) as u32,
-            light_voxels: map.light_voxels(),
-            view_g: settings.view_g.map_or(0.0, |v| v as f32),
-            _pad_skip2: 0,
-        };
-        gpu.check_storage(
-            "the photon-cache ring",
-            settings.ring as u64 * cells as u64 * CELL_BYTES as u64,
-        )?;
-        gpu.check_storage(
-            "the image",
-            scene.camera.width as u64 * scene.camera.height as u64 * 16,
-        )?;
-        check_host_memory(
-            gpu,
+        let params = params::volume_params(
+            scene,
             &settings,
-            &params,
-            voxels,
-            cells,
-            &scene.camera,
-            march_bytes + 4 * map.words() as u64,
-        )?;
-        let march_density = light::march_density(gpu, vol.grid(), march_plan)?;
-        let params_buf = gpu.uniform("pm params", &params);
-        let march_buf = gpu.uniform(
-            "pm ray-marcher params",
-            &VolumeParams {
-                d_res: fine_res,
-                ..params
+            g,
+            &params::Layout {
+                d_res: d_res.map(|v| v as u32),
+                i_res,
+                light_res,
+                fine_res,
+                d_max,
+                use_shared,
+                light_full: map.is_full(),
+                light_voxels: map.light_voxels(),
             },
         );
+        let plan = BufferPlan::new(&settings, &params, voxels, map.words() as u64, march_bytes);
+        plan.check(gpu, &settings, voxels)?;
+        let march_density = light::march_density(gpu, vol.grid(), march_plan)?;
+        let params_buf = gpu.uniform("pm params", &params);
+        let march_buf = gpu.uniform("pm ray-marcher params", &params::march(&params, fine_res));
         let density = gpu.storage("density D (light bricks)", &map.density);
         let light_map = gpu.storage("light bricks", &map.gpu_words());
         let cell_skip = if params.skip_empty != 0 {
@@ -368,148 +286,87 @@ impl<'g> PhotonMapper<'g> {
         let cache_fill = light::cache_fill(&map, i_res);
         let cell_fill = gpu.storage("cache cell fills", &light::cell_fills(&map, i_res));
         map.drop_values();
-        let cell_bytes = cells as u64 * CELL_BYTES as u64;
-        let h_new = gpu.zeroed("H_new", cell_bytes);
-        let ring = gpu.zeroed("ring H_0..H_m-1", settings.ring as u64 * cell_bytes);
-        let total = gpu.zeroed("I", cell_bytes);
-        let overflow = gpu.zeroed("cache overflow flag", 16);
-        let j = gpu.zeroed("J", voxels as u64 * 16);
+        let h_new = gpu.zeroed("H_new", plan.bytes(Buf::HNew));
+        let ring = gpu.zeroed("ring H_0..H_m-1", plan.bytes(Buf::Ring));
+        let total = gpu.zeroed("I", plan.bytes(Buf::Total));
+        let overflow = gpu.zeroed("cache overflow flag", plan.bytes(Buf::Overflow));
+        let j = gpu.zeroed("J", plan.bytes(Buf::J));
         // Bound by the ray marcher in both variants (4 bytes when unused).
-        let t_sun = gpu.zeroed(
-            "sun transmittance",
-            if settings.variant == PmVariant::Exact {
-                gpu.check_storage("the sun-transmittance volume", voxels as u64 * 4)?;
-                voxels as u64 * 4
-            } else {
-                4
-            },
-        );
+        let t_sun = gpu.zeroed("sun transmittance", plan.bytes(Buf::SunT));
+        let cell_vals = gpu.zeroed("cache cells", plan.bytes(Buf::CellVals));
+        let cell_aux = gpu.zeroed("cache cell aux", plan.bytes(Buf::CellAux));
+        let cell_dir = gpu.zeroed("cache cell flux directions", plan.bytes(Buf::CellDir));
+        // Bound by the upsampling and the ray marcher in both variants (16 bytes when unused).
+        let j_dir = gpu.zeroed("J flux directions", plan.bytes(Buf::JDir));
+        let j_hi = gpu.zeroed("J high-order flux directions", plan.bytes(Buf::JHigh));
+        let slot_buf = gpu.uniform("ring slot", &[0u32; 4]);
         // The light volumes' layout, compiled into every stage that reads them.
         let sparse = ("LIGHT_SPARSE", if map.is_full() { 0.0 } else { 1.0 });
-        let sun_p = gpu.pipeline_with_constants(
-            "sun transmittance",
-            &shaders::source("photon_sun.wgsl"),
-            "sun_transmittance",
-            &[sparse],
-        );
+        // Workgroup memory sized to the cache (one cell when unused): more workgroups resident.
+        let shared = trace_constants(if use_shared { cells.max(1) } else { 1 })[0];
+        // The stage table (`mapper/stages.rs`), each binding resolved to its buffer.
+        let buffer = |b: stages::Binding| -> &wgpu::Buffer {
+            match b {
+                stages::Binding::Params => &params_buf,
+                stages::Binding::Slot => &slot_buf,
+                stages::Binding::Buf(b) => match b {
+                    Buf::Density => &density,
+                    Buf::LightIndex => &light_map,
+                    Buf::J => &j,
+                    Buf::JDir => &j_dir,
+                    Buf::JHigh => &j_hi,
+                    Buf::SunT => &t_sun,
+                    Buf::HNew => &h_new,
+                    Buf::Ring => &ring,
+                    Buf::Total => &total,
+                    Buf::CellVals => &cell_vals,
+                    Buf::CellAux => &cell_aux,
+                    Buf::CellDir => &cell_dir,
+                    Buf::CellSkip => &cell_skip,
+                    Buf::CellFill => &cell_fill,
+                    Buf::Overflow => &overflow,
+                    // Bound only by the image stages and the amortised sun rebuild.
+                    Buf::March | Buf::SunTBack | Buf::Image => {
+                        unreachable!("{b:?} is in no row of the stage table")
+                    }
+                },
+            }
+        };
+        let stage = |id: stages::StageId| -> Stage {
+            let spec = stages::spec(id);
+            let mut constants = Vec::new();
+            if spec.sparse {
+                constants.push(sparse);
+            }
+            if id == stages::StageId::Trace {
+                constants.push(shared);
+            }
+            let pipeline = gpu.pipeline_with_constants(
+                spec.label,
+                &shaders::source(spec.shader),
+                spec.entry,
+                &constants,
+            );
+            let bindings: Vec<(u32, &wgpu::Buffer)> =
+                spec.bindings.iter().map(|&(i, b)| (i, buffer(b))).collect();
+            Stage {
+                bind: gpu.bind(&pipeline, &bindings),
+                pipeline,
+            }
+        };
+        let sun_stage = stage(stages::StageId::Sun);
         let sun = sun::SunRebuild::new(
             gpu,
             &settings,
-            &sun_p,
+            &sun_stage.pipeline,
             [&params_buf, &density, &light_map],
             voxels,
+            plan.bytes(Buf::SunTBack),
         );
-        let sun_stage = Stage {
-            bind: gpu.bind(
-                &sun_p,
-                &[
-                    (0, &params_buf),
-                    (1, &density),
-                    (2, &t_sun),
-                    (3, &light_map),
-                ],
-            ),
-            pipeline: sun_p,
-        };
-        let slot_buf = gpu.uniform("ring slot", &[0u32; 4]);
-        // Workgroup memory sized to the cache (one cell when unused): more workgroups resident.
-        let trace_p = gpu.pipeline_with_constants(
-            "photon trace",
-            &trace_source(),
-            "trace",
-            &[
-                trace_constants(if use_shared { cells.max(1) } else { 1 })[0],
-                sparse,
-            ],
-        );
-        let trace = Stage {
-            bind: gpu.bind(
-                &trace_p,
-                &[
-                    (0, &params_buf),
-                    (1, &density),
-                    (2, &h_new),
-                    (3, &overflow),
-                    (4, &cell_skip),
-                    (5, &light_map),
-                ],
-            ),
-            pipeline: trace_p,
-        };
-        let update_p = gpu.pipeline(
-            "photon update",
-            &shaders::source("photon_update.wgsl"),
-            "update",
-        );
-        let update = Stage {
-            bind: gpu.bind(
-                &update_p,
-                &[
-                    (2, &h_new),
-                    (3, &ring),
-                    (4, &total),
-                    (5, &slot_buf),
-                    (6, &overflow),
-                ],
-            ),
-            pipeline: update_p,
-        };
-        let up_src = shaders::source("photon_upsample.wgsl");
-        let cell_vals = gpu.zeroed("cache cells", cells as u64 * 16);
-        let cell_aux = gpu.zeroed("cache cell aux", cells as u64 * 16);
-        let cell_dir = gpu.zeroed("cache cell flux directions", cells as u64 * 32);
-        // Bound by the upsampling and the ray marcher in both variants (16 bytes when unused).
-        let (j_dir, j_hi) = if params.lobe_axis != 0 {
-            gpu.check_storage("the upsampled flux directions", voxels as u64 * 16)?;
-            (
-                gpu.zeroed("J flux directions", voxels as u64 * 16),
-                if params.lobe_split != 0 {
-                    gpu.zeroed("J high-order flux directions", voxels as u64 * 16)
-                } else {
-                    gpu.zeroed("J high-order flux directions (unused)", 16)
-                },
-            )
-        } else {
-            (
-                gpu.zeroed("J flux directions (unused)", 16),
-                gpu.zeroed("J high-order flux directions (unused)", 16),
-            )
-        };
-        let cells_p =
-            gpu.pipeline_with_constants("photon cache cells", &up_src, "cells", &[sparse]);
-        let cells_stage = Stage {
-            bind: gpu.bind(
-                &cells_p,
-                &[
-                    (0, &params_buf),
-                    (1, &density),
-                    (2, &total),
-                    (4, &cell_vals),
-                    (5, &cell_aux),
-                    (6, &cell_dir),
-                    (9, &light_map),
-                ],
-            ),
-            pipeline: cells_p,
-        };
-        let up_p = gpu.pipeline_with_constants("photon upsample", &up_src, "upsample", &[sparse]);
-        let upsample = Stage {
-            bind: gpu.bind(
-                &up_p,
-                &[
-                    (0, &params_buf),
-                    (1, &density),
-                    (3, &j),
-                    (4, &cell_vals),
-                    (5, &cell_aux),
-                    (6, &cell_dir),
-                    (7, &j_dir),
-                    (8, &j_hi),
-                    (9, &light_map),
-                ],
-            ),
-            pipeline: up_p,
-        };
+        let trace = stage(stages::StageId::Trace);
+        let update = stage(stages::StageId::Update);
+        let cells_stage = stage(stages::StageId::Cells);
+        let upsample = stage(stages::StageId::Upsample);
         let raymarch_pipeline = gpu.pipeline_with_constants(
             "photon raymarch",
             &shaders::source(march_density.stage()),
@@ -556,6 +413,8 @@ impl<'g> PhotonMapper<'g> {
             t_sun,
             sun_stage,
             sun,
+            cell_vals,
+            cell_aux,
             cell_dir,
             j_dir,
             j_hi,
@@ -568,6 +427,7 @@ impl<'g> PhotonMapper<'g> {
             march_buf,
             march_density,
             gather: None,
+            plan,
             slot_view: vec![None; settings.ring as usize],
             j_view: None,
             settings,

@@ -26,17 +26,25 @@ pub(super) struct SunRebuild {
     back: Option<(wgpu::Buffer, wgpu::BindGroup)>,
 }
 
+/// The frames one sun-transmittance rebuild is spread over (1: at once).
+pub(super) fn amortised_chunks(settings: &PmSettings, voxels: u32) -> u32 {
+    settings.sun_chunks.clamp(1, voxels.max(1))
+}
+
 impl SunRebuild {
+    /// `back_bytes`: the planned back buffer ([`super::plan::Buf::SunTBack`]; 0 when the
+    /// rebuild is not amortised).
     pub fn new(
         gpu: &Gpu,
         settings: &PmSettings,
         pipeline: &wgpu::ComputePipeline,
         [params, density, light_map]: [&wgpu::Buffer; 3],
         voxels: u32,
+        back_bytes: u64,
     ) -> Self {
-        let chunks = settings.sun_chunks.clamp(1, voxels.max(1));
-        let back = (chunks > 1 && settings.variant == PmVariant::Exact).then(|| {
-            let b = gpu.zeroed("sun transmittance (back)", voxels as u64 * 4);
+        let chunks = amortised_chunks(settings, voxels);
+        let back = (back_bytes > 0).then(|| {
+            let b = gpu.zeroed("sun transmittance (back)", back_bytes);
             let bind = gpu.bind(
                 pipeline,
                 &[(0, params), (1, density), (2, &b), (3, light_map)],
@@ -50,6 +58,11 @@ impl SunRebuild {
             chunks: if back.is_some() { chunks } else { 1 },
             back,
         }
+    }
+
+    /// The back buffer of an amortised rebuild.
+    pub(super) fn back_buffer(&self) -> Option<&wgpu::Buffer> {
+        self.back.as_ref().map(|(b, _)| b)
     }
 
     /// Whether a rebuild is in progress (the volume the ray marcher reads is a few frames old).
