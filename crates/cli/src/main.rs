@@ -83,7 +83,7 @@ enum Command {
         /// Random seed (default: the scene's `render.seed`).
         #[arg(long)]
         seed: Option<u64>,
-        /// Output path; `.exr` and `.png` are written side by side (default: out/<scene>.exr).
+        /// Output path; `.exr` and `.png` are written side by side (default: `out/<scene>.exr`).
         #[arg(long, short)]
         out: Option<PathBuf>,
         /// PNG exposure (default: the 99th-percentile luminance maps to 0.9).
@@ -177,7 +177,7 @@ enum Command {
         /// σ_t per unit grid value, for the optical depths.
         #[arg(long, default_value_t = 1.0)]
         density_scale: f64,
-        /// World box min corner X,Y,Z (default: the file's header box, or [0,1]³).
+        /// World box min corner X,Y,Z (default: the file's header box, or `[0,1]³`).
         #[arg(long, value_delimiter = ',')]
         aabb_min: Option<Vec<f64>>,
         #[arg(long, value_delimiter = ',')]
@@ -199,7 +199,7 @@ enum Command {
         out: PathBuf,
         #[command(flatten)]
         eval: EvalArgs,
-        /// Optical-depth mask (.npy, cloud = τ ≥ 0.1); default: <reference>_tau.npy if present.
+        /// Optical-depth mask (.npy, cloud = τ ≥ 0.1); default: `<reference>_tau.npy` if present.
         #[arg(long)]
         mask: Option<PathBuf>,
         /// Write the panels reference | test | relative difference (false colour) as PNG.

@@ -3,7 +3,7 @@
 //! Measures the three estimators of Nimbus against each other: "how wrong, for how long?" and
 //! "does it hold up on extreme inputs?".
 //!
-//! - [`compare`]: a cached high-spp path-traced [`reference`], budget sweeps of each
+//! - [`compare`]: a cached high-spp path-traced [`reference`](mod@reference), budget sweeps of each
 //!   [`method`], the [`metrics`] of Kallweit et al. 2017 §6 (relative RMSE, mean ratio, TTUV,
 //!   speed-up, bias of converged images) and the [`report`] files with a log–log [`plot`];
 //! - [`suite`]: the analogue of Kallweit's Table 1 on held-out generated clouds;

@@ -2,7 +2,7 @@
 //! drive it progressively: [`Estimator::accumulate`] adds samples (or photon-map generations)
 //! to the image, [`Estimator::change`] takes a new camera, sun or density and starts the image
 //! again, [`Estimator::image`] reads it. The command line, the evaluation and the viewer all go
-//! through this one dispatch; each estimator is one [`crate::engine`] module.
+//! through this one dispatch; each estimator is one `engine/` module.
 
 use std::path::PathBuf;
 use std::sync::Arc;

@@ -1,7 +1,7 @@
 //! # nimbus-rpnn
 //!
 //! Radiance-predicting neural networks (Kallweit et al. 2017): the Gaussian density pyramid and
-//! the hierarchical stencil descriptor (§4.2) on the CPU ([`descriptor`]) and the GPU
+//! the hierarchical stencil descriptor (§4.2) on the CPU ([`descriptor`](mod@descriptor)) and the GPU
 //! ([`gpu`]); the network ([`model`], [`ort_backend`], [`gpu_mlp`]) and rendering with it
 //! ([`render`], the sky head's basis in [`sky`]); the training-data pipeline — records, sharded
 //! data sets, sets assembled from parts — in [`data`].

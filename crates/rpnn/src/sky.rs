@@ -270,7 +270,7 @@ fn quadrature(n: usize) -> Vec<(DVec3, f64)> {
     out
 }
 
-/// The sky's coefficients (per RGB channel) by the quadrature of [`quadrature`]`(n)`: exact for
+/// The sky's coefficients (per RGB channel) by the quadrature of `quadrature(n)`: exact for
 /// skies of degree < 2`n`; for others its error falls with `n`.
 pub fn project(radiance: impl Fn(DVec3) -> DVec3, n: usize) -> [[f64; 3]; SH_COEFFS] {
     let mut c = [[0.0; 3]; SH_COEFFS];

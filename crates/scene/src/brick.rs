@@ -146,7 +146,7 @@ impl Bricks {
         }
     }
 
-    /// The eight voxels (x[i], y[j], z[k]) in the order i + 2j + 4k, as trilinear interpolation
+    /// The eight voxels `(x[i], y[j], z[k])` in the order i + 2j + 4k, as trilinear interpolation
     /// reads them: one index read when they share a brick (7 of 8 cells of a brick).
     #[inline]
     pub fn corners(&self, x: [usize; 2], y: [usize; 2], z: [usize; 2]) -> [f32; 8] {

@@ -258,7 +258,7 @@ impl DensityGrid {
         }
     }
 
-    /// The eight voxels (x[i], y[j], z[k]) in the order i + 2j + 4k (trilinear interpolation's
+    /// The eight voxels `(x[i], y[j], z[k])` in the order i + 2j + 4k (trilinear interpolation's
     /// corners); each pair is a voxel and itself or its successor (`x[1] - x[0]` ∈ {0, 1}).
     #[inline]
     pub fn corners(&self, x: [usize; 2], y: [usize; 2], z: [usize; 2]) -> [f32; 8] {

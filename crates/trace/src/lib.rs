@@ -4,7 +4,7 @@
 //! high-albedo, strongly forward-scattering media — delta tracking for free flights, ratio
 //! tracking for shadow rays, next-event estimation to the sun and sky with multiple importance
 //! sampling, empty-space skipping through a majorant grid. See [`integrator`] for the estimator,
-//! [`tracking`] for the free-flight machinery and [`render`] for image rendering. The error
+//! [`tracking`] for the free-flight machinery and [`render`](mod@render) for image rendering. The error
 //! metrics against the Mitsuba 3 references and the camera optical depth that masks the cloud
 //! are the image's and the scene's: `nimbus_scene::{compare, tau}`.
 

@@ -109,7 +109,7 @@ pub struct Tracker<'a> {
 }
 
 /// Expected tentative collisions in one majorant segment (σ̄ × length) beyond which tracking is
-/// replaced by a march (see [`Tracker::walk`]). Cloud scenes stay below 10⁶ even at 10⁴× their
+/// replaced by a march (see `Tracker::walk`). Cloud scenes stay below 10⁶ even at 10⁴× their
 /// density (`nimbus stress`); 10⁹ collisions would take seconds per ray.
 pub const MAX_SEGMENT_DEPTH: f64 = 1e9;
 
@@ -185,7 +185,7 @@ impl<'a> Tracker<'a> {
 
     /// Delta tracking along `o + t d`, t in [t0, t1] (inside the volume's box), with σ_t scaled
     /// by `factor`. Returns the distance of the first real collision (a collision where the
-    /// walk cannot advance: see [`Tracker::walk`]), or `None` if the ray leaves the segment.
+    /// walk cannot advance: see `Tracker::walk`), or `None` if the ray leaves the segment.
     #[inline]
     pub fn sample_collision(
         &self,

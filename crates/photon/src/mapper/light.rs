@@ -1,7 +1,7 @@
 //! The light grid: the resolution the photon stages work at and the density each stage reads.
 //!
 //! J (16 bytes per voxel), its flux directions (16) and T_sun (4) live at the light resolution
-//! ([`light_map`]), densely or in pools of the 8³ bricks near density (`crate::light_map`); the
+//! (`light_map`), densely or in pools of the 8³ bricks near density (`crate::light_map`); the
 //! trace, the sun pass and the upsampling read a density at that resolution in the same layout
 //! ("work density": the grid itself, or its block means, `nimbus_scene::downsample`). The ray
 //! marcher reads J and T_sun there and the grid at its own resolution: from the work density when they coincide, else from a dense buffer or — for a

@@ -1,5 +1,5 @@
 //! The photon map's compute stages as data (Elek 2012 §4): each entry names its shader, entry
-//! point, the buffer behind every binding and its CPU twin. [`PhotonMapper::new`] builds each
+//! point, the buffer behind every binding and its CPU twin. `PhotonMapper::new` builds each
 //! pipeline and bind group from its entry, so wiring a stage is one table row, and a unit test
 //! checks every row's bindings against what naga finds the entry point uses (a binding the
 //! shader reads but the row forgets, or one it no longer has, fails without a GPU).

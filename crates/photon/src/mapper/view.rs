@@ -76,8 +76,8 @@ impl PhotonMapper<'_> {
     }
 
     /// Whether view points `a` and `b` may share view-dependent words: identical, or both
-    /// outside the cloud's bounding sphere, within [`VIEW_TOLERANCE_DEG`] of each other seen
-    /// from its centre and within [`VIEW_TOLERANCE_DISTANCE`] in distance to it — the impostor
+    /// outside the cloud's bounding sphere, within `VIEW_TOLERANCE_DEG` of each other seen
+    /// from its centre and within `VIEW_TOLERANCE_DISTANCE` in distance to it — the impostor
     /// criteria's measure. Seen from the cloud's near side a move spans a larger angle than from
     /// its centre (≈ 15° for 5° at 1.5 bounding radii), so close to a cloud the shared words are
     /// less exact.

@@ -2,7 +2,7 @@
 //!
 //! ## Files (readable by numpy/torch without extra dependencies)
 //! For split `train`, `val` or `test` and shard k:
-//! - `{split}_{k:05}_x.npy`: float32 `[n, 2251]` descriptors (layout in [`crate::descriptor`]);
+//! - `{split}_{k:05}_x.npy`: float32 `[n, 2251]` descriptors (layout in [`crate::descriptor`](mod@crate::descriptor));
 //! - `{split}_{k:05}_y.npy`: float32 `[n]` targets L_i (unit irradiance);
 //! - `{split}_{k:05}_meta.npy`: float32 `[n, 15]`: cloud index, x (3), ω (3), ω_l (3), sample
 //!   count, converged (0/1), relative 95 % half-width, variance of the target (label noise),

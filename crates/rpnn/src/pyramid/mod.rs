@@ -14,7 +14,7 @@
 //! **Only the levels a stencil reads are stored.** The finest level any stencil level reads is
 //! [`Pyramid::level_for`]`(1)`; it depends on the voxel size in mean free paths. On a large or
 //! thin cloud it is coarse (a 1200³ cumulus: level 2, 1/64 of the voxels), and the finer levels
-//! are streamed through plane by plane ([`stream`]) without being stored ([`Cells::Absent`]).
+//! are streamed through plane by plane (`stream.rs`) without being stored ([`Cells::Absent`]).
 //! Levels of more than [`SPARSE_LEVEL_ABOVE`] cells are stored as 8³ bricks, absent where
 //! the level is zero ([`Cells::Sparse`]): a sparse cloud in a huge box (a production VDB)
 //! costs what its cloud costs at any level a stencil reads.

@@ -10,7 +10,7 @@
 //!   blobs (a base row and a tower) whose surface is displaced by Perlin–Worley noise and two
 //!   finer octaves of cellular billows (cauliflower tops), eroded at the edges by fine cellular
 //!   detail that is wispy near the flat base and billowy above — the production recipe of
-//!   Schneider & Vos 2015 applied to a shape (see [`cellular`]). `cumulus` keeps the smooth heap
+//!   Schneider & Vos 2015 applied to a shape (see `cellular.rs`). `cumulus` keeps the smooth heap
 //!   that the shipped network's first training set and the bench clouds were generated with
 //!   (the network's last stage adds a set of a third congestus).
 //!

@@ -340,7 +340,7 @@ fn write_file(
 
 /// A `.vol` file written in parts, from several threads: created at its full length (all
 /// holes) with its header; [`SlabFile::write_planes`] writes consecutive z planes at their
-/// offsets, pages of zeros left out (see [`HOLE_VALUES`]).
+/// offsets, pages of zeros left out (see `HOLE_VALUES`).
 #[cfg(unix)]
 pub struct SlabFile {
     file: std::fs::File,
