@@ -64,6 +64,11 @@ pub(crate) struct GatherArgs {
     /// HG(g^(1 + k c)); 1: end point and direction independent).
     #[arg(long, default_value_t = nimbus_photon::mapper::DEFAULT_GATHER_SPREAD, value_parser = unit_closed)]
     pub(crate) gather_spread: f64,
+    /// Photon mapping with final gathering: trace a new generation into the ring after every
+    /// N gathered samples, so the photon map's noise averages out as samples grow (0: the ring
+    /// stays as built, its noise fixed at any sample count).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1_000_000))]
+    pub(crate) ring_refresh: u32,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -85,6 +90,7 @@ impl GatherArgs {
             beams: beams.unwrap_or(DEFAULT_GATHER_BEAMS),
             bounces: self.gather_bounces,
             spread: self.gather_spread,
+            ring_refresh: self.ring_refresh,
             shadow: self.pm_shadow.into(),
             terminal: match self.gather_terminal {
                 TerminalArg::View => nimbus_photon::Terminal::View,

@@ -289,6 +289,8 @@ fn demo_scene_with_every_method() {
                 "4",
                 "--spp",
                 "4",
+                "--ring-refresh",
+                "2",
                 "--timings",
             ],
         ),
@@ -311,6 +313,10 @@ fn demo_scene_with_every_method() {
         args.extend(extra);
         let o = nimbus(&args);
         assert!(o.status.success(), "{name}: {}", text(&o));
+        if name == "pm" {
+            // The ring renewed once in 4 samples, and the summary says so.
+            assert!(text(&o).contains("(a new one every 2 spp)"), "{}", text(&o));
+        }
         let img = nimbus_scene::Image::read_exr(out.with_extension("exr")).unwrap();
         // The top-left corner is sky (0.12, 0.2, 0.38); the central region holds the sunlit
         // cloud, on average brighter than the sky (luminance 0.233).

@@ -116,3 +116,39 @@ fn changes_reach_the_estimator() {
             .all(|p| (0..3).all(|c| (p[c] - sky[c]).abs() < 1e-6))
     );
 }
+
+/// Photon mapping with a renewed ring (`GatherSettings::ring_refresh` = 2): a still scene's
+/// accumulation from a full ring traces a new generation before every second sample after the first two (3 in 8
+/// samples) and keeps averaging (the count goes on); with 0 the ring stays as built.
+#[test]
+fn a_still_photon_map_renews_its_ring_when_asked() {
+    if !nimbus_gpu::testing::has_adapter(
+        "progressive::a_still_photon_map_renews_its_ring_when_asked",
+    ) {
+        return;
+    }
+    let gpu = GpuSlot::new();
+    let s = scene();
+    for (refresh, want) in [(0, 0), (2, 3)] {
+        let opts = Options {
+            pm_gather: nimbus_photon::GatherSettings {
+                ring: 2,
+                beams: 1024,
+                ring_refresh: refresh,
+                ..Default::default()
+            },
+            ..options()
+        };
+        let mut est = prepare(&s, Method::Pm, &opts, &gpu).unwrap();
+        // A render builds the whole ring; the accumulation starts from it.
+        est.render(1, 3).unwrap();
+        est.restart(3).unwrap();
+        let mut renewals = 0;
+        for _ in 0..8 {
+            let step = est.accumulate(1).unwrap();
+            renewals += step.stages.iter().filter(|(n, _)| *n == "renew").count();
+        }
+        assert_eq!(renewals, want, "ring_refresh {refresh}");
+        assert_eq!(est.samples(), 8, "ring_refresh {refresh}");
+    }
+}

@@ -122,6 +122,11 @@ pub struct GatherSettings {
     /// c of [`Terminal::View`]: the share of the k bounces' angular spread the end point's
     /// in-scattering is averaged over, in [0, 1].
     pub spread: f64,
+    /// Gathered samples per new generation of the ring (0: the ring stays as built). With r > 0
+    /// a render traces a new generation into the ring's oldest slot after every r samples, so
+    /// the image averages over the photon map's noise too, which a fixed ring keeps at any
+    /// sample count ([`PhotonMapper::gather_refreshing`]).
+    pub ring_refresh: u32,
 }
 
 /// Default [`GatherSettings::spread`]: measured on the held-out bench clouds under sun light
@@ -173,6 +178,7 @@ impl Default for GatherSettings {
             ring: DEFAULT_GATHER_RING,
             beams: DEFAULT_GATHER_BEAMS,
             spread: DEFAULT_GATHER_SPREAD,
+            ring_refresh: 0,
         }
     }
 }
@@ -215,6 +221,41 @@ impl PhotonMapper<'_> {
     /// Samples per pixel in the gather's running sums.
     pub fn gather_samples(&self) -> u32 {
         self.gather.as_ref().map_or(0, |g| g.samples)
+    }
+
+    /// Adds `samples` samples per pixel like [`Self::gather`], with a new generation traced
+    /// into the ring (and J upsampled again) after every `settings.ring_refresh` of them; 0
+    /// is [`Self::gather`]. The running sums then average over J's of overlapping rings: the
+    /// photon map's noise falls as the generations used grow, m + samples / r of them instead
+    /// of m, while each J stays an estimate of the same light (Elek 2012 §3.2's ring, here
+    /// replaced while the scene stands still). Returns the seconds spent on the ring.
+    pub fn gather_refreshing(
+        &mut self,
+        camera: &Camera,
+        settings: &GatherSettings,
+        samples: u32,
+    ) -> Result<f64, PmError> {
+        let r = settings.ring_refresh;
+        if r == 0 {
+            self.gather(camera, settings, samples)?;
+            return Ok(0.0);
+        }
+        let mut ring_s = 0.0;
+        let mut left = samples;
+        while left > 0 {
+            let n = left.min(r);
+            self.gather(camera, settings, n)?;
+            left -= n;
+            if left > 0 {
+                let t = std::time::Instant::now();
+                self.trace_frame(None);
+                self.check_overflow()?;
+                self.upsample();
+                let _ = self.gpu.device.poll(wgpu::PollType::wait_indefinitely());
+                ring_s += t.elapsed().as_secs_f64();
+            }
+        }
+        Ok(ring_s)
     }
 
     /// Adds `samples` samples per pixel of the final gathering for `camera` (whose size must

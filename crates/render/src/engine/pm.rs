@@ -96,9 +96,14 @@ impl<'g> GatherEngine<'g> {
             setup_s: 0.0,
             gpu_ms: (gpu_ms > 0.0).then_some(gpu_ms),
             summary: format!(
-                "photon mapping with final gathering on {device} — ring {} frames × {} beams, cache {:?}{notes}, k = {} bounces, sun by {}, {}x{} at {spp} spp in {:.2} s (ring {:.2} s, gathering {:.2} s)",
+                "photon mapping with final gathering on {device} — ring {} frames × {} beams{}, cache {:?}{notes}, k = {} bounces, sun by {}, {}x{} at {spp} spp in {:.2} s (ring {:.2} s, gathering {:.2} s)",
                 pm.frames().min(pm.settings.ring),
                 pm.settings.beams_per_frame,
+                if gs.ring_refresh > 0 {
+                    format!(" (a new one every {} spp)", gs.ring_refresh)
+                } else {
+                    String::new()
+                },
                 pm.cache_res(),
                 gs.bounces,
                 pm.sun_shadow(gs.shadow).name(),
@@ -148,11 +153,11 @@ impl Engine for GatherEngine<'_> {
         let mut gpu_ms = stage_sum(&pm.last_times);
         let ring_s = t1.elapsed().as_secs_f64();
         let t2 = Instant::now();
-        pm.gather(&scene.camera, &gather, budget)?;
+        let refresh_s = pm.gather_refreshing(&scene.camera, &gather, budget)?;
         gpu_ms += stage_sum(&pm.last_times);
         let (image, variance) = pm.gather_image()?;
-        self.ring_s = ring_s;
-        self.gather_s = t2.elapsed().as_secs_f64();
+        self.ring_s = ring_s + refresh_s;
+        self.gather_s = t2.elapsed().as_secs_f64() - refresh_s;
         self.gpu_ms = gpu_ms;
         let mut r = self.rendered(scene, device, image, variance)?;
         r.setup_s = setup_s;
@@ -225,6 +230,22 @@ impl Engine for GatherEngine<'_> {
             } else if self.refreshing {
                 // The ring is fresh again: the image starts over from it alone.
                 pm.gather_reset();
+            } else if gather.ring_refresh > 0
+                && pm.gather_samples() > 0
+                && pm.gather_samples().is_multiple_of(gather.ring_refresh)
+            {
+                // A still scene with a renewed ring (`GatherSettings::ring_refresh`): a new
+                // generation replaces the oldest and the sums go on averaging, over the photon
+                // map's noise too.
+                let t = Instant::now();
+                pm.trace_frame(None);
+                pm.check_overflow()?;
+                step.beams = pm.last_generation_beams();
+                pm.upsample();
+                let _ = gpu.device.poll(wgpu::PollType::wait_indefinitely());
+                let ms = ms_since(t);
+                step.stages.push(("renew", ms));
+                self.ring_s += ms / 1e3;
             }
             self.refreshing = trace;
             let t = Instant::now();
