@@ -57,7 +57,7 @@ if [ "$small" = 1 ]; then
   W=240; H=150; FRAMES=3; BEAMS=1024; RW=64; RH=36; RSPP=1; PW=128; PH=96; PTSPP=4; GPTSPP=16
   DG_RECORDS=16; DG_SAMPLES=256; VOLRES=96; TR_RECORDS=3000; TR_EPOCHS=1; TR_BATCH="1000"
   SCALE_PM="--method pm --beams 1024 --ring 20"  # the converged ring is 100 × 8 192 beams
-  GW=192; GH=108; GSPP=4; CW=96; CH=54
+  GW=192; GH=108; GSPP=4; GREF=2; CW=96; CH=54
   CMP_BUDGETS="--budgets pt-gpu=4,16,64 --budgets pm=1,4,16 --budgets pm-march=4,16 --budgets rpnn=1,4"
   CMP_REF="--ref-spp 64 --ref-time-cap 60"
 else
@@ -65,7 +65,7 @@ else
   DG_RECORDS=2000; DG_SAMPLES=1024; VOLRES=1200; TR_RECORDS=200000; TR_EPOCHS=3
   TR_BATCH="1000 8000"
   SCALE_PM="--method pm"
-  GW=1920; GH=1080; GSPP=64; CW=960; CH=540
+  GW=1920; GH=1080; GSPP=64; GREF=4; CW=960; CH=540
   CMP_BUDGETS="--budgets pt-gpu=4,16,64,256,1024 --budgets pm=1,4,16,64,256 --budgets pm-march=4,16,100 --budgets rpnn=1,4,16"
   CMP_REF="--ref-spp 1024 --ref-time-cap 300"
 fi
@@ -197,6 +197,16 @@ for s in altostratus cumulus_congestus wide_cloud; do
   row pm_gather_ms_per_spp "$s" "${GW}x${GH} k=1 spp=$GSPP" "$ms" ms
   ms=$(grep -m1 "ring + upsampling" "$out/pmg_$s.txt" | awk '{ print $4 }')
   row pm_gather_ring_ms "$s" "${GW}x${GH} whole ring" "$ms" ms
+  # The whole image per sample (ring included), with the ring fixed and renewed every GREF
+  # samples (--ring-refresh: off by default while its cost on a GPU is unmeasured).
+  "$nimbus" render "$scene" --method pm --spp "$GSPP" --ring-refresh "$GREF" -q \
+    -o "$out/pmr_$s" > "$out/pmr_$s.txt"
+  for f in pmg pmr; do
+    t=$(grep -m1 -oE "at $GSPP spp in [0-9.]+ s" "$out/${f}_$s.txt" | awk '{ print $5 }')
+    r=$([ "$f" = pmr ] && echo "$GREF" || echo 0)
+    row pm_gather_total_ms_per_spp "$s" "${GW}x${GH} spp=$GSPP ring-refresh=$r" \
+      "$(awk -v t="$t" -v n="$GSPP" 'BEGIN { printf "%.3f", t * 1000 / n }')" ms
+  done
   line=$("$nimbus" view "$scene" --headless --method pm --size "${GW}x${GH}" --frames 8 --play-sun | tail -1)
   ms=$(echo "$line" | sed -E 's/.* ([0-9.]+) ms per frame.*/\1/')
   row pm_live_frame_ms "$s" "${GW}x${GH} pm sun turning 8 frames" "$ms" ms

@@ -453,6 +453,12 @@ fn device_benchmark_script_small() {
     // Final gathering on the 3 Table 1 scenes: ms per gathered sample, the ring, the live frame.
     assert_eq!(measures.get("pm_gather_ms_per_spp"), Some(&3), "{csv}");
     assert_eq!(measures.get("pm_gather_ring_ms"), Some(&3), "{csv}");
+    // The whole image per sample with the ring fixed and renewed: 2 rows per scene.
+    assert_eq!(
+        measures.get("pm_gather_total_ms_per_spp"),
+        Some(&6),
+        "{csv}"
+    );
     assert_eq!(measures.get("pm_live_frame_ms"), Some(&3), "{csv}");
     // Error against time on the GPU: the speed-up of each of the 4 GPU estimators (the small
     // run's errors stay above 5 %, so no time_to_5pct_s row is expected there).
