@@ -47,3 +47,8 @@ pub(crate) trait Engine {
 pub(crate) fn ms_since(t: std::time::Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
+
+/// The sum of a frame's per-stage GPU milliseconds.
+pub(crate) fn stage_sum(t: &[(&'static str, f64)]) -> f64 {
+    t.iter().map(|(_, v)| v).sum()
+}

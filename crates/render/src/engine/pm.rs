@@ -12,7 +12,7 @@ use nimbus_gpu::Gpu;
 use nimbus_photon::{GatherSettings, PhotonMapper, PmSettings};
 use nimbus_scene::{Scene, Sky};
 
-use super::{Engine, ms_since};
+use super::{Engine, ms_since, stage_sum};
 use crate::estimator::{Change, Options, Rendered, Step};
 
 pub(crate) struct GatherEngine<'g> {
@@ -128,8 +128,33 @@ impl<'g> GatherEngine<'g> {
 /// frame): the image follows the ring with a lag of about this many frames.
 pub(crate) const REFRESH_WINDOW: u32 = 8;
 
-fn stage_sum(t: &[(&'static str, f64)]) -> f64 {
-    t.iter().map(|(_, v)| v).sum()
+/// A change of sun or density taken into a photon map (both photon-mapping engines): `true`
+/// when the ring's generations no longer hold the scene's light.
+pub(super) fn apply_to_ring(pm: &mut PhotonMapper, scene: &Scene, change: &Change) -> Result<bool> {
+    match change {
+        Change::Camera(_) => Ok(false),
+        Change::SunDir(_) => {
+            let Some(sun) = scene.sun.as_ref() else {
+                return Ok(false);
+            };
+            pm.set_sun_dir(sun.dir);
+            if scene.atmosphere.is_some() {
+                let sky = match &scene.sky {
+                    Some(Sky::Constant(c)) => *c,
+                    _ => glam::DVec3::ZERO,
+                };
+                pm.set_lighting(sun.irradiance, sky);
+            }
+            Ok(true)
+        }
+        Change::Density(v) => {
+            let Some(d) = v.grid().as_dense() else {
+                bail!("photon mapping takes a new density as a dense grid");
+            };
+            pm.set_density(d)?;
+            Ok(true)
+        }
+    }
 }
 
 impl Engine for GatherEngine<'_> {
@@ -177,29 +202,11 @@ impl Engine for GatherEngine<'_> {
     fn apply(&mut self, scene: &Scene, change: &Change) -> Result<()> {
         let ring = self.settings.ring;
         let pm = self.mapper(scene)?;
-        match change {
-            Change::Camera(c) => pm.set_view(c.origin),
-            Change::SunDir(_) => {
-                let Some(sun) = scene.sun.as_ref() else {
-                    return Ok(());
-                };
-                pm.set_sun_dir(sun.dir);
-                if scene.atmosphere.is_some() {
-                    let sky = match &scene.sky {
-                        Some(Sky::Constant(c)) => *c,
-                        _ => glam::DVec3::ZERO,
-                    };
-                    pm.set_lighting(sun.irradiance, sky);
-                }
-                self.stale = ring;
-            }
-            Change::Density(v) => {
-                let Some(d) = v.grid().as_dense() else {
-                    bail!("photon mapping takes a new density as a dense grid");
-                };
-                pm.set_density(d)?;
-                self.stale = ring;
-            }
+        if let Change::Camera(c) = change {
+            pm.set_view(c.origin);
+        }
+        if apply_to_ring(pm, scene, change)? {
+            self.stale = ring;
         }
         Ok(())
     }

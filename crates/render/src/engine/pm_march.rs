@@ -10,13 +10,13 @@
 
 use std::time::Instant;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use nimbus_gpu::Gpu;
 use nimbus_photon::impostor::{ImpostorState, Refresh};
 use nimbus_photon::{PhotonMapper, PmSettings, PmVariant};
-use nimbus_scene::{Camera, Image, Scene, Sky};
+use nimbus_scene::{Camera, Image, Scene};
 
-use super::{Engine, ms_since};
+use super::{Engine, ms_since, stage_sum};
 use crate::Method;
 use crate::estimator::{Change, Options, Rendered, Step};
 
@@ -37,10 +37,6 @@ pub(crate) struct MarchEngine<'g> {
     seconds: f64,
     /// The density the impostor criteria last saw (its animation criterion compares with it).
     prev_density: Option<Vec<f32>>,
-}
-
-fn stage_sum(t: &[(&'static str, f64)]) -> f64 {
-    t.iter().map(|(_, v)| v).sum()
 }
 
 impl<'g> MarchEngine<'g> {
@@ -267,38 +263,20 @@ impl Engine for MarchEngine<'_> {
     fn apply(&mut self, scene: &Scene, change: &Change) -> Result<()> {
         let ring = self.settings.ring;
         let pm = self.mapper(scene)?;
-        match change {
-            Change::Camera(_) => {}
-            Change::SunDir(_) => {
-                let Some(sun) = scene.sun.as_ref() else {
-                    return Ok(());
-                };
-                pm.set_sun_dir(sun.dir);
-                if scene.atmosphere.is_some() {
-                    let sky = match &scene.sky {
-                        Some(Sky::Constant(c)) => *c,
-                        _ => glam::DVec3::ZERO,
-                    };
-                    pm.set_lighting(sun.irradiance, sky);
-                }
-                self.stale = ring;
+        if super::pm::apply_to_ring(pm, scene, change)? {
+            self.stale = ring;
+        }
+        // The animation criterion: the relative L1 change since the last frame.
+        if let Change::Density(v) = change
+            && let Some(d) = v.grid().as_dense()
+            && let Some(state) = self.impostor.as_mut()
+        {
+            if let Some(prev) = &self.prev_density {
+                let diff: f64 = d.iter().zip(prev).map(|(a, b)| (a - b).abs() as f64).sum();
+                let base: f64 = prev.iter().map(|v| *v as f64).sum::<f64>().max(1e-30);
+                state.density_changed(diff / base);
             }
-            Change::Density(v) => {
-                let Some(d) = v.grid().as_dense() else {
-                    bail!("photon mapping takes a new density as a dense grid");
-                };
-                pm.set_density(d)?;
-                self.stale = ring;
-                // The animation criterion: the relative L1 change since the last frame.
-                if let Some(state) = self.impostor.as_mut() {
-                    if let Some(prev) = &self.prev_density {
-                        let diff: f64 = d.iter().zip(prev).map(|(a, b)| (a - b).abs() as f64).sum();
-                        let base: f64 = prev.iter().map(|v| *v as f64).sum::<f64>().max(1e-30);
-                        state.density_changed(diff / base);
-                    }
-                    self.prev_density = Some(d.to_vec());
-                }
-            }
+            self.prev_density = Some(d.to_vec());
         }
         Ok(())
     }
