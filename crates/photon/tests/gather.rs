@@ -5,22 +5,12 @@
 
 use std::path::Path;
 
-use glam::{DVec3, Vec3};
+use glam::Vec3;
 use nimbus_photon::mapper::{GatherSettings, SunShadow, Terminal};
 use nimbus_photon::{PhotonMapper, PmSettings, cpu};
-use nimbus_scene::build::{self, SceneBuilder};
 use nimbus_scene::{Image, Scene};
 
-fn small_cloud() -> Scene {
-    SceneBuilder::new(
-        build::generated(nimbus_scene::CloudKind::Cumulus, 3, [24, 18, 24], 20.0).unwrap(),
-    )
-    .sun(DVec3::new(1.0, 0.6, 0.3), DVec3::new(1.0, 0.9, 0.8))
-    .sky(DVec3::new(0.1, 0.15, 0.3))
-    .look(DVec3::new(0.3, 0.3, 3.0), DVec3::ZERO, 40.0, 32, 24)
-    .build()
-    .unwrap()
-}
+use crate::common::small_cloud;
 
 fn lum(p: [f32; 3]) -> f64 {
     (p[0] as f64 + p[1] as f64 + p[2] as f64) / 3.0
