@@ -5,7 +5,8 @@
 //! - [`datagen`]: one record — a shading configuration, its descriptor and the indirect
 //!   radiance L_i path-traced to a stated confidence (the sun's, and with `--sky-transfer` the
 //!   sky's spherical-harmonic transfer from the same paths);
-//! - [`dataset`]: a set on disk — sharded `.npy` records, the manifest, deterministic resume;
+//! - [`dataset`]: a set on disk — sharded `.npy` records, deterministic resume;
+//! - [`manifest`]: what a set says of itself (`manifest.json`) and the parts it is written in;
 //! - [`shards`]: sets assembled from parts written on several machines (`datagen --part`,
 //!   `datagen --merge`);
 //! - `shard_files`: the file-level helpers the two share (locks, row counts, SHA-256 sidecars).
@@ -13,5 +14,6 @@
 pub mod clouds;
 pub mod datagen;
 pub mod dataset;
+pub mod manifest;
 mod shard_files;
 pub mod shards;
