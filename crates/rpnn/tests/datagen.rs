@@ -10,6 +10,16 @@ use nimbus_trace::Pcg32;
 /// A homogeneous sphere of radius 0.45 in a 24³ grid over [−0.5, 0.5]³, σ_t = 6, albedo 0.9,
 /// isotropic phase (a cheap configuration whose estimates converge in ~10⁴ samples).
 fn sphere() -> CloudData {
+    CloudData::new(
+        "sphere",
+        sphere_volume(6.0),
+        Medium::new(0.9, Phase::Isotropic).unwrap(),
+    )
+    .unwrap()
+}
+
+/// A sphere of radius 0.45 in a 24³ grid over [−0.5, 0.5]³ with σ_t = `sigma` inside.
+pub(crate) fn sphere_volume(sigma: f64) -> Volume {
     let n = 24;
     let data: Vec<f32> = (0..n * n * n)
         .map(|i| {
@@ -18,13 +28,12 @@ fn sphere() -> CloudData {
             if q.length() < 0.45 { 1.0 } else { 0.0 }
         })
         .collect();
-    let vol = Volume::new(
+    Volume::new(
         DensityGrid::new([n, n, n], data).unwrap(),
         Aabb::new(DVec3::splat(-0.5), DVec3::splat(0.5)).unwrap(),
-        6.0,
+        sigma,
     )
-    .unwrap();
-    CloudData::new("sphere", vol, Medium::new(0.9, Phase::Isotropic).unwrap()).unwrap()
+    .unwrap()
 }
 
 const X: DVec3 = DVec3::new(0.1, -0.05, 0.2);

@@ -5,26 +5,15 @@ use glam::DVec3;
 use nimbus_rpnn::data::datagen::{CloudData, LightSampling};
 use nimbus_rpnn::data::dataset::{self, DatagenOptions};
 use nimbus_rpnn::sky::{self, SH_COEFFS};
-use nimbus_scene::{Aabb, DensityGrid, Medium, Phase, Volume};
+use nimbus_scene::{Medium, Phase};
 use nimbus_trace::Pcg32;
+
+use crate::datagen::sphere_volume;
 
 /// A homogeneous sphere of radius 0.45 in a 24³ grid over [−0.5, 0.5]³, σ_t = `sigma`, albedo 1,
 /// HG g = 0.5.
 fn sphere(sigma: f64) -> CloudData {
-    let n = 24;
-    let data: Vec<f32> = (0..n * n * n)
-        .map(|i| {
-            let p = DVec3::new((i % n) as f64, ((i / n) % n) as f64, (i / (n * n)) as f64);
-            let q = (p + DVec3::splat(0.5)) / n as f64 - DVec3::splat(0.5);
-            if q.length() < 0.45 { 1.0 } else { 0.0 }
-        })
-        .collect();
-    let vol = Volume::new(
-        DensityGrid::new([n, n, n], data).unwrap(),
-        Aabb::new(DVec3::splat(-0.5), DVec3::splat(0.5)).unwrap(),
-        sigma,
-    )
-    .unwrap();
+    let vol = sphere_volume(sigma);
     let hg = nimbus_scene::phase::hg::HenyeyGreenstein::new(0.5).unwrap();
     CloudData::new(
         "sphere",
