@@ -1,7 +1,11 @@
 // Hierarchical stencil descriptor (Kallweit 2017 §4.2), one invocation per output float.
 // Mirrors crates/rpnn/src/descriptor.rs (layout, frame, lookups) in the same f32 arithmetic.
-// Imports only the shared constants (stencil size, workgroup size).
+// Imports the shared constants (stencil size, workgroup size) and the local frame.
+//
+// Rows: min(D.n_configs, count[0]); the whole-sample renderer's count is written on the GPU
+// by its shading pass, other callers bind 0xffffffff.
 #import constants
+#import rpnn_frame
 
 struct DescParams {
     aabb_min: vec3<f32>, mfp: f32,
@@ -19,12 +23,7 @@ struct Config { x: vec4<f32>, view: vec4<f32>, to_light: vec4<f32> };
 @group(0) @binding(2) var<storage, read> level_info: array<LevelInfo>;
 @group(0) @binding(3) var<storage, read> configs: array<Config>;
 @group(0) @binding(4) var<storage, read_write> out: array<f32>;
-
-fn basis_t(n: vec3<f32>) -> vec3<f32> {
-    let sign = select(-1.0, 1.0, n.z >= 0.0);
-    let a = -1.0 / (sign + n.z);
-    return vec3<f32>(1.0 + sign * n.x * n.x * a, sign * n.x * n.y * a, -sign * n.x);
-}
+@group(0) @binding(5) var<storage, read> count: array<u32>;
 
 fn lookup(li: u32, p: vec3<f32>) -> f32 {
     if (!(all(p >= D.aabb_min) && all(p <= D.aabb_max))) { return 0.0; }
@@ -58,8 +57,8 @@ fn lookup(li: u32, p: vec3<f32>) -> f32 {
 @compute @workgroup_size(WG)
 fn descriptor(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = gid.x + gid.y * nwg.x * WG;
-    if (i >= D.n_configs * DESCRIPTOR_LEN) { return; }
     let c = i / DESCRIPTOR_LEN;
+    if (c >= min(D.n_configs, count[0])) { return; }
     let j = i % DESCRIPTOR_LEN;
     let cfg = configs[c];
     let view = normalize(cfg.view.xyz);
@@ -68,10 +67,9 @@ fn descriptor(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgr
         out[i] = atan2(length(cross(view, z)), dot(view, z));
         return;
     }
-    let cr = cross(z, view);
-    var x: vec3<f32>;
-    if (length(cr) < 1.0e-6) { x = normalize(basis_t(z)); } else { x = normalize(cr); }
-    let y = cross(z, x);
+    let f = rpnn_frame(view, z);
+    let x = f[0];
+    let y = f[1];
     let k = j / STENCIL_POINTS;          // 0-based stencil level
     let p = j % STENCIL_POINTS;
     let s = vec3<f32>(-1.0 + f32(p % 5u) * 0.5, -1.0 + f32((p / 5u) % 5u) * 0.5, -1.0 + f32(p / 25u) * 0.5);

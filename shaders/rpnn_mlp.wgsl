@@ -7,7 +7,13 @@
 // a_offset … a_offset + ka − 2, then column a_gamma_col) or a previous activation; b(r, ·) is an
 // optional second activation (W1 o_{k−1}); res is the optional residual o_{k−1}; act is ReLU.
 // The layers of a block: F1 = ReLU(V z_k + b1 + W1 o_{k−1}), o_k = ReLU(W2 F1 + b2 + o_{k−1});
-// head layers: ReLU(W x + b). The CPU reference is `nimbus_rpnn::model::Rpnn::forward`.
+// head layers: ReLU(W x + b); the sky head's (`nimbus_rpnn::sky`) last layer is W x + b (relu 0)
+// and writes its columns after the sun head's (out_offset). The CPU reference is
+// `nimbus_rpnn::model::Rpnn::forward`.
+//
+// Rows: min(L.rows, row_limit[0]). A batch whose size only the GPU knows (the whole-sample
+// renderer's compacted queries, `nimbus_rpnn::gpu_sample`) is dispatched for L.rows and
+// workgroups past the count return at once; other callers bind a limit of 0xffffffff.
 //
 // Tiles: 64 queries × 64 outputs per workgroup of 16 × 16 threads, k-slices of 16 inputs in
 // workgroup memory; each thread accumulates a 4 × 4 block in four vec4 registers (named
@@ -29,7 +35,7 @@ struct Layer {
     residual: u32,
     res_stride: u32,
     relu: u32,
-    _pad: u32,
+    out_offset: u32,
 };
 
 @group(0) @binding(0) var<uniform> L: Layer;
@@ -38,15 +44,18 @@ struct Layer {
 @group(0) @binding(3) var<storage, read> b_buf: array<f32>;
 @group(0) @binding(4) var<storage, read> res_buf: array<f32>;
 @group(0) @binding(5) var<storage, read_write> out_buf: array<f32>;
+@group(0) @binding(6) var<storage, read> row_limit: array<u32>;
 
 const NO_GAMMA: u32 = 0xffffffffu;
 
 var<workgroup> a_tile: array<vec4<f32>, 256>; // [k 16][row group 16] × 4 rows
 var<workgroup> w_tile: array<vec4<f32>, 256>; // [k 16][output group 16] × 4 outputs
+var<workgroup> wg_rows: u32;
+var<private> rows: u32;
 
 // Input i of query r (i < ka: from a, else from b).
 fn input(r: u32, i: u32) -> f32 {
-    if (r >= L.rows) {
+    if (r >= rows) {
         return 0.0;
     }
     if (i < L.ka) {
@@ -79,7 +88,7 @@ fn weight(j: u32, i: u32) -> f32 {
 }
 
 fn finish(r: u32, j: u32, v: f32) {
-    if (r >= L.rows || j >= L.outputs) {
+    if (r >= rows || j >= L.outputs) {
         return;
     }
     var s = v + weights[L.bias_offset + j];
@@ -89,7 +98,7 @@ fn finish(r: u32, j: u32, v: f32) {
     if (L.relu != 0u) {
         s = max(s, 0.0);
     }
-    out_buf[r * L.out_stride + j] = s;
+    out_buf[r * L.out_stride + L.out_offset + j] = s;
 }
 
 @compute @workgroup_size(16, 16)
@@ -102,6 +111,13 @@ fn dense(
     let tx = lid.x; // output group
     let ty = lid.y; // row group
     let t = ty * 16u + tx;
+    if (t == 0u) {
+        wg_rows = min(L.rows, row_limit[0]);
+    }
+    rows = workgroupUniformLoad(&wg_rows);
+    if (r0 >= rows) {
+        return;
+    }
     let lk = t / 16u;
     let lg = t % 16u;
     var acc0 = vec4<f32>(0.0);

@@ -40,6 +40,8 @@ pub const MODULES: &[(&str, &str)] = &[
     module!("photon_lookup"),
     module!("photon_raymarch_core"),
     module!("photon_gather_core"),
+    module!("rpnn_frame"),
+    module!("rpnn_sample_core"),
 ];
 
 /// (file name, source) of every stage in `shaders/`.
@@ -58,6 +60,8 @@ pub const SHADERS: &[(&str, &str)] = &[
     stage!("pt_bricks.wgsl"),
     stage!("rpnn_descriptor.wgsl"),
     stage!("rpnn_mlp.wgsl"),
+    stage!("rpnn_sample.wgsl"),
+    stage!("rpnn_sample_bricks.wgsl"),
     stage!("blit.wgsl"),
 ];
 

@@ -304,19 +304,10 @@ pub fn prepare<'g>(
             };
             let (backend, device) =
                 rpnn_backend(r.backend, adapter, &model_path, &model, &pyramid)?;
-            // The sky head runs where ONNX Runtime runs the network (the WGSL network computes
-            // the sun's head only).
+            // The sky head runs on either backend (ONNX Runtime, or the WGSL network's sky
+            // layers).
             let sky_sh = if want_sky && model.sky_coeffs() > 0 {
-                if matches!(backend, nimbus_rpnn::render::Backend::Ort(_)) {
-                    nimbus_rpnn::render::SkySh::of(scene, r.sky_degree, 64)
-                } else {
-                    warnings.push(format!(
-                        "warning: {}: the WGSL network has no sky head; the sky is sampled in \
-                         --sky-dirs directions (--backend ort uses the sky head)",
-                        model_path.display()
-                    ));
-                    None
-                }
+                nimbus_rpnn::render::SkySh::of(scene, r.sky_degree, 64)
             } else {
                 if want_sky && r.model.is_none() {
                     warnings.push(format!(

@@ -44,6 +44,8 @@ pub struct GpuDescriptor<'g> {
     pipeline: wgpu::ComputePipeline,
     levels: wgpu::Buffer,
     info: wgpu::Buffer,
+    /// `count` of a batch whose size the CPU knows: no limit.
+    no_limit: wgpu::Buffer,
 }
 
 impl<'g> GpuDescriptor<'g> {
@@ -103,6 +105,7 @@ impl<'g> GpuDescriptor<'g> {
             ),
             levels: gpu.storage("pyramid", &data),
             info: gpu.storage("pyramid levels", &info),
+            no_limit: gpu.storage("descriptor no row limit", &[u32::MAX]),
         })
     }
 
@@ -136,26 +139,43 @@ impl<'g> GpuDescriptor<'g> {
                 to_light: c.to_light.extend(0.0).to_array(),
             })
             .collect();
-        let params = DescParams {
-            n_configs: configs.len() as u32,
-            ..self.params
-        };
-        let ubuf = self.gpu.uniform("desc params", &params);
         let cbuf = self.gpu.storage("configs", &cfg);
         let out = self
             .gpu
             .zeroed("descriptors", (n * DESCRIPTOR_LEN as u64 * 4).max(4));
+        self.encode_rows(enc, &cbuf, None, configs.len(), &out, timestamps);
+        Ok(out)
+    }
+
+    /// Records the descriptor pass for the configurations in `configs` (a buffer of
+    /// [`GpuConfig`]) into `out`: `rows` of them, or fewer when `count` (a GPU-written u32)
+    /// says so.
+    pub fn encode_rows(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        configs: &wgpu::Buffer,
+        count: Option<&wgpu::Buffer>,
+        rows: usize,
+        out: &wgpu::Buffer,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) {
+        let params = DescParams {
+            n_configs: rows as u32,
+            ..self.params
+        };
+        let ubuf = self.gpu.uniform("desc params", &params);
         let bind = self.gpu.bind(
             &self.pipeline,
             &[
                 (0, &ubuf),
                 (1, &self.levels),
                 (2, &self.info),
-                (3, &cbuf),
-                (4, &out),
+                (3, configs),
+                (4, out),
+                (5, count.unwrap_or(&self.no_limit)),
             ],
         );
-        let (x, y) = Gpu::workgroups_1d((n * DESCRIPTOR_LEN as u64) as u32);
+        let (x, y) = Gpu::workgroups_1d((rows * DESCRIPTOR_LEN) as u32);
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("rpnn descriptor"),
             timestamp_writes: timestamps,
@@ -163,8 +183,6 @@ impl<'g> GpuDescriptor<'g> {
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &bind, &[]);
         pass.dispatch_workgroups(x, y, 1);
-        drop(pass);
-        Ok(out)
     }
 }
 

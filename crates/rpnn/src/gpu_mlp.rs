@@ -1,6 +1,7 @@
 //! The RPNN on the GPU (`shaders/rpnn_mlp.wgsl`): the weights read from the ONNX file
 //! ([`crate::model::Rpnn`]) are evaluated by tiled matrix products in workgroup memory, one
-//! dispatch per layer (2 per block + the head). [`GpuRpnn`] records the descriptor pass
+//! dispatch per layer (2 per block + the head + the sky head, when the model has one: its
+//! coefficients follow the sun head's in each output row). [`GpuRpnn`] records the descriptor pass
 //! (`shaders/rpnn_descriptor.wgsl`) and the layers in one command buffer, so descriptors are
 //! written and read on the GPU only; just the predictions come back.
 //!
@@ -33,7 +34,8 @@ pub struct LayerParams {
     pub residual: u32,
     pub res_stride: u32,
     pub relu: u32,
-    pub _pad: u32,
+    /// First column of the output row this layer writes (the sky head's follow the sun's).
+    pub out_offset: u32,
 }
 
 const NO_GAMMA: u32 = u32::MAX;
@@ -63,13 +65,18 @@ pub struct GpuMlp<'g> {
     pipeline: wgpu::ComputePipeline,
     weights: wgpu::Buffer,
     steps: Vec<(Step, wgpu::Buffer)>,
+    /// Values per query: the sun head's, then the sky head's coefficients.
     pub outputs: usize,
+    /// The sun head's values per query (1 grey, 3 RGB).
+    pub sun_outputs: usize,
     pub input_len: usize,
     /// Queries per dispatch (bounded by the storage-binding limit of the descriptor batch).
     pub max_batch: usize,
-    acts: [wgpu::Buffer; 3],
+    acts: [wgpu::Buffer; 4],
     out: wgpu::Buffer,
     dummy: wgpu::Buffer,
+    /// `row_limit` of a batch whose size the CPU knows: no limit.
+    no_limit: wgpu::Buffer,
 }
 
 impl<'g> GpuMlp<'g> {
@@ -82,7 +89,7 @@ impl<'g> GpuMlp<'g> {
             .blocks
             .iter()
             .map(|b| b.v.outputs)
-            .chain(model.head.iter().map(|l| l.outputs))
+            .chain(model.head.iter().chain(&model.sky_head).map(|l| l.outputs))
             .max()
             .unwrap_or(1);
         let max_batch = max_batch
@@ -99,7 +106,9 @@ impl<'g> GpuMlp<'g> {
         };
         let (p, levels) = (model.points, model.levels);
         let mut steps = Vec::new();
-        // Activations: 0 and 1 alternate as o_k, 2 holds F1.
+        // Activations: 0 and 1 alternate as o_k, 2 holds F1; after the blocks the sky head
+        // alternates between 2 and 3 (reading the trunk first), then the sun head between 0
+        // and 1.
         let mut prev: Option<usize> = None;
         for (k, b) in model.blocks.iter().enumerate() {
             let (wv, bv) = push(&b.v);
@@ -151,10 +160,44 @@ impl<'g> GpuMlp<'g> {
             });
             prev = Some(next);
         }
+        let trunk = prev.expect("at least one block");
+        let total = model.outputs_per_query() as u32;
+        let n_sky = model.sky_head.len();
+        let mut cur = trunk;
+        for (i, l) in model.sky_head.iter().enumerate() {
+            let (w, b) = push(l);
+            let last = i + 1 == n_sky;
+            let next = if last {
+                OUT
+            } else if cur == 2 {
+                3
+            } else {
+                2
+            };
+            steps.push(Step {
+                params: LayerParams {
+                    outputs: l.outputs as u32,
+                    ka: l.inputs as u32,
+                    a_stride: stride as u32,
+                    a_gamma_col: NO_GAMMA,
+                    wa_offset: w,
+                    bias_offset: b,
+                    out_stride: if last { total } else { stride as u32 },
+                    out_offset: if last { model.outputs as u32 } else { 0 },
+                    relu: (!last) as u32,
+                    ..Default::default()
+                },
+                a: Src::Act(cur),
+                b: None,
+                res: None,
+                out: next,
+            });
+            cur = next;
+        }
         let n_head = model.head.len();
+        let mut cur = trunk;
         for (i, l) in model.head.iter().enumerate() {
             let (w, b) = push(l);
-            let cur = prev.expect("at least one block");
             let last = i + 1 == n_head;
             let next = if last { OUT } else { 1 - cur };
             steps.push(Step {
@@ -165,11 +208,7 @@ impl<'g> GpuMlp<'g> {
                     a_gamma_col: NO_GAMMA,
                     wa_offset: w,
                     bias_offset: b,
-                    out_stride: if last {
-                        l.outputs as u32
-                    } else {
-                        stride as u32
-                    },
+                    out_stride: if last { total } else { stride as u32 },
                     relu: 1,
                     ..Default::default()
                 },
@@ -178,7 +217,7 @@ impl<'g> GpuMlp<'g> {
                 res: None,
                 out: next,
             });
-            prev = Some(next);
+            cur = next;
         }
         gpu.check_storage("the network weights", weights.len() as u64 * 4)?;
         let act_bytes = (max_batch * stride * 4) as u64;
@@ -195,22 +234,33 @@ impl<'g> GpuMlp<'g> {
             pipeline: gpu.pipeline("rpnn mlp", &shaders::source("rpnn_mlp.wgsl"), "dense"),
             weights: gpu.storage("rpnn weights", &weights),
             steps,
-            outputs: model.outputs,
+            outputs: model.outputs_per_query(),
+            sun_outputs: model.outputs,
             input_len: model.input_len(),
             max_batch,
-            acts: [0, 1, 2].map(|_| gpu.zeroed("rpnn activations", act_bytes)),
-            out: gpu.zeroed("rpnn output", (max_batch * model.outputs * 4) as u64),
+            acts: [0, 1, 2, 3].map(|i| {
+                // The fourth is the sky head's second buffer.
+                let bytes = if i == 3 && n_sky < 2 { 4 } else { act_bytes };
+                gpu.zeroed("rpnn activations", bytes)
+            }),
+            out: gpu.zeroed(
+                "rpnn output",
+                (max_batch * model.outputs_per_query() * 4) as u64,
+            ),
             dummy: gpu.zeroed("rpnn unused input", 16),
+            no_limit: gpu.storage("rpnn no row limit", &[u32::MAX]),
         })
     }
 
     /// Records the layer passes for `rows` ≤ `max_batch` descriptors in `desc` (rows of
-    /// `input_len` floats); the predictions land in [`GpuMlp::output`].
+    /// `input_len` floats); the predictions land in [`GpuMlp::output`]. With `row_limit`, the
+    /// first u32 of that buffer, written by an earlier pass, lowers the row count on the GPU.
     pub fn encode(
         &self,
         enc: &mut wgpu::CommandEncoder,
         desc: &wgpu::Buffer,
         rows: usize,
+        row_limit: Option<&wgpu::Buffer>,
         mut timer: Option<&mut StageTimer>,
     ) {
         assert!(rows <= self.max_batch, "batch larger than max_batch");
@@ -236,6 +286,7 @@ impl<'g> GpuMlp<'g> {
                     (3, s.b.map_or(&self.dummy, buf)),
                     (4, s.res.map_or(&self.dummy, buf)),
                     (5, buf(s.out)),
+                    (6, row_limit.unwrap_or(&self.no_limit)),
                 ],
             );
             let tw = timer.as_mut().and_then(|t| t.pass("inference"));
@@ -268,7 +319,7 @@ impl<'g> GpuMlp<'g> {
                 .gpu
                 .storage("descriptors", &x[lo * self.input_len..hi * self.input_len]);
             let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-            self.encode(&mut enc, &desc, hi - lo, None);
+            self.encode(&mut enc, &desc, hi - lo, None, None);
             self.gpu.queue.submit([enc.finish()]);
             let y: Vec<f32> = self.gpu.read(&self.out)?;
             out.extend_from_slice(&y[..(hi - lo) * self.outputs]);
@@ -319,7 +370,7 @@ impl<'g> GpuRpnn<'g> {
                 .desc
                 .encode(&mut enc, chunk, self.timer.pass("descriptor"))?;
             self.mlp
-                .encode(&mut enc, &desc, chunk.len(), Some(&mut self.timer));
+                .encode(&mut enc, &desc, chunk.len(), None, Some(&mut self.timer));
             self.timer.resolve(&mut enc);
             self.gpu.queue.submit([enc.finish()]);
             let y: Vec<f32> = self.gpu.read(self.mlp.output())?;
@@ -359,7 +410,7 @@ mod tests {
             "residual",
             "res_stride",
             "relu",
-            "_pad",
+            "out_offset",
         ];
         for (i, (name, off)) in members.iter().enumerate() {
             assert_eq!(name, names[i]);

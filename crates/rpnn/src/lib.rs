@@ -10,6 +10,7 @@ pub mod data;
 pub mod descriptor;
 pub mod gpu;
 pub mod gpu_mlp;
+pub mod gpu_sample;
 pub mod model;
 pub mod ort_backend;
 pub mod pyramid;

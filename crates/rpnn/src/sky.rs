@@ -227,6 +227,51 @@ pub fn rotate_to_frame(
     out
 }
 
+/// Σ t_lm c'_lm up to degree `l`, c' the world coefficients `c` rotated into the frame with
+/// columns `ex`, `ey`, `ez`, without forming the rotation: band by band
+/// t_l · (B⁻¹ A c_l) = (B⁻ᵀ t_l) · (A c_l), and (A c_l)_i = Σ_m c_lm Y_lm(M n_i) is band l of
+/// the sky seen along the rotated sample direction M n_i. The whole-sample GPU renderer
+/// (`shaders/lib/rpnn_sample_core.wgsl`, `sky_product`) computes this, with [`gpu_table`]; this
+/// is its CPU twin, equal to [`rotate_to_frame`] followed by [`apply`].
+pub fn product_in_frame(
+    t: &[f32],
+    c: &[[f64; 3]; SH_COEFFS],
+    (ex, ey, ez): (DVec3, DVec3, DVec3),
+    l: usize,
+) -> DVec3 {
+    let mut out = DVec3::ZERO;
+    for (band_l, band) in bands().iter().enumerate().take(l.min(SH_DEGREE) + 1) {
+        let n = 2 * band_l + 1;
+        let o = band_l * band_l;
+        for (i, d) in band.dirs.iter().enumerate() {
+            let u: f64 = (0..n).map(|m| band.inv[m * n + i] * t[o + m] as f64).sum();
+            let y = eval(ex * d.x + ey * d.y + ez * d.z);
+            let mut s = DVec3::ZERO;
+            for m in 0..n {
+                s += DVec3::from_array(c[o + m]) * y[o + m];
+            }
+            out += u * s;
+        }
+    }
+    out
+}
+
+/// The sky for the GPU's contraction ([`product_in_frame`]): 75 floats of the world
+/// coefficients (RGB per coefficient), 75 of the bands' sample directions (xyz, band l's at
+/// l² …), then each band's B⁻¹ row-major (offsets 0, 1, 10, 35, 84; 165 floats).
+pub fn gpu_table(c: &[[f64; 3]; SH_COEFFS]) -> Vec<f32> {
+    let mut out: Vec<f32> = c.iter().flatten().map(|&v| v as f32).collect();
+    for band in bands() {
+        for d in &band.dirs {
+            out.extend([d.x as f32, d.y as f32, d.z as f32]);
+        }
+    }
+    for band in bands() {
+        out.extend(band.inv.iter().map(|&v| v as f32));
+    }
+    out
+}
+
 /// Gauss–Legendre nodes and weights on [−1, 1] (Newton's iteration on P_n).
 fn gauss_legendre(n: usize) -> Vec<(f64, f64)> {
     (0..n)
@@ -476,5 +521,40 @@ mod tests {
             .collect();
         assert!(e.windows(2).all(|w| w[1] >= w[0] - 1e-12), "{e:?}");
         assert!(e[0] > 0.5 && e[SH_DEGREE] <= 1.0 + 1e-9, "{e:?}");
+    }
+
+    /// The GPU's contraction without the rotation equals rotating the sky into the frame and
+    /// contracting (f64 rounding: 1e-9 relative), for every degree and several frames.
+    #[test]
+    fn product_in_frame_equals_rotate_then_apply() {
+        let sky = SkyModel {
+            sun_elevation_deg: 25.0,
+            sun_azimuth_deg: -70.0,
+            turbidity: 4.0,
+            zenith: DVec3::new(0.1, 0.2, 0.45),
+            ground: DVec3::splat(0.05),
+        };
+        let c = project(|d| sky.radiance(d), 32);
+        let t: Vec<f32> = (0..SH_COEFFS)
+            .map(|i| ((i as f32 * 0.7).sin() + 0.2) / (1.0 + i as f32))
+            .collect();
+        for (view, light) in [
+            (DVec3::new(0.3, -0.2, -1.0), DVec3::new(0.5, 0.7, 0.1)),
+            (DVec3::new(0.0, 0.0, 1.0), DVec3::new(0.0, 1.0, 0.0)),
+            (DVec3::new(-0.8, 0.1, 0.2), DVec3::new(-0.1, -0.3, 0.9)),
+        ] {
+            let (ex, ey, ez) =
+                crate::descriptor::frame(view.normalize().as_vec3(), light.normalize().as_vec3());
+            let frame = (ex.as_dvec3(), ey.as_dvec3(), ez.as_dvec3());
+            for l in 0..=SH_DEGREE {
+                let want = apply(&t, &rotate_to_frame(&c, frame), l);
+                let got = product_in_frame(&t, &c, frame, l);
+                assert!(
+                    (got - want).abs().max_element() <= 1e-9 * want.abs().max_element().max(1e-3),
+                    "degree {l}: {got} vs {want}"
+                );
+            }
+        }
+        assert_eq!(gpu_table(&c).len(), 75 + 75 + 165);
     }
 }

@@ -3,6 +3,7 @@
 
 mod datagen;
 mod descriptor;
+mod gpu_sample;
 mod model;
 mod render;
 mod sky;

@@ -293,15 +293,22 @@ fn gpu_descriptor_and_network_equal_cpu_descriptor_and_onnx_runtime() {
             to_light: dir(),
         })
         .collect();
-    // The test fixture and the shipped model (paper size, trained).
-    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rpnn-hg.onnx");
-    for model_path in [data("rpnn-tiny.onnx"), shipped] {
+    // The test fixtures and the shipped models (paper size, trained; with and without the sky
+    // head, whose 25 coefficients follow the sun's value in each row).
+    let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models");
+    for model_path in [
+        data("rpnn-tiny.onnx"),
+        data("rpnn-tiny-sky.onnx"),
+        models.join("rpnn-hg.onnx"),
+        models.join("rpnn-hg-sky.onnx"),
+    ] {
         let model = Rpnn::load(&model_path).unwrap();
         let mut g = GpuRpnn::new(&gpu, &pyr, &model, 64).unwrap();
         let got = g.predict(&configs).unwrap();
         let desc = descriptors(&pyr, &configs);
         let mut ort = OrtModel::load(&model_path, 1).unwrap();
         let want = ort.predict(&desc, configs.len()).unwrap();
+        assert_eq!(got.len(), configs.len() * model.outputs_per_query());
         // Descriptors agree to 1e-5 (tests/descriptor.rs) and the network to 1e-4: together
         // 1e-4 relative to the output scale is the bound the issue sets for the two backends.
         let d = max_rel(&got, &want);

@@ -264,6 +264,16 @@ impl EnvMap {
         (x, y)
     }
 
+    /// The map's texels (before [`EnvMap::scale`]): what a GPU copy uploads.
+    pub fn image(&self) -> &Image {
+        &self.image
+    }
+
+    /// The factor every texel is multiplied by.
+    pub fn scale(&self) -> f64 {
+        self.scale
+    }
+
     pub fn radiance(&self, d: DVec3) -> DVec3 {
         let (x, y) = self.texel(d);
         let p = self.image.get(x, y);

@@ -73,7 +73,7 @@ pub struct GpuPathTracer<'g> {
 }
 
 /// The density as the shader reads it.
-enum Density {
+pub enum Density {
     Dense(wgpu::Buffer),
     Bricks(Box<GpuDensity>),
 }
@@ -87,6 +87,115 @@ pub enum DensityStorage {
     Bricks { max_blocks: u32 },
 }
 
+/// The uniform block of a scene for the volume shaders that trace it (this path tracer, the
+/// RPNN's whole-sample renderer): box, density scale, majorant, albedo, HG g, sun, constant sky,
+/// camera, image size, seed. Refuses what the GPU tracking code does not model (a tabulated
+/// phase function; an environment map is the caller's to refuse or bind).
+pub fn scene_params(scene: &Scene) -> Result<VolumeParams, GpuPtError> {
+    let src = scene.source.display();
+    let g = match &scene.medium.phase {
+        Phase::HenyeyGreenstein(hg) => hg.g(),
+        Phase::Isotropic => 0.0,
+        Phase::Tabulated(_) => {
+            return Err(GpuPtError::Unsupported(format!(
+                "{src}: tabulated (Mie) phase function"
+            )));
+        }
+    };
+    let vol = &scene.volume;
+    let r = vol.grid().res();
+    let (forward, right, up, tan_half) = scene.camera.basis();
+    let aabb = vol.aabb();
+    Ok(VolumeParams {
+        aabb_min: f3(aabb.min),
+        density_scale: vol.density_scale() as f32,
+        aabb_max: f3(aabb.max),
+        albedo: scene.medium.albedo as f32,
+        d_res: r.map(|v| v as u32),
+        g: g as f32,
+        sigma_max: vol.max_sigma_t().max(1e-30) as f32,
+        sun_dir: f3(scene.sun.as_ref().map_or(DVec3::Y, |s| s.dir)),
+        sun_irradiance: f3(scene.sun.as_ref().map_or(DVec3::ZERO, |s| s.irradiance)),
+        sun_cos_max: scene
+            .sun
+            .as_ref()
+            .map_or(1.0, |s| s.angular_radius.cos() as f32),
+        sun_disc_radiance: scene
+            .sun
+            .as_ref()
+            .filter(|s| !s.is_delta())
+            .map_or(0.0, |s| {
+                (1.0 / (std::f64::consts::PI * s.angular_radius.sin().powi(2))) as f32
+            }),
+        sky_radiance: match &scene.sky {
+            Some(Sky::Constant(c)) => f3(*c),
+            _ => [0.0; 3],
+        },
+        cam_origin: f3(scene.camera.origin),
+        tan_half: tan_half as f32,
+        cam_forward: f3(forward),
+        aspect: (scene.camera.width as f64 / scene.camera.height as f64) as f32,
+        cam_right: f3(right),
+        cam_up: f3(up),
+        width: scene.camera.width as u32,
+        height: scene.camera.height as u32,
+        seed: scene.render.seed as u32,
+        ..Default::default()
+    })
+}
+
+impl Density {
+    /// The scene's density on the GPU: one storage buffer when the grid is dense and fits one
+    /// binding (with [`DensityStorage::Auto`]), else a brick map.
+    pub fn upload(gpu: &Gpu, scene: &Scene, storage: DensityStorage) -> Result<Self, GpuPtError> {
+        let vol = &scene.volume;
+        let r = vol.grid().res();
+        let dense_fits = vol.grid().as_dense().is_some()
+            && gpu
+                .check_storage("the density grid", (r[0] * r[1] * r[2]) as u64 * 4)
+                .is_ok();
+        Ok(match (storage, vol.grid().as_dense()) {
+            (DensityStorage::Auto, Some(d)) if dense_fits => {
+                Density::Dense(gpu.storage("density", d))
+            }
+            (DensityStorage::Auto, _) => Density::Bricks(Box::new(GpuDensity::new(
+                gpu,
+                vol.grid(),
+                "the density grid",
+            )?)),
+            (DensityStorage::Bricks { max_blocks }, _) => Density::Bricks(Box::new(
+                GpuDensity::with_max_blocks(gpu, vol.grid(), "the density grid", max_blocks)?,
+            )),
+        })
+    }
+
+    /// Whether the shader reads a brick map (the `*_bricks.wgsl` stage) or one buffer.
+    pub fn is_bricks(&self) -> bool {
+        matches!(self, Density::Bricks(_))
+    }
+
+    /// A bind group of `pipeline` with `common` and the density's bindings (1 = the buffer or
+    /// the brick index, 5 = the brick map's `DensityInfo`, 6 = its atlas).
+    pub fn bind(
+        &self,
+        gpu: &Gpu,
+        pipeline: &wgpu::ComputePipeline,
+        common: &[(u32, &wgpu::Buffer)],
+    ) -> wgpu::BindGroup {
+        let mut b = common.to_vec();
+        match self {
+            Density::Dense(d) => {
+                b.push((1, d));
+                gpu.bind(pipeline, &b)
+            }
+            Density::Bricks(k) => {
+                b.extend([(1, &k.index), (5, &k.info)]);
+                gpu.bind_with(pipeline, &b, &[(6, &k.view)])
+            }
+        }
+    }
+}
+
 impl<'g> GpuPathTracer<'g> {
     pub fn new(gpu: &'g Gpu, scene: &Scene) -> Result<Self, GpuPtError> {
         Self::with_storage(gpu, scene, DensityStorage::Auto)
@@ -98,86 +207,18 @@ impl<'g> GpuPathTracer<'g> {
         scene: &Scene,
         storage: DensityStorage,
     ) -> Result<Self, GpuPtError> {
-        let src = scene.source.display();
-        let g = match &scene.medium.phase {
-            Phase::HenyeyGreenstein(hg) => hg.g(),
-            Phase::Isotropic => 0.0,
-            Phase::Tabulated(_) => {
-                return Err(GpuPtError::Unsupported(format!(
-                    "{src}: tabulated (Mie) phase function"
-                )));
-            }
-        };
+        let params = scene_params(scene)?;
         if matches!(scene.sky, Some(Sky::Env(_))) {
             return Err(GpuPtError::Unsupported(format!(
-                "{src}: environment-map sky"
+                "{}: environment-map sky",
+                scene.source.display()
             )));
         }
-        let vol = &scene.volume;
-        let r = vol.grid().res();
-        let dense_fits = vol.grid().as_dense().is_some()
-            && gpu
-                .check_storage("the density grid", (r[0] * r[1] * r[2]) as u64 * 4)
-                .is_ok();
-        let (forward, right, up, tan_half) = scene.camera.basis();
-        let aabb = vol.aabb();
-        let params = VolumeParams {
-            aabb_min: f3(aabb.min),
-            density_scale: vol.density_scale() as f32,
-            aabb_max: f3(aabb.max),
-            albedo: scene.medium.albedo as f32,
-            d_res: r.map(|v| v as u32),
-            g: g as f32,
-            sigma_max: vol.max_sigma_t().max(1e-30) as f32,
-            sun_dir: f3(scene.sun.as_ref().map_or(DVec3::Y, |s| s.dir)),
-            sun_irradiance: f3(scene.sun.as_ref().map_or(DVec3::ZERO, |s| s.irradiance)),
-            sun_cos_max: scene
-                .sun
-                .as_ref()
-                .map_or(1.0, |s| s.angular_radius.cos() as f32),
-            sun_disc_radiance: scene
-                .sun
-                .as_ref()
-                .filter(|s| !s.is_delta())
-                .map_or(0.0, |s| {
-                    (1.0 / (std::f64::consts::PI * s.angular_radius.sin().powi(2))) as f32
-                }),
-            sky_radiance: match &scene.sky {
-                Some(Sky::Constant(c)) => f3(*c),
-                _ => [0.0; 3],
-            },
-            cam_origin: f3(scene.camera.origin),
-            tan_half: tan_half as f32,
-            cam_forward: f3(forward),
-            aspect: (scene.camera.width as f64 / scene.camera.height as f64) as f32,
-            cam_right: f3(right),
-            cam_up: f3(up),
-            width: scene.camera.width as u32,
-            height: scene.camera.height as u32,
-            seed: scene.render.seed as u32,
-            ..Default::default()
-        };
-        let (density, stage) = match (storage, vol.grid().as_dense()) {
-            (DensityStorage::Auto, Some(d)) if dense_fits => {
-                (Density::Dense(gpu.storage("density", d)), "pt.wgsl")
-            }
-            (DensityStorage::Auto, _) => (
-                Density::Bricks(Box::new(GpuDensity::new(
-                    gpu,
-                    vol.grid(),
-                    "the density grid",
-                )?)),
-                "pt_bricks.wgsl",
-            ),
-            (DensityStorage::Bricks { max_blocks }, _) => (
-                Density::Bricks(Box::new(GpuDensity::with_max_blocks(
-                    gpu,
-                    vol.grid(),
-                    "the density grid",
-                    max_blocks,
-                )?)),
-                "pt_bricks.wgsl",
-            ),
+        let density = Density::upload(gpu, scene, storage)?;
+        let stage = if density.is_bricks() {
+            "pt_bricks.wgsl"
+        } else {
+            "pt.wgsl"
         };
         Ok(Self {
             gpu,
@@ -302,19 +343,11 @@ impl<'g> GpuPathTracer<'g> {
 
     fn dispatch(&self, task: Task, tasks: &wgpu::Buffer, out: &wgpu::Buffer, invocations: u32) {
         let tbuf = self.gpu.uniform("pt task", &task);
-        let common = [(0, &self.params_buf), (2, &tbuf), (3, tasks), (4, out)];
-        let bind = match &self.density {
-            Density::Dense(d) => {
-                let mut b = common.to_vec();
-                b.push((1, d));
-                self.gpu.bind(&self.pipeline, &b)
-            }
-            Density::Bricks(k) => {
-                let mut b = common.to_vec();
-                b.extend([(1, &k.index), (5, &k.info)]);
-                self.gpu.bind_with(&self.pipeline, &b, &[(6, &k.view)])
-            }
-        };
+        let bind = self.density.bind(
+            self.gpu,
+            &self.pipeline,
+            &[(0, &self.params_buf), (2, &tbuf), (3, tasks), (4, out)],
+        );
         self.gpu.dispatch_1d(&self.pipeline, &bind, invocations);
     }
 

@@ -1,0 +1,444 @@
+//! A whole RPNN sample per pixel on the GPU (Kallweit 2017 §4.4 as [`crate::render`] does it,
+//! without the CPU): `shaders/lib/rpnn_sample_core.wgsl` traces the camera rays, delta-tracks
+//! them to their first real collision with the path tracer's WGSL tracking code, adds the
+//! direct light there (ratio-tracked shadow rays to the sun, one phase-sampled sky direction)
+//! and writes one network query per collision straight into the descriptor stage's input; the
+//! descriptor and the layers ([`crate::gpu_mlp`]) follow, and a resolve pass adds
+//! known + sun head + sky head (contracted with the sky's coefficients, [`crate::sky`]) to the
+//! pixel's running sums. Nothing comes back until [`GpuSampler::image`].
+//!
+//! Pixels go through in chunks of the network's batch ([`GpuMlp::max_batch`]); a chunk's
+//! queries are compacted by an atomic counter, so pixels that see only sky cost no network
+//! work, and the later passes read the count on the GPU.
+//!
+//! Supported: HG or isotropic phase, a delta or disc sun, no sky, a constant sky or an
+//! environment map (nearest texel, as `nimbus_scene::EnvMap::radiance`), the sky through the
+//! model's sky head. The paper's directional sky sampling (`rpnn-dirs`) and tabulated (Mie)
+//! phase functions stay with [`crate::render`] (CPU shading, either network backend).
+//!
+//! The CPU twin is [`crate::render::accumulate`] with the same network: the tests compare the
+//! two images statistically (independent random numbers), and the contraction with
+//! [`crate::sky::product_in_frame`].
+
+use std::time::Instant;
+
+use bytemuck::{Pod, Zeroable};
+use nimbus_gpu::params::VolumeParams;
+use nimbus_gpu::timing::StageTimer;
+use nimbus_gpu::{Gpu, shaders};
+use nimbus_scene::{Image, Scene, Sky};
+use nimbus_trace::gpu::{Density, DensityStorage, scene_params};
+
+use crate::descriptor::DESCRIPTOR_LEN;
+use crate::gpu::{GpuConfig, GpuDescriptor};
+use crate::gpu_mlp::GpuMlp;
+use crate::model::Rpnn;
+use crate::pyramid::Pyramid;
+use crate::render::{RenderError, SkySh};
+
+/// `struct Sample` of the shader.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, Default, PartialEq)]
+pub struct SampleParams {
+    pub first: u32,
+    pub count: u32,
+    pub sample: u32,
+    pub flags: u32,
+    pub env_w: u32,
+    pub env_h: u32,
+    pub outputs: u32,
+    pub sun_outputs: u32,
+    pub degree: u32,
+    pub rows: u32,
+    pub _a: u32,
+    pub _b: u32,
+}
+
+const SKY: u32 = 1;
+const ENV: u32 = 2;
+const SKY_HEAD: u32 = 4;
+
+/// GPU milliseconds per stage (timestamp queries; zero without them) and the wall time, summed
+/// over the samples since the last [`GpuSampler::reset`].
+#[derive(Debug, Clone, Default)]
+pub struct SampleTimes {
+    /// Camera rays, tracking, direct light, query compaction.
+    pub shade_ms: f64,
+    pub descriptor_ms: f64,
+    pub inference_ms: f64,
+    /// Network rows into the pixels (the sky head's contraction included).
+    pub resolve_ms: f64,
+    /// Wall-clock milliseconds of [`GpuSampler::add`], GPU work finished.
+    pub total_ms: f64,
+}
+
+/// Why a scene or model needs the CPU shading path ([`crate::render`]); `None` when the whole
+/// sample runs on the GPU.
+pub fn unsupported(scene: &Scene, model: &Rpnn, sky_sh: Option<&SkySh>) -> Option<String> {
+    if let Err(e) = scene_params(scene) {
+        return Some(e.to_string());
+    }
+    if scene.sky.is_some() && (sky_sh.is_none() || model.sky_coeffs() == 0) {
+        return Some(
+            "the paper's directional sky sampling runs with CPU shading (a model with a sky head \
+             runs on the GPU)"
+                .into(),
+        );
+    }
+    None
+}
+
+/// A scene, its density pyramid and a network on the GPU, with the running sums of an image.
+pub struct GpuSampler<'g> {
+    gpu: &'g Gpu,
+    desc: GpuDescriptor<'g>,
+    mlp: GpuMlp<'g>,
+    params: VolumeParams,
+    params_buf: wgpu::Buffer,
+    density: Density,
+    shade: wgpu::ComputePipeline,
+    resolve: wgpu::ComputePipeline,
+    base: SampleParams,
+    /// Queries per chunk (the network's batch).
+    rows: usize,
+    /// [0]: this chunk's queries; [1]: all queries since the last reset.
+    counter: wgpu::Buffer,
+    configs: wgpu::Buffer,
+    extra: wgpu::Buffer,
+    descriptors: wgpu::Buffer,
+    env: wgpu::Buffer,
+    sky_tab: wgpu::Buffer,
+    acc: wgpu::Buffer,
+    samples: u32,
+    timer: StageTimer,
+    pub times: SampleTimes,
+}
+
+impl<'g> GpuSampler<'g> {
+    /// Uploads `scene`'s density and lights, the pyramid and the network. `sky_sh`: the sky
+    /// through the sky head (required with a sky, see [`unsupported`]); `max_batch`: network
+    /// queries per chunk, lowered to what the adapter's bindings hold.
+    pub fn new(
+        gpu: &'g Gpu,
+        scene: &Scene,
+        pyr: &Pyramid,
+        model: &Rpnn,
+        sky_sh: Option<&SkySh>,
+        max_batch: usize,
+    ) -> Result<Self, RenderError> {
+        Self::with_storage(
+            gpu,
+            scene,
+            pyr,
+            model,
+            sky_sh,
+            max_batch,
+            DensityStorage::Auto,
+        )
+    }
+
+    /// Like [`GpuSampler::new`], choosing how the density is stored (tests compare both).
+    pub fn with_storage(
+        gpu: &'g Gpu,
+        scene: &Scene,
+        pyr: &Pyramid,
+        model: &Rpnn,
+        sky_sh: Option<&SkySh>,
+        max_batch: usize,
+        storage: DensityStorage,
+    ) -> Result<Self, RenderError> {
+        if let Some(why) = unsupported(scene, model, sky_sh) {
+            return Err(RenderError::Setting(format!(
+                "{}: {why}",
+                scene.source.display()
+            )));
+        }
+        let gpu_err = |e: nimbus_trace::gpu::GpuPtError| RenderError::Setting(e.to_string());
+        let params = scene_params(scene).map_err(gpu_err)?;
+        let density = Density::upload(gpu, scene, storage).map_err(gpu_err)?;
+        let desc = GpuDescriptor::new(gpu, pyr)?;
+        let mlp = GpuMlp::new(gpu, model, max_batch)?;
+        let rows = mlp.max_batch;
+        let (mut flags, mut env_w, mut env_h) = (0, 0, 0);
+        // One black texel binds where there is no map.
+        let mut texels: Vec<[f32; 4]> = vec![[0.0; 4]];
+        match &scene.sky {
+            None => {}
+            Some(Sky::Constant(_)) => flags |= SKY,
+            Some(Sky::Env(env)) => {
+                flags |= SKY | ENV;
+                let img = env.image();
+                let s = env.scale() as f32;
+                (env_w, env_h) = (img.width as u32, img.height as u32);
+                texels = img
+                    .pixels
+                    .iter()
+                    .map(|p| [p[0] * s, p[1] * s, p[2] * s, 0.0])
+                    .collect();
+                gpu.check_storage("the environment map", texels.len() as u64 * 16)?;
+            }
+        }
+        let (degree, table) = match sky_sh {
+            Some(s) if model.sky_coeffs() > 0 && scene.sky.is_some() => {
+                flags |= SKY_HEAD;
+                (s.degree as u32, crate::sky::gpu_table(&s.world))
+            }
+            _ => (0, vec![0.0; 1]),
+        };
+        gpu.check_storage("the descriptor batch", (rows * DESCRIPTOR_LEN * 4) as u64)?;
+        let (w, h) = (scene.camera.width, scene.camera.height);
+        gpu.check_storage("the image", (w * h) as u64 * 16)?;
+        let stage = if density.is_bricks() {
+            "rpnn_sample_bricks.wgsl"
+        } else {
+            "rpnn_sample.wgsl"
+        };
+        let source = shaders::source(stage);
+        Ok(Self {
+            gpu,
+            shade: gpu.pipeline("rpnn shade", &source, "shade"),
+            resolve: gpu.pipeline("rpnn resolve", &source, "resolve"),
+            base: SampleParams {
+                flags,
+                env_w,
+                env_h,
+                outputs: mlp.outputs as u32,
+                sun_outputs: mlp.sun_outputs as u32,
+                degree,
+                rows: rows as u32,
+                ..Default::default()
+            },
+            desc,
+            mlp,
+            params_buf: gpu.uniform("rpnn sample params", &params),
+            params,
+            density,
+            rows,
+            counter: gpu.zeroed("rpnn query counter", 8),
+            configs: gpu.zeroed(
+                "rpnn query configs",
+                (rows * std::mem::size_of::<GpuConfig>()) as u64,
+            ),
+            extra: gpu.zeroed("rpnn query weights", rows as u64 * 32),
+            descriptors: gpu.zeroed("rpnn descriptors", (rows * DESCRIPTOR_LEN * 4) as u64),
+            env: gpu.storage("environment map", &texels),
+            sky_tab: gpu.storage("sky coefficients", &table),
+            acc: gpu.zeroed("rpnn image sums", (w * h) as u64 * 16),
+            samples: 0,
+            timer: StageTimer::new(gpu, 2048),
+            times: SampleTimes::default(),
+        })
+    }
+
+    /// Takes the scene's camera, sun and constant sky as they are now (the viewer moves them);
+    /// a new image size empties the sums. The density, the environment map and the sky's
+    /// coefficients are fixed at [`GpuSampler::new`] (the coefficients: [`GpuSampler::set_sky`]).
+    pub fn sync(&mut self, scene: &Scene) -> Result<(), RenderError> {
+        let seed = self.params.seed;
+        let p = scene_params(scene).map_err(|e| RenderError::Setting(e.to_string()))?;
+        let resized = (p.width, p.height) != (self.params.width, self.params.height);
+        self.params = VolumeParams { seed, ..p };
+        self.gpu
+            .queue
+            .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
+        if resized {
+            let (w, h) = (p.width as u64, p.height as u64);
+            self.gpu.check_storage("the image", w * h * 16)?;
+            self.acc = self.gpu.zeroed("rpnn image sums", w * h * 16);
+            self.samples = 0;
+        }
+        Ok(())
+    }
+
+    /// New sky coefficients for the sky head (a sky whose colours follow the sun).
+    pub fn set_sky(&mut self, sky_sh: &SkySh) {
+        if self.base.flags & SKY_HEAD != 0 {
+            let table = crate::sky::gpu_table(&sky_sh.world);
+            self.gpu
+                .queue
+                .write_buffer(&self.sky_tab, 0, bytemuck::cast_slice(&table));
+        }
+    }
+
+    /// Empties the sums; the next samples are drawn with `seed`.
+    pub fn reset(&mut self, seed: u64) {
+        self.params.seed = (seed ^ (seed >> 32)) as u32;
+        self.gpu
+            .queue
+            .write_buffer(&self.params_buf, 0, bytemuck::bytes_of(&self.params));
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        enc.clear_buffer(&self.acc, 0, None);
+        enc.clear_buffer(&self.counter, 0, None);
+        self.gpu.queue.submit([enc.finish()]);
+        self.samples = 0;
+        self.times = SampleTimes::default();
+    }
+
+    /// Adds `spp` samples per pixel to the sums (sample indices continue from those already
+    /// in them, so steps give the image one call gives). One submission per sample.
+    pub fn add(&mut self, spp: u32) -> Result<(), RenderError> {
+        let t_all = Instant::now();
+        let pixels = (self.params.width * self.params.height) as usize;
+        for s in 0..spp {
+            let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+            for first in (0..pixels).step_by(self.rows) {
+                let count = (pixels - first).min(self.rows);
+                self.encode_chunk(&mut enc, first, count, self.samples + s);
+            }
+            self.timer.resolve(&mut enc);
+            self.gpu.queue.submit([enc.finish()]);
+            for (name, ms) in self.timer.read(self.gpu) {
+                let t = &mut self.times;
+                match name {
+                    "shade" => t.shade_ms += ms,
+                    "descriptor" => t.descriptor_ms += ms,
+                    "resolve" => t.resolve_ms += ms,
+                    _ => t.inference_ms += ms,
+                }
+            }
+        }
+        // Without timestamps the wait above is the only one: finish the work before timing.
+        self.gpu
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| nimbus_gpu::GpuError::Readback(e.to_string()))?;
+        self.samples += spp;
+        self.times.total_ms += t_all.elapsed().as_secs_f64() * 1e3;
+        Ok(())
+    }
+
+    fn encode_chunk(
+        &mut self,
+        enc: &mut wgpu::CommandEncoder,
+        first: usize,
+        count: usize,
+        sample: u32,
+    ) {
+        let gpu = self.gpu;
+        enc.clear_buffer(&self.counter, 0, Some(4));
+        let sp = gpu.uniform(
+            "rpnn sample",
+            &SampleParams {
+                first: first as u32,
+                count: count as u32,
+                sample,
+                ..self.base
+            },
+        );
+        let common = [
+            (0, &self.params_buf),
+            (2, &sp),
+            (3, &self.counter),
+            (4, &self.configs),
+            (7, &self.extra),
+            (8, &self.acc),
+            (9, &self.env),
+        ];
+        let bind = self.density.bind(gpu, &self.shade, &common);
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("rpnn shade"),
+                timestamp_writes: self.timer.pass("shade"),
+            });
+            pass.set_pipeline(&self.shade);
+            pass.set_bind_group(0, &bind, &[]);
+            let (x, y) = Gpu::workgroups_1d(count as u32);
+            pass.dispatch_workgroups(x, y, 1);
+        }
+        let rows = count.min(self.rows);
+        self.desc.encode_rows(
+            enc,
+            &self.configs,
+            Some(&self.counter),
+            rows,
+            &self.descriptors,
+            self.timer.pass("descriptor"),
+        );
+        self.mlp.encode(
+            enc,
+            &self.descriptors,
+            rows,
+            Some(&self.counter),
+            Some(&mut self.timer),
+        );
+        let bind = gpu.bind(
+            &self.resolve,
+            &[
+                (2, &sp),
+                (3, &self.counter),
+                (4, &self.configs),
+                (7, &self.extra),
+                (8, &self.acc),
+                (10, self.mlp.output()),
+                (11, &self.sky_tab),
+            ],
+        );
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("rpnn resolve"),
+            timestamp_writes: self.timer.pass("resolve"),
+        });
+        pass.set_pipeline(&self.resolve);
+        pass.set_bind_group(0, &bind, &[]);
+        let (x, y) = Gpu::workgroups_1d(rows as u32);
+        pass.dispatch_workgroups(x, y, 1);
+    }
+
+    /// Samples per pixel in the sums.
+    pub fn samples(&self) -> u32 {
+        self.samples
+    }
+
+    /// Network queries since the last reset (read from the GPU).
+    pub fn queries(&self) -> Result<u64, RenderError> {
+        let c: Vec<u32> = self.gpu.read(&self.counter)?;
+        Ok(c[1] as u64)
+    }
+
+    /// The mean image and the variance of each pixel's mean luminance (0 below two samples).
+    pub fn image(&self) -> Result<(Image, Vec<f32>), RenderError> {
+        let (w, h) = (self.params.width as usize, self.params.height as usize);
+        let sums: Vec<[f32; 4]> = self.gpu.read(&self.acc)?;
+        let n = self.samples.max(1) as f64;
+        let mut img = Image::new(w, h);
+        let mut var = vec![0.0f32; w * h];
+        for (i, s) in sums.iter().take(w * h).enumerate() {
+            let rgb = [s[0] as f64 / n, s[1] as f64 / n, s[2] as f64 / n];
+            img.pixels[i] = rgb.map(|v| v as f32);
+            if self.samples > 1 {
+                let mean = (rgb[0] + rgb[1] + rgb[2]) / 3.0;
+                var[i] = ((s[3] as f64 / n - mean * mean).max(0.0) / (n - 1.0)) as f32;
+            }
+        }
+        Ok((img, var))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sample_struct_matches_wgsl() {
+        let (members, size) = shaders::struct_layout("rpnn_sample.wgsl", "Sample");
+        assert_eq!(size as usize, std::mem::size_of::<SampleParams>());
+        let names = [
+            "first",
+            "count",
+            "sample",
+            "flags",
+            "env_w",
+            "env_h",
+            "outputs",
+            "sun_outputs",
+            "degree",
+            "rows",
+            "_a",
+            "_b",
+        ];
+        assert_eq!(members.len(), names.len());
+        for (i, (name, off)) in members.iter().enumerate() {
+            assert_eq!(name, names[i]);
+            assert_eq!(*off as usize, 4 * i);
+        }
+    }
+}

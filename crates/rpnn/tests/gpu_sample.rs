@@ -1,0 +1,291 @@
+//! The whole RPNN sample on the GPU (`nimbus_rpnn::gpu_sample`) against its CPU twin
+//! (`nimbus_rpnn::render`, CPU shading with the same network): the same expectation under sun,
+//! sun + constant sky, and a disc sun + an environment map through the sky head; progressive
+//! steps equal one call; dense and brick-map densities give the same image; what it does not
+//! model is refused by name.
+
+use std::path::Path;
+
+use glam::DVec3;
+use nimbus_rpnn::Pyramid;
+use nimbus_rpnn::gpu_sample::{GpuSampler, unsupported};
+use nimbus_rpnn::model::Rpnn;
+use nimbus_rpnn::ort_backend::OrtModel;
+use nimbus_rpnn::render::{Backend, RpnnOptions, SkySh, render};
+use nimbus_scene::{EnvMap, Image, Scene, Sky};
+use nimbus_trace::gpu::DensityStorage;
+
+fn data(name: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
+}
+
+fn scene(sun: &str, sky: &str) -> Scene {
+    let text = format!(
+        r#"
+[volume]
+generator = {{ kind = "cumulus", seed = 5, resolution = [40, 30, 40] }}
+density_scale = 30.0
+albedo = 0.9
+phase = {{ kind = "hg", g = 0.857 }}
+[sun]
+direction = [-0.3, 0.5, -0.8]
+{sun}
+{sky}
+[camera]
+origin = [0.0, 0.2, 3.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+vfov_deg = 30.0
+width = 24
+height = 16
+[render]
+seed = 3
+"#
+    );
+    Scene::from_toml_str(&text, Path::new("."), Path::new("gpu-sample.toml")).unwrap()
+}
+
+/// A lat-long map with a horizon gradient and a bright patch, so the sky's higher harmonics
+/// (and with them the rotation into each query's frame) matter.
+fn env_map() -> EnvMap {
+    let (w, h) = (32, 16);
+    let mut img = Image::new(w, h);
+    for y in 0..h {
+        for x in 0..w {
+            let v = (y as f32 + 0.5) / h as f32;
+            let patch = if (4..9).contains(&x) && (3..6).contains(&y) {
+                3.0
+            } else {
+                0.0
+            };
+            img.pixels[y * w + x] = [
+                0.1 + 0.3 * v + patch,
+                0.15 + 0.2 * v + patch,
+                0.4 - 0.2 * v + 0.5 * patch,
+            ];
+        }
+    }
+    EnvMap::new(img, 1.0).unwrap()
+}
+
+fn shipped(name: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../models")
+        .join(name)
+}
+
+/// (mean luminance over the image, variance of that mean) from an image and its per-pixel
+/// variances of the mean luminance.
+fn mean_and_var(img: &Image, var: &[f32]) -> (f64, f64) {
+    let n = img.pixels.len() as f64;
+    let m = img
+        .pixels
+        .iter()
+        .map(|p| (p[0] + p[1] + p[2]) as f64 / 3.0)
+        .sum::<f64>()
+        / n;
+    let v = var.iter().map(|&v| v as f64).sum::<f64>() / (n * n);
+    (m, v)
+}
+
+/// Largest |z| over 4×4 blocks of the difference of two independent estimates.
+fn max_block_z(a: (&Image, &[f32]), b: (&Image, &[f32])) -> f64 {
+    let (w, h) = (a.0.width, a.0.height);
+    let mut worst: f64 = 0.0;
+    for by in (0..h).step_by(4) {
+        for bx in (0..w).step_by(4) {
+            let (mut da, mut va, mut n) = (0.0, 0.0, 0.0);
+            for y in by..(by + 4).min(h) {
+                for x in bx..(bx + 4).min(w) {
+                    let i = y * w + x;
+                    let la = a.0.pixels[i].iter().map(|v| *v as f64).sum::<f64>() / 3.0;
+                    let lb = b.0.pixels[i].iter().map(|v| *v as f64).sum::<f64>() / 3.0;
+                    da += la - lb;
+                    va += a.1[i] as f64 + b.1[i] as f64;
+                    n += 1.0;
+                }
+            }
+            let _ = n;
+            if va > 0.0 {
+                worst = worst.max(da.abs() / va.sqrt());
+            }
+        }
+    }
+    worst
+}
+
+/// GPU whole sample and CPU shading, each with its own random numbers, estimate the same image:
+/// the image means agree within 4 standard errors and no 4×4 block differs by more than 4.5 of
+/// its standard errors (24 blocks: a Gaussian exceeds 4.5σ with probability 7e-6 each). The
+/// three lightings cover the delta sun, the constant sky through the sky head (band 0 of the
+/// contraction), and a disc sun with an environment map (every band, and the map's texels
+/// looked up on the GPU). A missing albedo factor (0.9) in either path would move the mean by
+/// ≥ 10 % of the indirect part, far beyond these bounds.
+#[test]
+fn the_whole_sample_on_the_gpu_estimates_what_cpu_shading_does() {
+    let Some(gpu) = nimbus_gpu::testing::gpu(
+        "gpu_sample::the_whole_sample_on_the_gpu_estimates_what_cpu_shading_does",
+    ) else {
+        return;
+    };
+    let irr = "irradiance = [1.0, 0.9, 0.8]";
+    let cases: Vec<(&str, Scene, &str)> = vec![
+        ("sun", scene(irr, ""), "rpnn-hg.onnx"),
+        (
+            "sun + sky",
+            scene(irr, "[sky]\nradiance = [0.1, 0.15, 0.3]"),
+            "rpnn-hg-sky.onnx",
+        ),
+        (
+            "disc sun + environment map",
+            {
+                let mut s = scene("irradiance = [1.0, 0.9, 0.8]\nangular_radius_deg = 2.0", "");
+                s.sky = Some(Sky::Env(env_map()));
+                s
+            },
+            "rpnn-hg-sky.onnx",
+        ),
+    ];
+    let spp = 64;
+    for (name, s, model_file) in cases {
+        let path = shipped(model_file);
+        let model = Rpnn::load(&path).unwrap();
+        let pyr = Pyramid::new(&s.volume).unwrap();
+        let sky_sh = SkySh::of(&s, 4, 32);
+        assert!(unsupported(&s, &model, sky_sh.as_ref()).is_none(), "{name}");
+        let mut g = GpuSampler::new(&gpu, &s, &pyr, &model, sky_sh.as_ref(), 1 << 12).unwrap();
+        g.reset(11);
+        g.add(spp).unwrap();
+        let (gi, gv) = g.image().unwrap();
+        let opts = RpnnOptions {
+            sky_sh: sky_sh.clone(),
+            sun_outputs: model.outputs,
+            ..RpnnOptions::new(spp, 12, 1)
+        };
+        let mut ort = Backend::Ort(OrtModel::load(&path, 1).unwrap());
+        let c = render(&s, &pyr, &mut ort, &opts).unwrap();
+        let (mg, vg) = mean_and_var(&gi, &gv);
+        let (mc, vc) = mean_and_var(&c.image, &c.variance);
+        let z = (mg - mc).abs() / (vg + vc).sqrt();
+        // The network's share: the same GPU sample with both heads' last layers zeroed
+        // (direct light only, 16 spp) must lie ≥ 10 standard errors below, so the agreement
+        // above is an agreement about the network's part.
+        let mut silent = model.clone();
+        for l in [silent.head.last_mut(), silent.sky_head.last_mut()]
+            .into_iter()
+            .flatten()
+        {
+            l.w.fill(0.0);
+            l.b.fill(0.0);
+        }
+        let mut d = GpuSampler::new(&gpu, &s, &pyr, &silent, sky_sh.as_ref(), 1 << 12).unwrap();
+        d.reset(13);
+        d.add(16).unwrap();
+        let (di, dv) = d.image().unwrap();
+        let (md, vd) = mean_and_var(&di, &dv);
+        assert!(
+            mc - md >= 10.0 * (vc + vd).sqrt(),
+            "{name}: the network adds {} to {md}",
+            mc - md
+        );
+        eprintln!(
+            "{name}: GPU {mg:.5} CPU {mc:.5} (z = {z:.2}), direct only {md:.5}; shade {:.0} ms, desc {:.0}, net {:.0}, resolve {:.0}, total {:.0}",
+            g.times.shade_ms,
+            g.times.descriptor_ms,
+            g.times.inference_ms,
+            g.times.resolve_ms,
+            g.times.total_ms
+        );
+        assert!(
+            mc.abs() > 10.0 * (vg + vc).sqrt(),
+            "{name}: a signal to compare"
+        );
+        assert!(z <= 4.0, "{name}: image means {mg} vs {mc}, z = {z}");
+        let bz = max_block_z((&gi, &gv), (&c.image, &c.variance));
+        assert!(
+            bz <= 4.5,
+            "{name}: a 4x4 block differs by {bz} standard errors"
+        );
+        // One query per collision: as many as the CPU's up to noise (±4σ of a binomial).
+        let q = g.queries().unwrap() as f64;
+        let qc = c.times.queries as f64;
+        let n = (s.camera.width * s.camera.height) as f64 * spp as f64;
+        let sd = (qc * (1.0 - qc / n)).sqrt().max(1.0);
+        assert!(
+            (q - qc).abs() <= 4.0 * 2f64.sqrt() * sd,
+            "{name}: {q} vs {qc} queries"
+        );
+    }
+}
+
+/// Steps of samples give the image one call gives, bit for bit (sample indices continue); a
+/// reset with the same seed repeats it; the brick-map density gives the same image as the
+/// dense buffer; a moved sun takes effect without a new upload.
+#[test]
+fn gpu_samples_are_progressive_repeatable_and_storage_independent() {
+    let Some(gpu) = nimbus_gpu::testing::gpu(
+        "gpu_sample::gpu_samples_are_progressive_repeatable_and_storage_independent",
+    ) else {
+        return;
+    };
+    let mut s = scene(
+        "irradiance = [1.0, 1.0, 1.0]",
+        "[sky]\nradiance = [0.1, 0.15, 0.3]",
+    );
+    let model = Rpnn::load(&data("rpnn-tiny-sky.onnx")).unwrap();
+    let pyr = Pyramid::new(&s.volume).unwrap();
+    let sky_sh = SkySh::of(&s, 4, 16);
+    // A batch of 100 queries: several chunks per sample, the last one partial.
+    let mut g = GpuSampler::new(&gpu, &s, &pyr, &model, sky_sh.as_ref(), 100).unwrap();
+    g.reset(5);
+    g.add(4).unwrap();
+    let (one, _) = g.image().unwrap();
+    g.reset(5);
+    g.add(1).unwrap();
+    g.add(3).unwrap();
+    assert_eq!(g.samples(), 4);
+    let (steps, _) = g.image().unwrap();
+    assert_eq!(one.pixels, steps.pixels);
+    let mut b = GpuSampler::with_storage(
+        &gpu,
+        &s,
+        &pyr,
+        &model,
+        sky_sh.as_ref(),
+        100,
+        DensityStorage::Bricks { max_blocks: 4 },
+    )
+    .unwrap();
+    b.reset(5);
+    b.add(4).unwrap();
+    assert_eq!(b.image().unwrap().0.pixels, one.pixels);
+    // The sun below the horizon of the cloud's far side: another image, same sampler.
+    s.sun.as_mut().unwrap().dir = DVec3::new(-0.5, 0.3, -0.8).normalize();
+    g.sync(&s).unwrap();
+    g.reset(5);
+    g.add(4).unwrap();
+    assert_ne!(g.image().unwrap().0.pixels, one.pixels);
+}
+
+/// What the GPU sample does not model is named: a tabulated phase function, and a sky without
+/// a sky head (the paper's directional sampling runs with CPU shading).
+#[test]
+fn unsupported_scenes_are_named() {
+    let s = scene(
+        "irradiance = [1.0, 1.0, 1.0]",
+        "[sky]\nradiance = [0.1, 0.15, 0.3]",
+    );
+    let plain = Rpnn::load(&data("rpnn-tiny.onnx")).unwrap();
+    let why = unsupported(&s, &plain, None).unwrap();
+    assert!(why.contains("directional sky sampling"), "{why}");
+    let sky_model = Rpnn::load(&data("rpnn-tiny-sky.onnx")).unwrap();
+    assert!(unsupported(&s, &sky_model, SkySh::of(&s, 4, 16).as_ref()).is_none());
+    let mut mie = scene("irradiance = [1.0, 1.0, 1.0]", "");
+    mie.medium.phase = nimbus_scene::Phase::Tabulated(std::sync::Arc::new(
+        nimbus_scene::phase::TabulatedPhase::from_angles(&[0.0, 90.0, 180.0], &[2.0, 1.0, 0.5]),
+    ));
+    let why = unsupported(&mie, &plain, None).unwrap();
+    assert!(why.contains("tabulated"), "{why}");
+}
