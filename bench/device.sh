@@ -2,8 +2,9 @@
 # Everything Nimbus claims about GPU speed, measured in one run, as one CSV + Markdown table:
 #   1. photon mapping per stage at 1920×1200 on the Elek 2012 Table 1 scenes (a turning sun, so
 #      every frame traces, updates, upsamples and ray marches; mean over frames 2..N);
-#   2. RPNN milliseconds per sample at 1280×720 for both network backends (wgpu, ort), split
-#      into descriptors, network and the rest (`--timings`);
+#   2. RPNN milliseconds per sample at 1280×720 under sun and sun + sky: the whole sample on
+#      the GPU, the GPU network with CPU shading, and ONNX Runtime, split into stages
+#      (`--timings`);
 #   3. GPU path tracer camera paths/s against the CPU path tracer on scenes/refs/cumulus_side
 #      at 1280×720;
 #   4. `datagen --device gpu` records per hour (fixed-count labels, --samples 1024);
@@ -94,18 +95,27 @@ for spec in "altostratus 15,10,15" "cumulus_congestus 10,12,18" "wide_cloud 15,1
     "$out/pm_$1/timings.csv" >> "$csv"
 done
 
-# 2. RPNN ms per sample, both backends.
+# 2. RPNN ms per sample under sun and under sun + sky (the sky head): the whole sample on the
+# GPU (wgpu), the network on the GPU with CPU shading (wgpu --cpu-shading) and ONNX Runtime
+# (ort), each split into its stages (`--timings`): whole sample: shade, descriptor, inference,
+# resolve (GPU timestamps) and the rest of the wall time; CPU shading: descriptor, inference
+# (transfers included) and the rest on the CPU (camera rays, delta tracking, shadow rays).
 scene=$(sized scenes/bench/rpnn_720p.toml "$RW" "$RH")
-for b in wgpu ort; do
-  "$nimbus" render "$scene" --method rpnn --backend "$b" --spp "$RSPP" --timings -q \
-    -o "$out/rpnn_$b.exr" > "$out/rpnn_$b.txt"
-  ms=$(grep -m1 "ms per spp" "$out/rpnn_$b.txt" | sed -E 's/.* ([0-9.]+) ms per spp.*/\1/')
-  row rpnn_ms_per_spp rpnn_720p "${RW}x${RH} backend=$b" "$ms" ms
-  # The split: descriptors, the network (transfers included), the rest on the CPU (camera rays,
-  # delta tracking, sun shadow rays).
-  for stage in descriptor inference rest; do
-    ms=$(grep -m1 "^ *$stage " "$out/rpnn_$b.txt" | awk '{ print $2 }')
-    row "rpnn_${stage}_ms_per_spp" rpnn_720p "${RW}x${RH} backend=$b" "$ms" ms
+sky_scene="${scene%.toml}_sky.toml"
+{ cat "$scene"; printf '\n[sky]\nradiance = [0.12, 0.2, 0.38]\n'; } > "$sky_scene"
+for sc in "rpnn_720p $scene" "rpnn_720p_sky $sky_scene"; do
+  set -- $sc
+  for b in "wgpu" "wgpu --cpu-shading" "ort"; do
+    tag=$(echo "$b" | tr -d ' -' | sed 's/cpushading/_cpu_shading/')
+    # shellcheck disable=SC2086
+    "$nimbus" render "$2" --method rpnn --backend $b --spp "$RSPP" --timings -q \
+      -o "$out/$1_$tag.exr" > "$out/$1_$tag.txt"
+    ms=$(grep -m1 "ms per spp" "$out/$1_$tag.txt" | sed -E 's/.* ([0-9.]+) ms per spp.*/\1/')
+    row rpnn_ms_per_spp "$1" "${RW}x${RH} backend=$b" "$ms" ms
+    for stage in shade descriptor inference resolve rest; do
+      ms=$(grep -m1 "^ *$stage " "$out/$1_$tag.txt" | awk '{ print $2 }' || true)
+      if [ -n "$ms" ]; then row "rpnn_${stage}_ms_per_spp" "$1" "${RW}x${RH} backend=$b" "$ms" ms; fi
+    done
   done
 done
 

@@ -8,6 +8,8 @@
 //     configuration (x, ω, ω_sun) goes to `configs` at a slot taken from `counter`, with the
 //     radiance known without the network and the weights of the network's two heads. A camera
 //     ray that leaves the volume adds the sky (and the sun's disc) to its pixel at once.
+//  1b. `dispatch_args` (here): workgroup counts of the later passes for the chunk's count, so
+//     no pass dispatches empty workgroups (on lavapipe they cost as much as full ones);
 //  2. the descriptor stage (`rpnn_descriptor.wgsl`) and 3. the layers (`rpnn_mlp.wgsl`) read
 //     the `counter[0]` slots and write the network's rows;
 //  4. `resolve` (here): per slot, known + sun weight × sun head + sky weight × Σ t_lm c'_lm (the
@@ -51,6 +53,10 @@ struct Config { x: vec4<f32>, view: vec4<f32>, to_light: vec4<f32> };
 @group(0) @binding(10) var<storage, read> net: array<f32>;
 // `nimbus_rpnn::sky::gpu_table`: world coefficients, band directions, band inverses.
 @group(0) @binding(11) var<storage, read> sky_tab: array<f32>;
+// Indirect dispatch arguments, (x, y, z) triples: the descriptor pass, the resolve pass, then
+// one per network layer, whose output tiles `layer_tiles` lists (`GpuMlp::layer_tiles`).
+@group(0) @binding(12) var<storage, read_write> args: array<u32>;
+@group(0) @binding(13) var<storage, read> layer_tiles: array<u32>;
 
 // Sky radiance seen along d (`nimbus_scene::EnvMap::radiance`: the nearest texel).
 fn sky(d: vec3<f32>) -> vec3<f32> {
@@ -140,6 +146,32 @@ fn shade(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
     configs[slot] = Config(vec4<f32>(x, 0.0), vec4<f32>(d, 0.0), vec4<f32>(to_light, 0.0));
     extra[2u * slot] = vec4<f32>(known, sky_w);
     extra[2u * slot + 1u] = vec4<f32>(sun_w, bitcast<f32>(pixel));
+}
+
+// (x, y) workgroups covering n one-dimensional invocations (`nimbus_gpu::Gpu::workgroups_1d`).
+fn groups_1d(n: u32) -> vec2<u32> {
+    let wg = max((n + WG - 1u) / WG, 1u);
+    if (wg <= 65535u) { return vec2<u32>(wg, 1u); }
+    return vec2<u32>(65535u, (wg + 65534u) / 65535u);
+}
+
+fn put_args(k: u32, x: u32, y: u32) {
+    args[3u * k] = x;
+    args[3u * k + 1u] = y;
+    args[3u * k + 2u] = 1u;
+}
+
+@compute @workgroup_size(1)
+fn dispatch_args() {
+    let n = min(atomicLoad(&counter[0]), S.rows);
+    let d = groups_1d(n * DESCRIPTOR_LEN);
+    put_args(0u, d.x, d.y);
+    let r = groups_1d(n);
+    put_args(1u, r.x, r.y);
+    let row_tiles = max((n + 63u) / 64u, 1u);
+    for (var k = 0u; k < arrayLength(&layer_tiles); k++) {
+        put_args(2u + k, layer_tiles[k], row_tiles);
+    }
 }
 
 // Real orthonormal spherical harmonic `i` (= l² + l + m) at the unit vector d

@@ -21,9 +21,9 @@ pub(crate) enum RefDeviceArg {
 #[derive(clap::Args)]
 pub(crate) struct EvalArgs {
     /// Methods to compare: pt, pt-gpu, pm, pm-elek2012 (the paper's photon mapping), rpnn
-    /// (comma-separated).
-    #[arg(long, default_value = "pt,pm,rpnn")]
-    methods: String,
+    /// (comma-separated; default pt,pm,rpnn, with `bench-suite --device gpu` pt-gpu,pm,rpnn).
+    #[arg(long)]
+    methods: Option<String>,
     /// Budget sweep of one method, METHOD=B1,B2,… (spp for pt/pt-gpu/rpnn, ring frames for pm);
     /// repeat for several methods. Defaults: pt=2,8,32,128 pt-gpu=4,16,64,256 pm=4,16,100
     /// rpnn=2,8,32 (a Monte Carlo budget is rendered as two halves for its noise estimate).
@@ -68,7 +68,18 @@ pub(crate) struct EvalArgs {
 
 impl EvalArgs {
     pub(crate) fn options(&self, scene_seed: u64) -> Result<CompareOptions> {
-        let methods = nimbus_eval::method::parse_methods(&self.methods)?;
+        self.options_on(scene_seed, Device::Cpu)
+    }
+
+    /// [`EvalArgs::options`] for the estimators of `device`: on the GPU the path tracer is
+    /// `pt-gpu` and the network runs in WGSL unless `--methods` and `--backend` say otherwise.
+    fn options_on(&self, scene_seed: u64, device: Device) -> Result<CompareOptions> {
+        let default = match device {
+            Device::Cpu => "pt,pm,rpnn",
+            Device::Gpu => "pt-gpu,pm,rpnn",
+        };
+        let methods =
+            nimbus_eval::method::parse_methods(self.methods.as_deref().unwrap_or(default))?;
         let mut budgets = BTreeMap::new();
         for b in &self.budgets {
             let (m, list) = nimbus_eval::method::parse_budgets(b)?;
@@ -114,9 +125,13 @@ impl EvalArgs {
                 pm_beams: self.beams.unwrap_or(8192),
                 pm_gather: self.gather.settings(self.ring, self.beams),
                 model: self.rpnn.model.clone(),
-                rpnn_backend: self.rpnn.backend.into(),
+                rpnn_backend: match (device, self.rpnn.backend) {
+                    (Device::Gpu, crate::rpnn::NetBackend::Auto) => nimbus_render::NetBackend::Wgpu,
+                    (_, b) => b.into(),
+                },
                 sky_dirs: self.rpnn.sky_dirs,
                 sky_degree: self.rpnn.sky_degree as usize,
+                cpu_shading: self.rpnn.cpu_shading,
             },
             reference: ReferenceSettings {
                 spp: self.ref_spp,
@@ -210,8 +225,20 @@ pub(crate) struct SuiteArgs {
     /// Folder for the held-out clouds and the generated scene files.
     #[arg(long, default_value = "out/bench-suite")]
     work: PathBuf,
+    /// Where the estimators run: `gpu` compares pt-gpu, pm and rpnn with the WGSL network
+    /// (the whole sample on the GPU), with pt-gpu as the speed-ups' baseline: the table for
+    /// choosing an estimator on a GPU.
+    #[arg(long, value_enum, default_value = "cpu")]
+    device: Device,
     #[command(flatten)]
     eval: EvalArgs,
+}
+
+/// `bench-suite --device`.
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub(crate) enum Device {
+    Cpu,
+    Gpu,
 }
 
 /// Parses `WxH`.
@@ -253,7 +280,7 @@ pub(crate) fn bench_suite(args: &SuiteArgs) -> Result<()> {
         skies,
         width,
         height,
-        compare: args.eval.options(1)?,
+        compare: args.eval.options_on(1, args.device)?,
         work_dir: args.work.clone(),
     };
     preflight(

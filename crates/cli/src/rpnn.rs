@@ -46,6 +46,11 @@ pub(crate) struct RpnnArgs {
     /// from the model's training data.
     #[arg(long)]
     pub(crate) strict: bool,
+    /// RPNN with the network on the GPU: camera rays, tracking and direct light on the CPU
+    /// anyway (the hybrid path, for comparison). Without it the whole sample runs on the GPU
+    /// where the scene allows (HG or isotropic phase; a sky through the sky head).
+    #[arg(long)]
+    pub(crate) cpu_shading: bool,
 }
 
 impl RpnnArgs {
@@ -57,6 +62,7 @@ impl RpnnArgs {
             sky_dirs: self.sky_dirs,
             strict: self.strict,
             sky_degree: self.sky_degree as usize,
+            cpu_shading: self.cpu_shading,
         }
     }
 }

@@ -30,9 +30,14 @@ pub(crate) struct ViewArgs {
     /// Estimator at start: pm, pt or rpnn.
     #[arg(long, default_value = "pm")]
     method: String,
-    /// RPNN model for RPNN mode (default: the shipped models/rpnn-hg.onnx).
+    /// RPNN model for RPNN mode (default: the shipped model for the scene: models/rpnn-hg.onnx,
+    /// with a sky models/rpnn-hg-sky.onnx).
     #[arg(long)]
     model: Option<PathBuf>,
+    /// RPNN mode: where the network runs (with wgpu the whole sample runs on the GPU where the
+    /// scene allows it).
+    #[arg(long, value_enum, default_value = "auto")]
+    backend: crate::rpnn::NetBackend,
     /// Start with the sun moving.
     #[arg(long)]
     play_sun: bool,
@@ -76,6 +81,7 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
         size,
         method,
         model,
+        backend,
         play_sun,
         sun_speed,
         density_seq,
@@ -159,13 +165,17 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
         play_density: animated,
         method,
         exposure,
-        rpnn_model: model.unwrap_or_else(nimbus_rpnn::model::default_model_path),
+        rpnn_model: model,
+        rpnn_backend: backend.into(),
     };
     // Asked for on the command line, RPNN without a usable model is an error here (the key's
     // switch in a running viewer only leaves a note and keeps the method).
     if method == ViewMode::Rpnn {
-        nimbus_rpnn::model::Rpnn::load(&opts.rpnn_model)
-            .map_err(|e| anyhow::anyhow!("--method rpnn: {e}"))?;
+        let path = opts
+            .rpnn_model
+            .clone()
+            .unwrap_or_else(|| nimbus_rpnn::model::model_path_for(&s.phase_desc));
+        nimbus_rpnn::model::Rpnn::load(&path).map_err(|e| anyhow::anyhow!("--method rpnn: {e}"))?;
     }
     if headless {
         let frames = frames.unwrap_or(match method {

@@ -363,6 +363,68 @@ fn bench_suite_writes_the_table() {
     assert!(text(&o).contains("1..=8"), "{}", text(&o));
 }
 
+/// `bench-suite --device gpu`: the GPU estimators' table (pt-gpu the baseline, the network in
+/// WGSL with the whole sample on the GPU), at CI size on whatever adapter there is.
+#[test]
+fn bench_suite_on_the_gpu_writes_the_gpu_table() {
+    if !nimbus_gpu::testing::has_adapter("eval::bench_suite_on_the_gpu_writes_the_gpu_table") {
+        return;
+    }
+    let d = tmp("suite-gpu");
+    let o = nimbus(&[
+        "bench-suite",
+        "--device",
+        "gpu",
+        "--clouds",
+        "1",
+        "--lights",
+        "back",
+        "--skies",
+        "sun+sky",
+        "--size",
+        "32x18",
+        "--budgets",
+        "pt-gpu=4,16",
+        "--budgets",
+        "pm=4",
+        "--budgets",
+        "rpnn=2",
+        "--beams",
+        "1024",
+        "--ref-spp",
+        "128",
+        "--ref-noise",
+        "0",
+        "--ref-device",
+        "gpu",
+        "--cache",
+        d.join("cache").to_str().unwrap(),
+        "--out",
+        d.to_str().unwrap(),
+        "--work",
+        d.join("work").to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let md = std::fs::read_to_string(d.join("results.md")).unwrap();
+    assert!(
+        md.contains("| pt-gpu | sun+sky |") && md.contains("1× (baseline)"),
+        "{md}"
+    );
+    assert!(
+        md.contains("speed-up rpnn") && md.contains("speed-up pm") && md.contains("bias pt-gpu |"),
+        "{md}"
+    );
+    assert!(!md.contains("| pt | sun+sky |"), "{md}");
+    let csv = std::fs::read_to_string(d.join("results/scenes/cumulus_004_back_sunsky/report.csv"))
+        .unwrap();
+    let rpnn: Vec<&str> = csv.lines().filter(|l| l.contains(",rpnn,")).collect();
+    assert!(!rpnn.is_empty(), "{csv}");
+    assert!(
+        rpnn.iter().all(|l| l.contains("whole sample")),
+        "the network runs in WGSL with the whole sample on the GPU: {csv}"
+    );
+}
+
 #[test]
 fn stress_subset_passes_and_rejects_invalid_voxels() {
     let d = tmp("stress");
@@ -436,15 +498,19 @@ fn device_benchmark_script_small() {
         assert!(v.is_finite() && v > 0.0, "{line}");
         *measures.entry(f[0].to_string()).or_insert(0) += 1;
     }
-    // 3 scenes × 6 photon-mapping figures, 2 RPNN backends (total and split), 2 path tracers, 1 datagen, 1 training
+    // 3 scenes × 6 photon-mapping figures, 3 RPNN runners × 2 skies (total and split), 2 path tracers, 1 datagen, 1 training
     // throughput, wall time and peak RSS of the generator and 4 estimators at scale (every value
     // finite and > 0: the memory was measured).
     assert_eq!(measures.get("pm_frame_ms"), Some(&3), "{csv}");
     // The default (exact) variant rebuilds its sun-transmittance volume as the sun turns.
     assert_eq!(measures.get("pm_sun_transmittance_ms"), Some(&3), "{csv}");
     assert_eq!(measures.get("pm_upsample_ms"), Some(&3), "{csv}");
-    assert_eq!(measures.get("rpnn_ms_per_spp"), Some(&2), "{csv}");
-    assert_eq!(measures.get("rpnn_inference_ms_per_spp"), Some(&2), "{csv}");
+    // RPNN under sun and sun + sky, each as the whole sample on the GPU, with CPU shading and
+    // with ONNX Runtime; the GPU sample's shading and resolve passes only in the first.
+    assert_eq!(measures.get("rpnn_ms_per_spp"), Some(&6), "{csv}");
+    assert_eq!(measures.get("rpnn_inference_ms_per_spp"), Some(&6), "{csv}");
+    assert_eq!(measures.get("rpnn_shade_ms_per_spp"), Some(&2), "{csv}");
+    assert_eq!(measures.get("rpnn_resolve_ms_per_spp"), Some(&2), "{csv}");
     assert_eq!(measures.get("pt_paths_per_s"), Some(&2), "{csv}");
     assert_eq!(measures.get("datagen_records_per_hour"), Some(&1), "{csv}");
     assert_eq!(measures.get("train_records_per_s"), Some(&1), "{csv}");

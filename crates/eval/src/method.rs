@@ -74,6 +74,8 @@ pub struct RunSettings {
     pub sky_dirs: u32,
     /// RPNN with a sky head: the sky's spherical-harmonic degree.
     pub sky_degree: usize,
+    /// RPNN with the network on the GPU: shade on the CPU anyway (the hybrid path).
+    pub cpu_shading: bool,
 }
 
 impl Default for RunSettings {
@@ -86,6 +88,7 @@ impl Default for RunSettings {
             rpnn_backend: NetBackend::Auto,
             sky_dirs: 4,
             sky_degree: nimbus_rpnn::sky::SH_DEGREE,
+            cpu_shading: false,
         }
     }
 }
@@ -160,6 +163,7 @@ impl RunSettings {
                 sky_dirs: self.sky_dirs,
                 strict: false,
                 sky_degree: self.sky_degree,
+                cpu_shading: self.cpu_shading,
             },
         }
     }

@@ -357,6 +357,11 @@ fn english_list<'a>(items: impl Iterator<Item = &'a str>) -> String {
 fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> String {
     let c = &opts.compare;
     let methods: Vec<Method> = c.methods.clone();
+    // The speed-ups' baseline: the CPU path tracer, else the GPU one (`crate::metrics`).
+    let base = [Method::Pt, Method::PtGpu]
+        .into_iter()
+        .find(|m| methods.contains(m))
+        .unwrap_or(Method::Pt);
     let mut s = String::from("# Results: error, bias and speed-up on held-out clouds\n\n");
     let _ = writeln!(
         s,
@@ -429,12 +434,12 @@ fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> St
                     format!("{:.3}", med(floors))
                 },
                 top.len(),
-                if *m == Method::Pt {
+                if *m == base {
                     "1× (baseline)".to_string()
                 } else {
                     stat(speed, &|x| crate::report::fmt_x(Some(x)))
                 },
-                if *m == Method::Pt || ttuv.is_empty() {
+                if *m == base || ttuv.is_empty() {
                     "–".to_string()
                 } else {
                     crate::report::fmt_x(Some(med(ttuv)))
@@ -446,11 +451,11 @@ fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> St
     // Table 1 analogue: bias (converged) and speed-up per cloud × lighting × condition.
     s += "## Bias of converged images and speed-up over path tracing\n\n";
     s += "| cloud | light | sky |";
-    for m in methods.iter().filter(|m| **m != Method::Pt) {
+    for m in methods.iter().filter(|m| **m != base) {
         let _ = write!(s, " bias {m} (floor) | speed-up {m} |");
     }
-    s += " bias pt |\n|---|---|---|";
-    for _ in methods.iter().filter(|m| **m != Method::Pt) {
+    let _ = write!(s, " bias {base} |\n|---|---|---|");
+    for _ in methods.iter().filter(|m| **m != base) {
         s += "---:|---:|";
     }
     s += "---:|\n";
@@ -464,7 +469,7 @@ fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> St
             rows.iter()
                 .rfind(|r| r.scene == *sc && r.method == m && r.bias.is_some())
         };
-        for m in methods.iter().filter(|m| **m != Method::Pt) {
+        for m in methods.iter().filter(|m| **m != base) {
             match top(*m) {
                 Some(r) => {
                     let _ = write!(
@@ -477,7 +482,7 @@ fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> St
                 None => s += " – | – |",
             }
         }
-        match top(Method::Pt) {
+        match top(base) {
             Some(r) => {
                 let _ = write!(s, " {} |", crate::report::fmt_bias(r));
             }

@@ -36,6 +36,10 @@ pub struct RpnnSettings {
     /// Spherical-harmonic degree (0 … 4) of the sky the sky head's transfer is contracted
     /// with ([`Method::Rpnn`] with a sky and a model with a sky head).
     pub sky_degree: usize,
+    /// With the network on the GPU: camera rays, tracking and direct light on the CPU anyway
+    /// (the hybrid path, for comparison); off: the whole sample on the GPU where the scene
+    /// allows it ([`nimbus_rpnn::gpu_sample`]).
+    pub cpu_shading: bool,
 }
 
 impl Default for RpnnSettings {
@@ -46,6 +50,7 @@ impl Default for RpnnSettings {
             sky_dirs: 4,
             strict: false,
             sky_degree: nimbus_rpnn::sky::SH_DEGREE,
+            cpu_shading: false,
         }
     }
 }
@@ -302,8 +307,6 @@ pub fn prepare<'g>(
                 NetBackend::Wgpu => Some(gpu.get()?),
                 NetBackend::Auto => gpu.try_get(),
             };
-            let (backend, device) =
-                rpnn_backend(r.backend, adapter, &model_path, &model, &pyramid)?;
             // The sky head runs on either backend (ONNX Runtime, or the WGSL network's sky
             // layers).
             let sky_sh = if want_sky && model.sky_coeffs() > 0 {
@@ -317,13 +320,28 @@ pub fn prepare<'g>(
                 }
                 None
             };
+            let (runner, device, note) = engine::rpnn::runner(
+                r.backend,
+                r.cpu_shading,
+                adapter,
+                &model_path,
+                &model,
+                &pyramid,
+                scene,
+                sky_sh.as_ref(),
+            )?;
+            if let Some(n) = note
+                && !r.cpu_shading
+            {
+                warnings.push(format!("note: {label}: {n}"));
+            }
             (
                 Box::new(engine::rpnn::RpnnEngine::new(
                     scene,
                     engine::rpnn::Network {
                         path: model_path,
                         model,
-                        backend,
+                        runner,
                         adapter,
                     },
                     pyramid,

@@ -143,13 +143,15 @@ impl<'g> GpuDescriptor<'g> {
         let out = self
             .gpu
             .zeroed("descriptors", (n * DESCRIPTOR_LEN as u64 * 4).max(4));
-        self.encode_rows(enc, &cbuf, None, configs.len(), &out, timestamps);
+        self.encode_rows(enc, &cbuf, None, configs.len(), &out, None, timestamps);
         Ok(out)
     }
 
     /// Records the descriptor pass for the configurations in `configs` (a buffer of
     /// [`GpuConfig`]) into `out`: `rows` of them, or fewer when `count` (a GPU-written u32)
-    /// says so.
+    /// says so; with `indirect` (buffer, byte offset) the workgroup counts are read there
+    /// (written on the GPU for the count).
+    #[allow(clippy::too_many_arguments)]
     pub fn encode_rows(
         &self,
         enc: &mut wgpu::CommandEncoder,
@@ -157,6 +159,7 @@ impl<'g> GpuDescriptor<'g> {
         count: Option<&wgpu::Buffer>,
         rows: usize,
         out: &wgpu::Buffer,
+        indirect: Option<(&wgpu::Buffer, u64)>,
         timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) {
         let params = DescParams {
@@ -182,7 +185,10 @@ impl<'g> GpuDescriptor<'g> {
         });
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &bind, &[]);
-        pass.dispatch_workgroups(x, y, 1);
+        match indirect {
+            Some((buf, offset)) => pass.dispatch_workgroups_indirect(buf, offset),
+            None => pass.dispatch_workgroups(x, y, 1),
+        }
     }
 }
 

@@ -261,11 +261,36 @@ impl<'g> GpuMlp<'g> {
         desc: &wgpu::Buffer,
         rows: usize,
         row_limit: Option<&wgpu::Buffer>,
+        timer: Option<&mut StageTimer>,
+    ) {
+        self.encode_with(enc, desc, rows, row_limit, None, timer)
+    }
+
+    /// Workgroups along x (output tiles of 64) of each layer's dispatch, in dispatch order:
+    /// with [`GpuMlp::encode_with`]'s indirect arguments, a GPU pass writes
+    /// (tiles, ⌈rows / 64⌉, 1) for each.
+    pub fn layer_tiles(&self) -> Vec<u32> {
+        self.steps
+            .iter()
+            .map(|(s, _)| s.params.outputs.div_ceil(64))
+            .collect()
+    }
+
+    /// [`GpuMlp::encode`], with the workgroup counts of layer k read from `indirect` at byte
+    /// offset `base + 12 k` (see [`GpuMlp::layer_tiles`]) when given: a batch whose size only
+    /// the GPU knows dispatches no empty row tiles.
+    pub fn encode_with(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        desc: &wgpu::Buffer,
+        rows: usize,
+        row_limit: Option<&wgpu::Buffer>,
+        indirect: Option<(&wgpu::Buffer, u64)>,
         mut timer: Option<&mut StageTimer>,
     ) {
         assert!(rows <= self.max_batch, "batch larger than max_batch");
         let buf = |i: usize| if i == OUT { &self.out } else { &self.acts[i] };
-        for (s, u) in &self.steps {
+        for (k, (s, u)) in self.steps.iter().enumerate() {
             let params = LayerParams {
                 rows: rows as u32,
                 ..s.params
@@ -296,11 +321,14 @@ impl<'g> GpuMlp<'g> {
             });
             pass.set_pipeline(&self.pipeline);
             pass.set_bind_group(0, &bind, &[]);
-            pass.dispatch_workgroups(
-                params.outputs.div_ceil(64),
-                (rows as u32).div_ceil(64).max(1),
-                1,
-            );
+            match indirect {
+                Some((buf, base)) => pass.dispatch_workgroups_indirect(buf, base + 12 * k as u64),
+                None => pass.dispatch_workgroups(
+                    params.outputs.div_ceil(64),
+                    (rows as u32).div_ceil(64).max(1),
+                    1,
+                ),
+            }
         }
     }
 

@@ -97,7 +97,11 @@ pub struct GpuSampler<'g> {
     params_buf: wgpu::Buffer,
     density: Density,
     shade: wgpu::ComputePipeline,
+    args_pipeline: wgpu::ComputePipeline,
     resolve: wgpu::ComputePipeline,
+    /// Indirect dispatch arguments written on the GPU per chunk (descriptor, resolve, layers).
+    args: wgpu::Buffer,
+    layer_tiles: wgpu::Buffer,
     base: SampleParams,
     /// Queries per chunk (the network's batch).
     rows: usize,
@@ -194,10 +198,19 @@ impl<'g> GpuSampler<'g> {
             "rpnn_sample.wgsl"
         };
         let source = shaders::source(stage);
+        let tiles = mlp.layer_tiles();
         Ok(Self {
             gpu,
             shade: gpu.pipeline("rpnn shade", &source, "shade"),
+            args_pipeline: gpu.pipeline("rpnn dispatch args", &source, "dispatch_args"),
             resolve: gpu.pipeline("rpnn resolve", &source, "resolve"),
+            args: gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("rpnn dispatch args"),
+                size: 12 * (2 + tiles.len() as u64),
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::INDIRECT,
+                mapped_at_creation: false,
+            }),
+            layer_tiles: gpu.storage("rpnn layer tiles", &tiles),
             base: SampleParams {
                 flags,
                 env_w,
@@ -346,19 +359,36 @@ impl<'g> GpuSampler<'g> {
             pass.dispatch_workgroups(x, y, 1);
         }
         let rows = count.min(self.rows);
+        {
+            let bind = gpu.bind(
+                &self.args_pipeline,
+                &[
+                    (2, &sp),
+                    (3, &self.counter),
+                    (12, &self.args),
+                    (13, &self.layer_tiles),
+                ],
+            );
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.args_pipeline);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.dispatch_workgroups(1, 1, 1);
+        }
         self.desc.encode_rows(
             enc,
             &self.configs,
             Some(&self.counter),
             rows,
             &self.descriptors,
+            Some((&self.args, 0)),
             self.timer.pass("descriptor"),
         );
-        self.mlp.encode(
+        self.mlp.encode_with(
             enc,
             &self.descriptors,
             rows,
             Some(&self.counter),
+            Some((&self.args, 24)),
             Some(&mut self.timer),
         );
         let bind = gpu.bind(
@@ -379,8 +409,7 @@ impl<'g> GpuSampler<'g> {
         });
         pass.set_pipeline(&self.resolve);
         pass.set_bind_group(0, &bind, &[]);
-        let (x, y) = Gpu::workgroups_1d(rows as u32);
-        pass.dispatch_workgroups(x, y, 1);
+        pass.dispatch_workgroups_indirect(&self.args, 12);
     }
 
     /// Samples per pixel in the sums.

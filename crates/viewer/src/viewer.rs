@@ -72,8 +72,12 @@ pub struct ViewerOptions {
     pub method: ViewMode,
     /// Display exposure; `None`: fixed from the first image (99th percentile → 0.9).
     pub exposure: Option<f64>,
-    /// The RPNN model for RPNN mode (loaded only when that mode is chosen).
-    pub rpnn_model: PathBuf,
+    /// The RPNN model for RPNN mode (loaded only when that mode is chosen); `None`: the shipped
+    /// model for the scene (the sky head's under a sky), as `nimbus render` chooses it.
+    pub rpnn_model: Option<PathBuf>,
+    /// RPNN mode: where the network runs ([`NetBackend`]; with the network on the GPU the
+    /// whole sample runs there, `nimbus_rpnn::gpu_sample`).
+    pub rpnn_backend: NetBackend,
 }
 
 impl Default for ViewerOptions {
@@ -94,7 +98,8 @@ impl Default for ViewerOptions {
             play_density: false,
             method: ViewMode::Pm,
             exposure: None,
-            rpnn_model: nimbus_rpnn::model::default_model_path(),
+            rpnn_model: None,
+            rpnn_backend: NetBackend::Auto,
         }
     }
 }
@@ -153,11 +158,9 @@ fn options(opts: &ViewerOptions, density_max: Option<f32>) -> Options {
         impostors: opts.impostors,
         pm_density_max: density_max,
         rpnn: RpnnSettings {
-            model: Some(opts.rpnn_model.clone()),
-            backend: NetBackend::Auto,
-            sky_dirs: 4,
-            strict: false,
-            sky_degree: nimbus_rpnn::sky::SH_DEGREE,
+            model: opts.rpnn_model.clone(),
+            backend: opts.rpnn_backend,
+            ..Default::default()
         },
     }
 }

@@ -195,7 +195,7 @@ fn path_tracing_accumulates_and_restarts_on_change() {
     assert!(v.image().pixels.iter().flatten().all(|c| c.is_finite()));
     // RPNN without a model: a note, the method stays.
     let mut opts = options();
-    opts.rpnn_model = "no/such/model.onnx".into();
+    opts.rpnn_model = Some("no/such/model.onnx".into());
     let mut v = Viewer::new(&gpu, scene(), None, opts).unwrap();
     v.apply(&Action::Method(ViewMode::Rpnn)).unwrap();
     frames(&mut v, 1);
@@ -214,7 +214,7 @@ fn rpnn_mode_accumulates_and_restarts() {
     };
     let mut opts = options();
     opts.rpnn_model =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../rpnn/tests/data/rpnn-tiny.onnx");
+        Some(Path::new(env!("CARGO_MANIFEST_DIR")).join("../rpnn/tests/data/rpnn-tiny.onnx"));
     let mut v = Viewer::new(&gpu, scene(), None, opts).unwrap();
     v.apply(&Action::Method(ViewMode::Rpnn)).unwrap();
     frames(&mut v, 2);
@@ -235,6 +235,38 @@ fn rpnn_mode_accumulates_and_restarts() {
             .flatten()
             .all(|c| c.is_finite() && *c >= 0.0)
     );
+}
+
+/// With the network on the GPU the viewer's RPNN mode runs the whole sample there (the
+/// estimator's `gpu_sample` runner: its shading pass shows in the status line), accumulates and
+/// restarts on a camera move.
+#[test]
+fn rpnn_mode_runs_the_whole_sample_on_the_gpu() {
+    let Some(gpu) =
+        nimbus_gpu::testing::gpu("headless::rpnn_mode_runs_the_whole_sample_on_the_gpu")
+    else {
+        return;
+    };
+    let mut opts = options();
+    opts.rpnn_model =
+        Some(Path::new(env!("CARGO_MANIFEST_DIR")).join("../rpnn/tests/data/rpnn-tiny-sky.onnx"));
+    opts.rpnn_backend = nimbus_render::NetBackend::Wgpu;
+    let mut v = Viewer::new(&gpu, scene(), None, opts).unwrap();
+    v.apply(&Action::Method(ViewMode::Rpnn)).unwrap();
+    frames(&mut v, 2);
+    assert_eq!(v.method(), ViewMode::Rpnn);
+    assert_eq!(v.stats().spp, 2);
+    let line = v.status_line();
+    assert!(line.contains("shade") && line.contains("resolve"), "{line}");
+    v.apply(&Action::Orbit {
+        yaw_deg: 5.0,
+        pitch_deg: 0.0,
+    })
+    .unwrap();
+    frames(&mut v, 1);
+    assert_eq!(v.stats().spp, 1);
+    assert!(v.image().pixels.iter().flatten().all(|c| c.is_finite()));
+    assert!(v.image().pixels.iter().flatten().any(|c| *c > 0.0));
 }
 
 #[test]

@@ -1,12 +1,16 @@
 //! RPNN (Kallweit 2017 §4.4): Monte Carlo direct light, the network's indirect light. The
 //! density pyramid, majorant grid and network backend are built once per density; the image
-//! is a running sum of samples.
+//! is a running sum of samples. With the network on the GPU the whole sample runs there
+//! ([`nimbus_rpnn::gpu_sample`]) where the scene allows it; otherwise (ONNX Runtime, the
+//! paper's sky directions, a tabulated phase function, or `cpu_shading`) camera rays,
+//! tracking and direct light run on the CPU ([`nimbus_rpnn::render`]).
 
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use nimbus_gpu::Gpu;
 use nimbus_rpnn::Pyramid;
+use nimbus_rpnn::gpu_sample::GpuSampler;
 use nimbus_rpnn::model::Rpnn;
 use nimbus_rpnn::render::{Backend, RpnnOptions, RpnnSums, SkySh, StageTimes};
 use nimbus_scene::Scene;
@@ -16,14 +20,84 @@ use super::Engine;
 use crate::estimator::{Change, Rendered, RpnnSettings, Step};
 use crate::{NetBackend, rpnn_backend};
 
+/// Where a sample runs: shading on the CPU with a network backend, or all of it on the GPU.
+pub(crate) enum Runner<'g> {
+    Cpu(Backend<'g>),
+    Gpu(Box<GpuSampler<'g>>),
+}
+
+impl Runner<'_> {
+    fn name(&self) -> &'static str {
+        match self {
+            Runner::Cpu(b) => b.name(),
+            Runner::Gpu(_) => "wgpu, whole sample on the GPU",
+        }
+    }
+}
+
+/// The runner for `model` on `scene`: the whole sample on the GPU when the network runs in
+/// WGSL ([`NetBackend::uses_wgpu`]), `cpu_shading` is off and the scene allows it
+/// ([`nimbus_rpnn::gpu_sample::unsupported`]); else CPU shading with [`rpnn_backend`]. Returns
+/// it with where it runs and, when the GPU network falls back to CPU shading, why.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn runner<'g>(
+    choice: NetBackend,
+    cpu_shading: bool,
+    adapter: Option<&'g Gpu>,
+    model_path: &std::path::Path,
+    model: &Rpnn,
+    pyramid: &Pyramid,
+    scene: &Scene,
+    sky_sh: Option<&SkySh>,
+) -> Result<(Runner<'g>, String, Option<String>)> {
+    let mut note = None;
+    if let Some(g) = adapter
+        && choice.uses_wgpu(Some(g.is_software()))
+    {
+        match nimbus_rpnn::gpu_sample::unsupported(scene, model, sky_sh) {
+            None if !cpu_shading => {
+                match GpuSampler::new(
+                    g,
+                    scene,
+                    pyramid,
+                    model,
+                    sky_sh,
+                    nimbus_rpnn::gpu_mlp::DEFAULT_BATCH,
+                ) {
+                    Ok(s) => {
+                        return Ok((
+                            Runner::Gpu(Box::new(s)),
+                            format!("wgpu on {} (whole sample)", g.describe()),
+                            None,
+                        ));
+                    }
+                    // Beyond the adapter's bindings: CPU shading (its own checks decide
+                    // between the GPU network and ONNX Runtime).
+                    Err(nimbus_rpnn::render::RenderError::Gpu(e)) => {
+                        note = Some(format!("CPU shading: {e}"));
+                    }
+                    Err(e) => return Err(e.into()),
+                }
+            }
+            None => {}
+            Some(why) => note = Some(format!("CPU shading: {why}")),
+        }
+    }
+    let (b, device) = rpnn_backend(choice, adapter, model_path, model, pyramid)?;
+    Ok((Runner::Cpu(b), device, note))
+}
+
 pub(crate) struct RpnnEngine<'g> {
     model_path: PathBuf,
     model: Rpnn,
     pyramid: Pyramid,
-    backend: Backend<'g>,
+    runner: Runner<'g>,
     /// The adapter the backend was chosen with (rebuilt on a new density).
     adapter: Option<&'g Gpu>,
     choice: NetBackend,
+    cpu_shading: bool,
+    /// The sky's degree for the sky head (its coefficients follow a moved sun's sky).
+    sky_degree: usize,
     majorants: MajorantGrid,
     sums: RpnnSums,
     seed: u64,
@@ -39,7 +113,7 @@ pub(crate) struct RpnnEngine<'g> {
 pub(crate) struct Network<'g> {
     pub path: PathBuf,
     pub model: Rpnn,
-    pub backend: Backend<'g>,
+    pub runner: Runner<'g>,
     pub adapter: Option<&'g Gpu>,
 }
 
@@ -55,9 +129,11 @@ impl<'g> RpnnEngine<'g> {
             model_path: net.path,
             model: net.model,
             pyramid,
-            backend: net.backend,
+            runner: net.runner,
             adapter: net.adapter,
             choice: settings.backend,
+            cpu_shading: settings.cpu_shading,
+            sky_degree: settings.sky_degree,
             majorants: nimbus_rpnn::render::majorants(scene),
             sums: RpnnSums::new(scene.camera.width, scene.camera.height),
             seed: scene.render.seed,
@@ -68,6 +144,16 @@ impl<'g> RpnnEngine<'g> {
     }
 
     fn add(&mut self, scene: &Scene, spp: u32) -> Result<()> {
+        let backend = match &mut self.runner {
+            Runner::Gpu(g) => {
+                g.sync(scene)?;
+                g.add(spp).context("RPNN render")?;
+                // The stages are the sampler's ([`RpnnEngine::stages`]).
+                self.times.total_ms = g.times.total_ms;
+                return Ok(());
+            }
+            Runner::Cpu(b) => b,
+        };
         let ro = RpnnOptions {
             sky_sh: self.sky_sh.clone(),
             sun_outputs: self.model.outputs,
@@ -77,7 +163,7 @@ impl<'g> RpnnEngine<'g> {
             scene,
             &self.pyramid,
             &self.majorants,
-            &mut self.backend,
+            backend,
             &ro,
             &mut self.sums,
         )
@@ -88,6 +174,57 @@ impl<'g> RpnnEngine<'g> {
         a.rest_ms += t.rest_ms;
         a.total_ms += t.total_ms;
         a.queries += t.queries;
+        Ok(())
+    }
+
+    /// Milliseconds per stage since the restart. CPU shading: descriptors, the network
+    /// (transfers included), the rest (camera rays, tracking, direct light). The whole sample
+    /// on the GPU: its four passes from timestamps (zero where the adapter has none) and the
+    /// rest of the wall time (submission, waiting).
+    fn stages(&self) -> Vec<(&'static str, f64)> {
+        match &self.runner {
+            Runner::Gpu(g) => {
+                let t = &g.times;
+                let gpu = t.shade_ms + t.descriptor_ms + t.inference_ms + t.resolve_ms;
+                vec![
+                    ("shade", t.shade_ms),
+                    ("descriptor", t.descriptor_ms),
+                    ("inference", t.inference_ms),
+                    ("resolve", t.resolve_ms),
+                    ("rest", (t.total_ms - gpu).max(0.0)),
+                ]
+            }
+            Runner::Cpu(_) => {
+                let t = &self.times;
+                vec![
+                    ("descriptor", t.descriptor_ms),
+                    ("inference", t.inference_ms),
+                    ("rest", t.rest_ms),
+                ]
+            }
+        }
+    }
+
+    /// Rebuilds the runner for the scene's density (the pyramid is new).
+    fn rebuild(&mut self, scene: &Scene) -> Result<()> {
+        // ONNX Runtime reads descriptors made on the CPU and keeps its session.
+        if let Runner::Cpu(Backend::Ort(_)) = self.runner {
+            return Ok(());
+        }
+        self.runner = runner(
+            self.choice,
+            self.cpu_shading,
+            self.adapter,
+            &self.model_path,
+            &self.model,
+            &self.pyramid,
+            scene,
+            self.sky_sh.as_ref(),
+        )?
+        .0;
+        if let Runner::Gpu(g) = &mut self.runner {
+            g.reset(self.seed);
+        }
         Ok(())
     }
 }
@@ -110,57 +247,70 @@ impl Engine for RpnnEngine<'_> {
         self.sums = RpnnSums::new(scene.camera.width, scene.camera.height);
         self.seed = seed;
         self.times = StageTimes::default();
+        if let Runner::Gpu(g) = &mut self.runner {
+            g.sync(scene)?;
+            g.reset(seed);
+        }
         Ok(())
     }
 
     fn apply(&mut self, scene: &Scene, change: &Change) -> Result<()> {
-        if let Change::Density(_) = change {
-            let label = scene.source.display();
-            self.pyramid = Pyramid::for_rendering(&scene.volume)
-                .map_err(|e| anyhow::anyhow!("{label}: {e}"))?;
-            self.majorants = nimbus_rpnn::render::majorants(scene);
-            // The WGSL backend holds the pyramid on the GPU; ONNX Runtime reads descriptors
-            // made on the CPU and keeps its session.
-            if let Backend::Wgpu(_) = self.backend {
-                self.backend = rpnn_backend(
-                    self.choice,
-                    self.adapter,
-                    &self.model_path,
-                    &self.model,
-                    &self.pyramid,
-                )?
-                .0;
+        match change {
+            Change::Density(_) => {
+                let label = scene.source.display();
+                self.pyramid = Pyramid::for_rendering(&scene.volume)
+                    .map_err(|e| anyhow::anyhow!("{label}: {e}"))?;
+                self.majorants = nimbus_rpnn::render::majorants(scene);
+                self.rebuild(scene)?;
             }
+            // A sky whose colours follow the sun (`[sun] atmosphere`): new coefficients.
+            Change::SunDir(_) if self.sky_sh.is_some() => {
+                self.sky_sh = SkySh::of(scene, self.sky_degree, 64);
+                if let (Runner::Gpu(g), Some(s)) = (&mut self.runner, &self.sky_sh) {
+                    g.set_sky(s);
+                }
+            }
+            _ => {}
         }
         Ok(())
     }
 
     fn accumulate(&mut self, scene: &Scene, n: u32) -> Result<Step> {
-        let before = self.times.clone();
+        let before = self.stages();
         self.add(scene, n)?;
-        let t = &self.times;
+        let stages = self
+            .stages()
+            .into_iter()
+            .zip(before)
+            .map(|((name, a), (_, b))| (name, a - b))
+            .collect();
         Ok(Step {
-            stages: vec![
-                ("descriptor", t.descriptor_ms - before.descriptor_ms),
-                ("inference", t.inference_ms - before.inference_ms),
-                ("rest", t.rest_ms - before.rest_ms),
-            ],
-            spp: self.sums.samples,
+            stages,
+            spp: self.samples(),
             ..Default::default()
         })
     }
 
     fn image(&mut self, scene: &Scene, _device: &str) -> Result<Rendered> {
-        let (image, variance) = self.sums.image();
+        let (image, variance, queries) = match &self.runner {
+            Runner::Gpu(g) => {
+                let (i, v) = g.image()?;
+                (i, v, g.queries()?)
+            }
+            Runner::Cpu(_) => {
+                let (i, v) = self.sums.image();
+                (i, v, self.times.queries)
+            }
+        };
         let t = &self.times;
         let cam = &scene.camera;
-        let budget = self.sums.samples;
+        let budget = self.samples();
         let n = budget.max(1) as f64;
         Ok(Rendered {
             summary: format!(
                 "RPNN ({}, {}{}) {}x{} at {} spp in {:.2} s — {:.1} ms per spp, {} network queries",
                 self.model_path.display(),
-                self.backend.name(),
+                self.runner.name(),
                 match &self.sky_sh {
                     Some(s) => format!(", sky head of degree {}", s.degree),
                     None if scene.sky.is_some() => format!(", {} sky directions", self.sky_dirs),
@@ -171,13 +321,13 @@ impl Engine for RpnnEngine<'_> {
                 budget,
                 t.total_ms / 1e3,
                 t.total_ms / n,
-                t.queries
+                queries
             ),
-            timing_lines: vec![
-                format!("  descriptor {:9.2} ms per spp", t.descriptor_ms / n),
-                format!("  inference  {:9.2} ms per spp", t.inference_ms / n),
-                format!("  rest       {:9.2} ms per spp", t.rest_ms / n),
-            ],
+            timing_lines: self
+                .stages()
+                .into_iter()
+                .map(|(name, ms)| format!("  {name:<10} {:9.2} ms per spp", ms / n))
+                .collect(),
             seconds: t.total_ms / 1e3,
             setup_s: 0.0,
             gpu_ms: None,
@@ -187,6 +337,9 @@ impl Engine for RpnnEngine<'_> {
     }
 
     fn samples(&self) -> u32 {
-        self.sums.samples
+        match &self.runner {
+            Runner::Gpu(g) => g.samples(),
+            Runner::Cpu(_) => self.sums.samples,
+        }
     }
 }
