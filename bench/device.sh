@@ -3,8 +3,8 @@
 #   1. photon mapping per stage at 1920×1200 on the Elek 2012 Table 1 scenes (a turning sun, so
 #      every frame traces, updates, upsamples and ray marches; mean over frames 2..N);
 #   2. RPNN milliseconds per sample at 1280×720 under sun and sun + sky: the whole sample on
-#      the GPU, the GPU network with CPU shading, and ONNX Runtime, split into stages
-#      (`--timings`);
+#      the GPU (network in f32 and f16), the GPU network with CPU shading, and ONNX Runtime,
+#      split into stages (`--timings`);
 #   3. GPU path tracer camera paths/s against the CPU path tracer on scenes/refs/cumulus_side
 #      at 1280×720;
 #   4. `datagen --device gpu` records per hour (fixed-count labels, --samples 1024);
@@ -96,8 +96,8 @@ for spec in "altostratus 15,10,15" "cumulus_congestus 10,12,18" "wide_cloud 15,1
 done
 
 # 2. RPNN ms per sample under sun and under sun + sky (the sky head): the whole sample on the
-# GPU (wgpu), the network on the GPU with CPU shading (wgpu --cpu-shading) and ONNX Runtime
-# (ort), each split into its stages (`--timings`): whole sample: shade, descriptor, inference,
+# GPU (wgpu; its network in f32 and in f16), the network on the GPU with CPU shading
+# (wgpu --cpu-shading) and ONNX Runtime (ort), each split into its stages (`--timings`): whole sample: shade, descriptor, inference,
 # resolve (GPU timestamps) and the rest of the wall time; CPU shading: descriptor, inference
 # (transfers included) and the rest on the CPU (camera rays, delta tracking, shadow rays).
 scene=$(sized scenes/bench/rpnn_720p.toml "$RW" "$RH")
@@ -105,7 +105,7 @@ sky_scene="${scene%.toml}_sky.toml"
 { cat "$scene"; printf '\n[sky]\nradiance = [0.12, 0.2, 0.38]\n'; } > "$sky_scene"
 for sc in "rpnn_720p $scene" "rpnn_720p_sky $sky_scene"; do
   set -- $sc
-  for b in "wgpu" "wgpu --cpu-shading" "ort"; do
+  for b in "wgpu" "wgpu --net-precision f16" "wgpu --cpu-shading" "ort"; do
     tag=$(echo "$b" | tr -d ' -' | sed 's/cpushading/_cpu_shading/')
     # shellcheck disable=SC2086
     "$nimbus" render "$2" --method rpnn --backend $b --spp "$RSPP" --timings -q \

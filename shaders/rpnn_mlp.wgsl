@@ -15,6 +15,11 @@
 // renderer's compacted queries, `nimbus_rpnn::gpu_sample`) is dispatched for L.rows and
 // workgroups past the count return at once; other callers bind a limit of 0xffffffff.
 //
+// Storage: every buffer is read as u32 words, per layer in f32 (bitcast) or in f16 pairs
+// (unpack2x16float: core WGSL, no SHADER_F16 needed) as `flags` says: bit 0 the weights,
+// bit 1 a, bit 2 b, bit 3 res, bit 4 out. The products accumulate in f32 either way; an f16
+// output is written as the pairs (j, j + 1) a thread owns (out_stride and out_offset even).
+//
 // Tiles: 64 queries × 64 outputs per workgroup of 16 × 16 threads, k-slices of 16 inputs in
 // workgroup memory; each thread accumulates a 4 × 4 block in four vec4 registers (named
 // variables: private arrays indexed in loops are far slower on some drivers).
@@ -36,17 +41,47 @@ struct Layer {
     res_stride: u32,
     relu: u32,
     out_offset: u32,
+    flags: u32,
+    _p0: u32,
+    _p1: u32,
+    _p2: u32,
 };
 
 @group(0) @binding(0) var<uniform> L: Layer;
-@group(0) @binding(1) var<storage, read> weights: array<f32>;
-@group(0) @binding(2) var<storage, read> a_buf: array<f32>;
-@group(0) @binding(3) var<storage, read> b_buf: array<f32>;
-@group(0) @binding(4) var<storage, read> res_buf: array<f32>;
-@group(0) @binding(5) var<storage, read_write> out_buf: array<f32>;
+@group(0) @binding(1) var<storage, read> weights: array<u32>;
+@group(0) @binding(2) var<storage, read> a_buf: array<u32>;
+@group(0) @binding(3) var<storage, read> b_buf: array<u32>;
+@group(0) @binding(4) var<storage, read> res_buf: array<u32>;
+@group(0) @binding(5) var<storage, read_write> out_buf: array<u32>;
 @group(0) @binding(6) var<storage, read> row_limit: array<u32>;
 
 const NO_GAMMA: u32 = 0xffffffffu;
+const F16_W: u32 = 1u;
+const F16_A: u32 = 2u;
+const F16_B: u32 = 4u;
+const F16_RES: u32 = 8u;
+const F16_OUT: u32 = 16u;
+
+// Element e of a buffer of f32 words, or of f16 pairs.
+fn half_of(word: u32, e: u32) -> f32 {
+    return unpack2x16float(word)[e & 1u];
+}
+fn w_at(e: u32) -> f32 {
+    if ((L.flags & F16_W) != 0u) { return half_of(weights[e >> 1u], e); }
+    return bitcast<f32>(weights[e]);
+}
+fn a_at(e: u32) -> f32 {
+    if ((L.flags & F16_A) != 0u) { return half_of(a_buf[e >> 1u], e); }
+    return bitcast<f32>(a_buf[e]);
+}
+fn b_at(e: u32) -> f32 {
+    if ((L.flags & F16_B) != 0u) { return half_of(b_buf[e >> 1u], e); }
+    return bitcast<f32>(b_buf[e]);
+}
+fn res_at(e: u32) -> f32 {
+    if ((L.flags & F16_RES) != 0u) { return half_of(res_buf[e >> 1u], e); }
+    return bitcast<f32>(res_buf[e]);
+}
 
 var<workgroup> a_tile: array<vec4<f32>, 256>; // [k 16][row group 16] × 4 rows
 var<workgroup> w_tile: array<vec4<f32>, 256>; // [k 16][output group 16] × 4 outputs
@@ -63,11 +98,11 @@ fn input(r: u32, i: u32) -> f32 {
         if (L.a_gamma_col != NO_GAMMA && i == L.ka - 1u) {
             col = L.a_gamma_col;
         }
-        return a_buf[r * L.a_stride + col];
+        return a_at(r * L.a_stride + col);
     }
     let k = i - L.ka;
     if (k < L.kb) {
-        return b_buf[r * L.b_stride + k];
+        return b_at(r * L.b_stride + k);
     }
     return 0.0;
 }
@@ -78,27 +113,52 @@ fn weight(j: u32, i: u32) -> f32 {
         return 0.0;
     }
     if (i < L.ka) {
-        return weights[L.wa_offset + j * L.ka + i];
+        return w_at(L.wa_offset + j * L.ka + i);
     }
     let k = i - L.ka;
     if (k < L.kb) {
-        return weights[L.wb_offset + j * L.kb + k];
+        return w_at(L.wb_offset + j * L.kb + k);
     }
     return 0.0;
 }
 
-fn finish(r: u32, j: u32, v: f32) {
-    if (r >= rows || j >= L.outputs) {
-        return;
-    }
-    var s = v + weights[L.bias_offset + j];
+// The layer's output value (bias, residual, ReLU) of query r, output j, from the product v.
+fn value(r: u32, j: u32, v: f32) -> f32 {
+    var s = v + w_at(L.bias_offset + j);
     if (L.residual != 0u) {
-        s += res_buf[r * L.res_stride + j];
+        s += res_at(r * L.res_stride + j);
     }
     if (L.relu != 0u) {
         s = max(s, 0.0);
     }
-    out_buf[r * L.out_stride + L.out_offset + j] = s;
+    return s;
+}
+
+// Writes outputs j … j + 3 of query r (j a multiple of 4).
+fn finish(r: u32, j: u32, acc: vec4<f32>) {
+    if (r >= rows || j >= L.outputs) {
+        return;
+    }
+    var v = vec4<f32>(0.0);
+    for (var c = 0u; c < 4u; c++) {
+        if (j + c < L.outputs) {
+            v[c] = value(r, j + c, acc[c]);
+        }
+    }
+    let o = r * L.out_stride + L.out_offset + j;
+    if ((L.flags & F16_OUT) != 0u) {
+        // Pairs (j, j + 1), (j + 2, j + 3); a pair's second half past the outputs is padding.
+        out_buf[o >> 1u] = pack2x16float(v.xy);
+        if (j + 2u < L.outputs) {
+            out_buf[(o >> 1u) + 1u] = pack2x16float(v.zw);
+        }
+        return;
+    }
+    for (var c = 0u; c < 4u; c++) {
+        if (j + c < L.outputs) {
+            out_buf[o + c] = bitcast<u32>(v[c]);
+        }
+    }
 }
 
 @compute @workgroup_size(16, 16)
@@ -146,20 +206,8 @@ fn dense(
     }
     let r = r0 + ty * 4u;
     let j = j0 + tx * 4u;
-    finish(r, j, acc0.x);
-    finish(r, j + 1u, acc0.y);
-    finish(r, j + 2u, acc0.z);
-    finish(r, j + 3u, acc0.w);
-    finish(r + 1u, j, acc1.x);
-    finish(r + 1u, j + 1u, acc1.y);
-    finish(r + 1u, j + 2u, acc1.z);
-    finish(r + 1u, j + 3u, acc1.w);
-    finish(r + 2u, j, acc2.x);
-    finish(r + 2u, j + 1u, acc2.y);
-    finish(r + 2u, j + 2u, acc2.z);
-    finish(r + 2u, j + 3u, acc2.w);
-    finish(r + 3u, j, acc3.x);
-    finish(r + 3u, j + 1u, acc3.y);
-    finish(r + 3u, j + 2u, acc3.z);
-    finish(r + 3u, j + 3u, acc3.w);
+    finish(r, j, acc0);
+    finish(r + 1u, j, acc1);
+    finish(r + 2u, j, acc2);
+    finish(r + 3u, j, acc3);
 }

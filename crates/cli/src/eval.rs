@@ -132,6 +132,7 @@ impl EvalArgs {
                 sky_dirs: self.rpnn.sky_dirs,
                 sky_degree: self.rpnn.sky_degree as usize,
                 cpu_shading: self.rpnn.cpu_shading,
+                rpnn_precision: self.rpnn.net_precision.into(),
             },
             reference: ReferenceSettings {
                 spp: self.ref_spp,

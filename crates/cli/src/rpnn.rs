@@ -51,6 +51,27 @@ pub(crate) struct RpnnArgs {
     /// where the scene allows (HG or isotropic phase; a sky through the sky head).
     #[arg(long)]
     pub(crate) cpu_shading: bool,
+    /// RPNN with the network on the GPU: how its weights and hidden activations are stored;
+    /// f16 halves their memory traffic, the products accumulate in f32 either way.
+    #[arg(long, value_enum, default_value = "f32")]
+    pub(crate) net_precision: NetPrecision,
+}
+
+/// `--net-precision` (see [`nimbus_rpnn::gpu_mlp::Precision`]).
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub(crate) enum NetPrecision {
+    F32,
+    /// IEEE half floats (f32 accumulation).
+    F16,
+}
+
+impl From<NetPrecision> for nimbus_rpnn::gpu_mlp::Precision {
+    fn from(p: NetPrecision) -> Self {
+        match p {
+            NetPrecision::F32 => Self::F32,
+            NetPrecision::F16 => Self::F16,
+        }
+    }
 }
 
 impl RpnnArgs {
@@ -63,6 +84,7 @@ impl RpnnArgs {
             strict: self.strict,
             sky_degree: self.sky_degree as usize,
             cpu_shading: self.cpu_shading,
+            precision: self.net_precision.into(),
         }
     }
 }

@@ -76,6 +76,8 @@ pub struct RunSettings {
     pub sky_degree: usize,
     /// RPNN with the network on the GPU: shade on the CPU anyway (the hybrid path).
     pub cpu_shading: bool,
+    /// RPNN with the network on the GPU: f32 or f16 weights and activations.
+    pub rpnn_precision: nimbus_rpnn::gpu_mlp::Precision,
 }
 
 impl Default for RunSettings {
@@ -89,6 +91,7 @@ impl Default for RunSettings {
             sky_dirs: 4,
             sky_degree: nimbus_rpnn::sky::SH_DEGREE,
             cpu_shading: false,
+            rpnn_precision: Default::default(),
         }
     }
 }
@@ -164,6 +167,7 @@ impl RunSettings {
                 strict: false,
                 sky_degree: self.sky_degree,
                 cpu_shading: self.cpu_shading,
+                precision: self.rpnn_precision,
             },
         }
     }

@@ -40,6 +40,9 @@ pub struct RpnnSettings {
     /// (the hybrid path, for comparison); off: the whole sample on the GPU where the scene
     /// allows it ([`nimbus_rpnn::gpu_sample`]).
     pub cpu_shading: bool,
+    /// With the network on the GPU: how its weights and hidden activations are stored (f32,
+    /// or f16 with f32 accumulation).
+    pub precision: nimbus_rpnn::gpu_mlp::Precision,
 }
 
 impl Default for RpnnSettings {
@@ -51,6 +54,7 @@ impl Default for RpnnSettings {
             strict: false,
             sky_degree: nimbus_rpnn::sky::SH_DEGREE,
             cpu_shading: false,
+            precision: Default::default(),
         }
     }
 }
@@ -323,6 +327,7 @@ pub fn prepare<'g>(
             let (runner, device, note) = engine::rpnn::runner(
                 r.backend,
                 r.cpu_shading,
+                r.precision,
                 adapter,
                 &model_path,
                 &model,
@@ -373,6 +378,7 @@ pub fn rpnn_backend<'g>(
     model_path: &std::path::Path,
     model: &Rpnn,
     pyramid: &Pyramid,
+    precision: nimbus_rpnn::gpu_mlp::Precision,
 ) -> Result<(Backend<'g>, String)> {
     if choice.uses_wgpu(adapter.map(Gpu::is_software)) {
         let Some(g) = adapter else {
@@ -380,11 +386,12 @@ pub fn rpnn_backend<'g>(
                 "the RPNN network on wgpu needs a GPU adapter (--backend ort runs it on the CPU)"
             );
         };
-        match nimbus_rpnn::gpu_mlp::GpuRpnn::new(
+        match nimbus_rpnn::gpu_mlp::GpuRpnn::with_precision(
             g,
             pyramid,
             model,
             nimbus_rpnn::gpu_mlp::DEFAULT_BATCH,
+            precision,
         ) {
             Ok(b) => {
                 return Ok((

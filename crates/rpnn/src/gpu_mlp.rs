@@ -5,7 +5,12 @@
 //! (`shaders/rpnn_descriptor.wgsl`) and the layers in one command buffer, so descriptors are
 //! written and read on the GPU only; just the predictions come back.
 //!
-//! The CPU reference is [`crate::model::Rpnn::forward`]; tests require agreement to 1e-4.
+//! The CPU reference is [`crate::model::Rpnn::forward`]; tests require agreement to 1e-4 in
+//! f32. [`Precision::F16`] stores the weights and the hidden activations as IEEE half floats
+//! (packed pairs, `unpack2x16float`: every adapter reads them, `SHADER_F16` is not needed)
+//! and accumulates in f32: half the memory traffic of the weights and activations; the
+//! descriptors stay f32 and so do the outputs. Its agreement with ONNX Runtime is tested at a
+//! stated tolerance (`tests/model.rs`).
 
 use bytemuck::{Pod, Zeroable};
 use nimbus_gpu::timing::StageTimer;
@@ -36,7 +41,28 @@ pub struct LayerParams {
     pub relu: u32,
     /// First column of the output row this layer writes (the sky head's follow the sun's).
     pub out_offset: u32,
+    /// Which buffers hold f16 pairs: bit 0 weights, 1 a, 2 b, 3 res, 4 out.
+    pub flags: u32,
+    pub _p0: u32,
+    pub _p1: u32,
+    pub _p2: u32,
 }
+
+/// How the network's weights and hidden activations are stored on the GPU (products
+/// accumulate in f32 either way).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Precision {
+    #[default]
+    F32,
+    /// IEEE half floats, two per word.
+    F16,
+}
+
+const F16_W: u32 = 1;
+const F16_A: u32 = 2;
+const F16_B: u32 = 4;
+const F16_RES: u32 = 8;
+const F16_OUT: u32 = 16;
 
 const NO_GAMMA: u32 = u32::MAX;
 
@@ -81,6 +107,16 @@ pub struct GpuMlp<'g> {
 
 impl<'g> GpuMlp<'g> {
     pub fn new(gpu: &'g Gpu, model: &Rpnn, max_batch: usize) -> Result<Self, GpuError> {
+        Self::with_precision(gpu, model, max_batch, Precision::F32)
+    }
+
+    /// [`GpuMlp::new`] storing the weights and hidden activations in `precision`.
+    pub fn with_precision(
+        gpu: &'g Gpu,
+        model: &Rpnn,
+        max_batch: usize,
+        precision: Precision,
+    ) -> Result<Self, GpuError> {
         let limit = gpu
             .limits
             .max_storage_buffer_binding_size
@@ -91,7 +127,9 @@ impl<'g> GpuMlp<'g> {
             .map(|b| b.v.outputs)
             .chain(model.head.iter().chain(&model.sky_head).map(|l| l.outputs))
             .max()
-            .unwrap_or(1);
+            .unwrap_or(1)
+            // f16 rows start on whole words.
+            .next_multiple_of(if precision == Precision::F16 { 2 } else { 1 });
         let max_batch = max_batch
             .min(limit / (DESCRIPTOR_LEN.max(model.input_len()) * 4))
             .min(limit / (stride * 4))
@@ -105,7 +143,7 @@ impl<'g> GpuMlp<'g> {
             (w, b)
         };
         let (p, levels) = (model.points, model.levels);
-        let mut steps = Vec::new();
+        let mut steps: Vec<Step> = Vec::new();
         // Activations: 0 and 1 alternate as o_k, 2 holds F1; after the blocks the sky head
         // alternates between 2 and 3 (reading the trunk first), then the sun head between 0
         // and 1.
@@ -219,8 +257,37 @@ impl<'g> GpuMlp<'g> {
             });
             cur = next;
         }
-        gpu.check_storage("the network weights", weights.len() as u64 * 4)?;
-        let act_bytes = (max_batch * stride * 4) as u64;
+        // f16: the weights, and every activation buffer but the descriptors and the output.
+        if precision == Precision::F16 {
+            for st in &mut steps {
+                let mut f = F16_W | F16_B | F16_RES;
+                if st.a != Src::Descriptor {
+                    f |= F16_A;
+                }
+                if st.out != OUT {
+                    f |= F16_OUT;
+                }
+                st.params.flags = f;
+            }
+        }
+        let words: Vec<u32> = match precision {
+            Precision::F32 => weights.iter().map(|w| w.to_bits()).collect(),
+            Precision::F16 => weights
+                .chunks(2)
+                .map(|p| {
+                    let lo = half::f16::from_f32(p[0]).to_bits() as u32;
+                    let hi = p
+                        .get(1)
+                        .map_or(0, |&v| half::f16::from_f32(v).to_bits() as u32);
+                    lo | (hi << 16)
+                })
+                .collect(),
+        };
+        gpu.check_storage("the network weights", words.len() as u64 * 4)?;
+        let act_bytes = match precision {
+            Precision::F32 => (max_batch * stride * 4) as u64,
+            Precision::F16 => (max_batch * stride * 2).next_multiple_of(4) as u64,
+        };
         gpu.check_storage("an activation batch", act_bytes)?;
         let steps = steps
             .into_iter()
@@ -232,7 +299,7 @@ impl<'g> GpuMlp<'g> {
         Ok(Self {
             gpu,
             pipeline: gpu.pipeline("rpnn mlp", &shaders::source("rpnn_mlp.wgsl"), "dense"),
-            weights: gpu.storage("rpnn weights", &weights),
+            weights: gpu.storage("rpnn weights", &words),
             steps,
             outputs: model.outputs_per_query(),
             sun_outputs: model.outputs,
@@ -379,10 +446,21 @@ impl<'g> GpuRpnn<'g> {
         model: &Rpnn,
         max_batch: usize,
     ) -> Result<Self, GpuError> {
+        Self::with_precision(gpu, pyr, model, max_batch, Precision::F32)
+    }
+
+    /// [`GpuRpnn::new`] with the network stored in `precision`.
+    pub fn with_precision(
+        gpu: &'g Gpu,
+        pyr: &crate::pyramid::Pyramid,
+        model: &Rpnn,
+        max_batch: usize,
+        precision: Precision,
+    ) -> Result<Self, GpuError> {
         Ok(Self {
             gpu,
             desc: GpuDescriptor::new(gpu, pyr)?,
-            mlp: GpuMlp::new(gpu, model, max_batch)?,
+            mlp: GpuMlp::with_precision(gpu, model, max_batch, precision)?,
             timer: StageTimer::new(gpu, 1 + 64),
             last_ms: (0.0, 0.0),
         })
@@ -439,6 +517,10 @@ mod tests {
             "res_stride",
             "relu",
             "out_offset",
+            "flags",
+            "_p0",
+            "_p1",
+            "_p2",
         ];
         for (i, (name, off)) in members.iter().enumerate() {
             assert_eq!(name, names[i]);

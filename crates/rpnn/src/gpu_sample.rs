@@ -31,7 +31,7 @@ use nimbus_trace::gpu::{Density, DensityStorage, scene_params};
 
 use crate::descriptor::DESCRIPTOR_LEN;
 use crate::gpu::{GpuConfig, GpuDescriptor};
-use crate::gpu_mlp::GpuMlp;
+use crate::gpu_mlp::{GpuMlp, Precision};
 use crate::model::Rpnn;
 use crate::pyramid::Pyramid;
 use crate::render::{RenderError, SkySh};
@@ -138,10 +138,13 @@ impl<'g> GpuSampler<'g> {
             sky_sh,
             max_batch,
             DensityStorage::Auto,
+            Precision::F32,
         )
     }
 
-    /// Like [`GpuSampler::new`], choosing how the density is stored (tests compare both).
+    /// Like [`GpuSampler::new`], choosing how the density is stored (tests compare both) and
+    /// how the network's weights and activations are ([`Precision`]).
+    #[allow(clippy::too_many_arguments)]
     pub fn with_storage(
         gpu: &'g Gpu,
         scene: &Scene,
@@ -150,6 +153,7 @@ impl<'g> GpuSampler<'g> {
         sky_sh: Option<&SkySh>,
         max_batch: usize,
         storage: DensityStorage,
+        precision: Precision,
     ) -> Result<Self, RenderError> {
         if let Some(why) = unsupported(scene, model, sky_sh) {
             return Err(RenderError::Setting(format!(
@@ -161,7 +165,7 @@ impl<'g> GpuSampler<'g> {
         let params = scene_params(scene).map_err(gpu_err)?;
         let density = Density::upload(gpu, scene, storage).map_err(gpu_err)?;
         let desc = GpuDescriptor::new(gpu, pyr)?;
-        let mlp = GpuMlp::new(gpu, model, max_batch)?;
+        let mlp = GpuMlp::with_precision(gpu, model, max_batch, precision)?;
         let rows = mlp.max_batch;
         let (mut flags, mut env_w, mut env_h) = (0, 0, 0);
         // One black texel binds where there is no map.

@@ -10,6 +10,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use nimbus_gpu::Gpu;
 use nimbus_rpnn::Pyramid;
+use nimbus_rpnn::gpu_mlp::Precision;
 use nimbus_rpnn::gpu_sample::GpuSampler;
 use nimbus_rpnn::model::Rpnn;
 use nimbus_rpnn::render::{Backend, RpnnOptions, RpnnSums, SkySh, StageTimes};
@@ -43,6 +44,7 @@ impl Runner<'_> {
 pub(crate) fn runner<'g>(
     choice: NetBackend,
     cpu_shading: bool,
+    precision: Precision,
     adapter: Option<&'g Gpu>,
     model_path: &std::path::Path,
     model: &Rpnn,
@@ -56,13 +58,15 @@ pub(crate) fn runner<'g>(
     {
         match nimbus_rpnn::gpu_sample::unsupported(scene, model, sky_sh) {
             None if !cpu_shading => {
-                match GpuSampler::new(
+                match GpuSampler::with_storage(
                     g,
                     scene,
                     pyramid,
                     model,
                     sky_sh,
                     nimbus_rpnn::gpu_mlp::DEFAULT_BATCH,
+                    nimbus_trace::gpu::DensityStorage::Auto,
+                    precision,
                 ) {
                     Ok(s) => {
                         return Ok((
@@ -83,7 +87,7 @@ pub(crate) fn runner<'g>(
             Some(why) => note = Some(format!("CPU shading: {why}")),
         }
     }
-    let (b, device) = rpnn_backend(choice, adapter, model_path, model, pyramid)?;
+    let (b, device) = rpnn_backend(choice, adapter, model_path, model, pyramid, precision)?;
     Ok((Runner::Cpu(b), device, note))
 }
 
@@ -96,6 +100,7 @@ pub(crate) struct RpnnEngine<'g> {
     adapter: Option<&'g Gpu>,
     choice: NetBackend,
     cpu_shading: bool,
+    precision: Precision,
     /// The sky's degree for the sky head (its coefficients follow a moved sun's sky).
     sky_degree: usize,
     majorants: MajorantGrid,
@@ -133,6 +138,7 @@ impl<'g> RpnnEngine<'g> {
             adapter: net.adapter,
             choice: settings.backend,
             cpu_shading: settings.cpu_shading,
+            precision: settings.precision,
             sky_degree: settings.sky_degree,
             majorants: nimbus_rpnn::render::majorants(scene),
             sums: RpnnSums::new(scene.camera.width, scene.camera.height),
@@ -214,6 +220,7 @@ impl<'g> RpnnEngine<'g> {
         self.runner = runner(
             self.choice,
             self.cpu_shading,
+            self.precision,
             self.adapter,
             &self.model_path,
             &self.model,
@@ -310,7 +317,11 @@ impl Engine for RpnnEngine<'_> {
             summary: format!(
                 "RPNN ({}, {}{}) {}x{} at {} spp in {:.2} s — {:.1} ms per spp, {} network queries",
                 self.model_path.display(),
-                self.runner.name(),
+                match (&self.runner, self.precision) {
+                    (Runner::Cpu(Backend::Ort(_)), _) | (_, Precision::F32) =>
+                        self.runner.name().to_string(),
+                    (_, Precision::F16) => format!("{}, f16 network", self.runner.name()),
+                },
                 match &self.sky_sh {
                     Some(s) => format!(", sky head of degree {}", s.degree),
                     None if scene.sky.is_some() => format!(", {} sky directions", self.sky_dirs),
