@@ -20,7 +20,10 @@
 #   8. error against time on the GPU: `nimbus compare` of pt-gpu, pm, pm-march and rpnn (WGSL
 #      network) on the cumulus congestus against a pt-gpu reference — per method the time of
 #      the first budget whose 4×4 relative error is ≤ 5 % and the speed-up at equal error of
-#      its largest budget (report in DIR/compare/).
+#      its largest budget (report in DIR/compare/);
+#   9. the same on the held-out clouds: `bench-suite --device gpu` (pt-gpu, pm, rpnn with the
+#      whole sample on the GPU), median speed-up and cases within the floor per lighting
+#      (DIR/suite/results.md).
 #
 #   bash bench/device.sh [--small] [--out DIR]
 #
@@ -41,7 +44,7 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --small) small=1 ;;
     --out) out="$2"; shift ;;
-    -h|--help) sed -n '2,34p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,38p' "$0"; exit 0 ;;
     *) echo "bench/device.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
   shift
@@ -61,6 +64,8 @@ if [ "$small" = 1 ]; then
   GW=192; GH=108; GSPP=4; GREF=2; CW=96; CH=54
   CMP_BUDGETS="--budgets pt-gpu=4,16,64 --budgets pm=1,4,16 --budgets pm-march=4,16 --budgets rpnn=1,4"
   CMP_REF="--ref-spp 64 --ref-time-cap 60"
+  SUITE_SIZE=32x18
+  SUITE="--clouds 1 --lights back --skies sun,sun+sky --size $SUITE_SIZE --budgets pt-gpu=4,16 --budgets pm=4 --budgets rpnn=2 --beams 1024 --ref-spp 128 --ref-noise 0"
 else
   W=1920; H=1200; FRAMES=12; BEAMS=8192; RW=1280; RH=720; RSPP=2; PW=1280; PH=720; PTSPP=4; GPTSPP=64
   DG_RECORDS=2000; DG_SAMPLES=1024; VOLRES=1200; TR_RECORDS=200000; TR_EPOCHS=3
@@ -69,6 +74,8 @@ else
   GW=1920; GH=1080; GSPP=64; GREF=4; CW=960; CH=540
   CMP_BUDGETS="--budgets pt-gpu=4,16,64,256,1024 --budgets pm=1,4,16,64,256 --budgets pm-march=4,16,100 --budgets rpnn=1,4,16"
   CMP_REF="--ref-spp 1024 --ref-time-cap 300"
+  SUITE_SIZE=192x108
+  SUITE="--clouds 3 --size $SUITE_SIZE --ref-device gpu --ref-time-cap 30"
 fi
 # The training environment of training/setup.sh where there is one, else python3 (with torch).
 py=${PYTHON:-$([ -x training/.venv/bin/python ] && echo training/.venv/bin/python || echo python3)}
@@ -240,6 +247,26 @@ for m in dict.fromkeys(r["method"] for r in rows):
         print(f"time_to_5pct_s,cumulus_congestus,{sys.argv[2]} {m} at {hit['budget']} {hit['budget_unit']},{hit['time_s']},s")
     if rs[-1]["speedup_error"]:
         print(f"speedup_equal_error,cumulus_congestus,{sys.argv[2]} {m} at {rs[-1]['budget']} {rs[-1]['budget_unit']},{rs[-1]['speedup_error']},x")
+PY
+
+# 9. The users' table on held-out clouds: `bench-suite --device gpu` (pt-gpu the baseline, pm,
+# rpnn with the whole sample on the GPU) — per method and lighting the median speed-up at equal
+# error and how many cases lie within twice their floor (full table in DIR/suite/results.md).
+# shellcheck disable=SC2086
+"$nimbus" bench-suite --device gpu $SUITE --out "$out/suite" --work "$out/suite_work" \
+  --cache "$out/suite_cache" > "$out/suite.log" 2>&1
+"$py" - "$out/suite/results.md" "$SUITE_SIZE" >> "$csv" <<'PY'
+import math, re, sys
+for line in open(sys.argv[1]):
+    f = [c.strip() for c in line.strip().strip("|").split("|")]
+    if len(f) != 8 or f[1] not in ("sun", "sun+sky", "sun+env") or f[6].startswith("1×"):
+        continue
+    m = re.match(r"([0-9.e+-]+)×", f[6])
+    if m and math.isfinite(float(m.group(1))) and float(m.group(1)) > 0:
+        print(f"suite_speedup_median,held-out clouds {f[1]},{sys.argv[2]} {f[0]},{m.group(1)},x")
+    w = re.match(r"(\d+) of (\d+)", f[5])
+    if w and int(w.group(1)) > 0:
+        print(f"suite_within_floor,held-out clouds {f[1]},{sys.argv[2]} {f[0]} of {w.group(2)},{w.group(1)},cases")
 PY
 
 # The Markdown table.

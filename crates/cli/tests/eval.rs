@@ -530,6 +530,19 @@ fn device_benchmark_script_small() {
     // run's errors stay above 5 %, so no time_to_5pct_s row is expected there).
     assert_eq!(measures.get("speedup_equal_error"), Some(&4), "{csv}");
     assert!(d.join("compare/report.md").is_file());
+    // The held-out clouds on the GPU (step 9): pt-gpu the baseline, pm and rpnn under both
+    // lightings; its csv rows (only finite speed-ups, only non-zero counts) passed the check
+    // above.
+    let suite = std::fs::read_to_string(d.join("suite/results.md")).unwrap();
+    for row in [
+        "| pt-gpu | sun |",
+        "| pm | sun |",
+        "| rpnn | sun |",
+        "| pm | sun+sky |",
+        "| rpnn | sun+sky |",
+    ] {
+        assert!(suite.contains(row), "{row}\n{suite}");
+    }
     assert!(
         std::fs::read_to_string(d.join("device.md"))
             .unwrap()

@@ -54,6 +54,9 @@ pub struct SampleParams {
     pub _b: u32,
 }
 
+/// Passes timed per submission (a query set holds at most 4 096 timestamps, two per pass).
+const TIMER_PASSES: u32 = 2048;
+
 const SKY: u32 = 1;
 const ENV: u32 = 2;
 const SKY_HEAD: u32 = 4;
@@ -242,7 +245,7 @@ impl<'g> GpuSampler<'g> {
             sky_tab: gpu.storage("sky coefficients", &table),
             acc: gpu.zeroed("rpnn image sums", (w * h) as u64 * 16),
             samples: 0,
-            timer: StageTimer::new(gpu, 2048),
+            timer: StageTimer::new(gpu, TIMER_PASSES),
             times: SampleTimes::default(),
         })
     }
@@ -296,25 +299,32 @@ impl<'g> GpuSampler<'g> {
     pub fn add(&mut self, spp: u32) -> Result<(), RenderError> {
         let t_all = Instant::now();
         let pixels = (self.params.width * self.params.height) as usize;
+        // Timed passes per chunk: shade, descriptor, the layers, resolve; a submission holds
+        // as many chunks as the timer has room for (a sample of a large image takes several).
+        let per_chunk = 3 + self.mlp.layer_tiles().len();
+        let chunks_per_submit = (TIMER_PASSES as usize / per_chunk).max(1);
+        let firsts: Vec<usize> = (0..pixels).step_by(self.rows).collect();
         for s in 0..spp {
-            let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-            for first in (0..pixels).step_by(self.rows) {
-                let count = (pixels - first).min(self.rows);
-                self.encode_chunk(&mut enc, first, count, self.samples + s);
-            }
-            self.timer.resolve(&mut enc);
-            self.gpu.queue.submit([enc.finish()]);
-            for (name, ms) in self.timer.read(self.gpu) {
-                let t = &mut self.times;
-                match name {
-                    "shade" => t.shade_ms += ms,
-                    "descriptor" => t.descriptor_ms += ms,
-                    "resolve" => t.resolve_ms += ms,
-                    _ => t.inference_ms += ms,
+            for group in firsts.chunks(chunks_per_submit) {
+                let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+                for &first in group {
+                    let count = (pixels - first).min(self.rows);
+                    self.encode_chunk(&mut enc, first, count, self.samples + s);
+                }
+                self.timer.resolve(&mut enc);
+                self.gpu.queue.submit([enc.finish()]);
+                for (name, ms) in self.timer.read(self.gpu) {
+                    let t = &mut self.times;
+                    match name {
+                        "shade" => t.shade_ms += ms,
+                        "descriptor" => t.descriptor_ms += ms,
+                        "resolve" => t.resolve_ms += ms,
+                        _ => t.inference_ms += ms,
+                    }
                 }
             }
         }
-        // Without timestamps the wait above is the only one: finish the work before timing.
+        // Reading the timestamps waits for each submission; without them this is the wait.
         self.gpu
             .device
             .poll(wgpu::PollType::wait_indefinitely())
