@@ -22,12 +22,13 @@
 #      the first budget whose 4×4 relative error is ≤ 5 % and the speed-up at equal error of
 #      its largest budget (report in DIR/compare/);
 #   9. the same on the held-out clouds: `bench-suite --device gpu` (pt-gpu, pm, rpnn with the
-#      whole sample on the GPU), median speed-up and cases within the floor per lighting
+#      whole sample on the GPU), median speed-up and cases within the floor per sky condition
 #      (DIR/suite/results.md).
 #
 #   bash bench/device.sh [--small] [--out DIR]
 #
-# On an H200 the full run took 134 s (2026-12-04). `--small` runs the same steps at reduced
+# On an H200 the full run took 134 s (2026-12-04), before steps 7–9 (step 9 renders 18 scenes
+# with references capped at 30 s each: allow several minutes more). `--small` runs the same steps at reduced
 # sizes (1/8 of the pixels or fewer, fewer frames, beams and records) so lavapipe finishes in
 # about a minute; the tests run it that way. The binary is ./target/release/nimbus (or $NIMBUS:
 # the release profile keeps line tables of Nimbus' own code for profiling, ≈ 46 MB; `strip -o`
@@ -110,8 +111,9 @@ done
 scene=$(sized scenes/bench/rpnn_720p.toml "$RW" "$RH")
 sky_scene="${scene%.toml}_sky.toml"
 { cat "$scene"; printf '\n[sky]\nradiance = [0.12, 0.2, 0.38]\n'; } > "$sky_scene"
-for sc in "rpnn_720p $scene" "rpnn_720p_sky $sky_scene"; do
-  set -- $sc
+for name in rpnn_720p rpnn_720p_sky; do
+  path=$([ "$name" = rpnn_720p ] && echo "$scene" || echo "$sky_scene")
+  set -- "$name" "$path"
   for b in "wgpu" "wgpu --net-precision f16" "wgpu --cpu-shading" "ort"; do
     tag=$(echo "$b" | tr -d ' -' | sed 's/cpushading/_cpu_shading/')
     # shellcheck disable=SC2086
@@ -250,11 +252,13 @@ for m in dict.fromkeys(r["method"] for r in rows):
 PY
 
 # 9. The users' table on held-out clouds: `bench-suite --device gpu` (pt-gpu the baseline, pm,
-# rpnn with the whole sample on the GPU) — per method and lighting the median speed-up at equal
-# error and how many cases lie within twice their floor (full table in DIR/suite/results.md).
+# rpnn with the whole sample on the GPU) — per method and sky condition the median speed-up at
+# equal error and how many cases lie within twice their floor (full table in
+# DIR/suite/results.md).
 # shellcheck disable=SC2086
 "$nimbus" bench-suite --device gpu $SUITE --out "$out/suite" --work "$out/suite_work" \
-  --cache "$out/suite_cache" > "$out/suite.log" 2>&1
+  --cache "$out/suite_cache" > "$out/suite.log" 2>&1 ||
+  { echo "bench/device.sh: bench-suite failed; the end of $out/suite.log:" >&2; tail -30 "$out/suite.log" >&2; exit 1; }
 "$py" - "$out/suite/results.md" "$SUITE_SIZE" >> "$csv" <<'PY'
 import math, re, sys
 for line in open(sys.argv[1]):

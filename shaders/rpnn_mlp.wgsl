@@ -12,8 +12,9 @@
 // `nimbus_rpnn::model::Rpnn::forward`.
 //
 // Rows: min(L.rows, row_limit[0]). A batch whose size only the GPU knows (the whole-sample
-// renderer's compacted queries, `nimbus_rpnn::gpu_sample`) is dispatched for L.rows and
-// workgroups past the count return at once; other callers bind a limit of 0xffffffff.
+// renderer's compacted queries, `nimbus_rpnn::gpu_sample`) is bound for L.rows (the whole
+// batch) and dispatched indirectly for the count its shading pass wrote; workgroups past the
+// count return at once. Other callers bind a limit of 0xffffffff.
 //
 // Storage: every buffer is read as u32 words, per layer in f32 (bitcast) or in f16 pairs
 // (unpack2x16float: core WGSL, no SHADER_F16 needed) as `flags` says: bit 0 the weights,
@@ -86,10 +87,9 @@ fn res_at(e: u32) -> f32 {
 var<workgroup> a_tile: array<vec4<f32>, 256>; // [k 16][row group 16] × 4 rows
 var<workgroup> w_tile: array<vec4<f32>, 256>; // [k 16][output group 16] × 4 outputs
 var<workgroup> wg_rows: u32;
-var<private> rows: u32;
 
-// Input i of query r (i < ka: from a, else from b).
-fn input(r: u32, i: u32) -> f32 {
+// Input i of query r (i < ka: from a, else from b), for a batch of `rows` queries.
+fn input(r: u32, i: u32, rows: u32) -> f32 {
     if (r >= rows) {
         return 0.0;
     }
@@ -134,8 +134,8 @@ fn value(r: u32, j: u32, v: f32) -> f32 {
     return s;
 }
 
-// Writes outputs j … j + 3 of query r (j a multiple of 4).
-fn finish(r: u32, j: u32, acc: vec4<f32>) {
+// Writes outputs j … j + 3 of query r (j a multiple of 4) of a batch of `rows` queries.
+fn finish(r: u32, j: u32, acc: vec4<f32>, rows: u32) {
     if (r >= rows || j >= L.outputs) {
         return;
     }
@@ -148,9 +148,12 @@ fn finish(r: u32, j: u32, acc: vec4<f32>) {
     let o = r * L.out_stride + L.out_offset + j;
     if ((L.flags & F16_OUT) != 0u) {
         // Pairs (j, j + 1), (j + 2, j + 3); a pair's second half past the outputs is padding.
-        out_buf[o >> 1u] = pack2x16float(v.xy);
+        // Clamped to the largest half float (ReLU activations are ≥ 0; beyond 65 504 a half
+        // would be infinite).
+        let h = clamp(v, vec4<f32>(-65504.0), vec4<f32>(65504.0));
+        out_buf[o >> 1u] = pack2x16float(h.xy);
         if (j + 2u < L.outputs) {
-            out_buf[(o >> 1u) + 1u] = pack2x16float(v.zw);
+            out_buf[(o >> 1u) + 1u] = pack2x16float(h.zw);
         }
         return;
     }
@@ -174,7 +177,7 @@ fn dense(
     if (t == 0u) {
         wg_rows = min(L.rows, row_limit[0]);
     }
-    rows = workgroupUniformLoad(&wg_rows);
+    let rows = workgroupUniformLoad(&wg_rows);
     if (r0 >= rows) {
         return;
     }
@@ -189,7 +192,8 @@ fn dense(
         let kk = k0 + lk;
         let rr = r0 + lg * 4u;
         a_tile[lk * 16u + lg] = vec4<f32>(
-            input(rr, kk), input(rr + 1u, kk), input(rr + 2u, kk), input(rr + 3u, kk));
+            input(rr, kk, rows), input(rr + 1u, kk, rows), input(rr + 2u, kk, rows),
+            input(rr + 3u, kk, rows));
         let jj = j0 + lg * 4u;
         w_tile[lk * 16u + lg] = vec4<f32>(
             weight(jj, kk), weight(jj + 1u, kk), weight(jj + 2u, kk), weight(jj + 3u, kk));
@@ -206,8 +210,8 @@ fn dense(
     }
     let r = r0 + ty * 4u;
     let j = j0 + tx * 4u;
-    finish(r, j, acc0);
-    finish(r + 1u, j, acc1);
-    finish(r + 2u, j, acc2);
-    finish(r + 3u, j, acc3);
+    finish(r, j, acc0, rows);
+    finish(r + 1u, j, acc1, rows);
+    finish(r + 2u, j, acc2, rows);
+    finish(r + 3u, j, acc3, rows);
 }

@@ -171,10 +171,13 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
     // Asked for on the command line, RPNN without a usable model is an error here (the key's
     // switch in a running viewer only leaves a note and keeps the method).
     if method == ViewMode::Rpnn {
-        let path = opts
-            .rpnn_model
-            .clone()
-            .unwrap_or_else(|| nimbus_rpnn::model::model_path_for(&s.phase_desc));
+        // The model the estimator will load: the sky head's under a sky, when it is shipped.
+        let path = opts.rpnn_model.clone().unwrap_or_else(|| {
+            s.sky
+                .as_ref()
+                .and_then(|_| nimbus_rpnn::model::sky_model_path_for(&s.phase_desc))
+                .unwrap_or_else(|| nimbus_rpnn::model::model_path_for(&s.phase_desc))
+        });
         nimbus_rpnn::model::Rpnn::load(&path).map_err(|e| anyhow::anyhow!("--method rpnn: {e}"))?;
     }
     if headless {

@@ -58,9 +58,16 @@ fn main() {
         gpu.describe()
     );
     // The sun head: f16 against ONNX Runtime, and both against the labels.
-    let scale = want.iter().step_by(per).map(|v| v.abs() as f64).sum::<f64>() / n as f64;
+    let scale = want
+        .iter()
+        .step_by(per)
+        .map(|v| v.abs() as f64)
+        .sum::<f64>()
+        / n as f64;
     let diff: Vec<f64> = (0..n)
-        .map(|i| (f16[i * per] - want[i * per]).abs() as f64 / (want[i * per].abs() as f64).max(scale))
+        .map(|i| {
+            (f16[i * per] - want[i * per]).abs() as f64 / (want[i * per].abs() as f64).max(scale)
+        })
         .collect();
     let err = |p: &[f32]| -> Vec<f64> {
         (0..n)
@@ -107,7 +114,11 @@ fn main() {
     let a: Vec<f64> = (0..n).map(|i| contract(&f16, i)).collect();
     let b: Vec<f64> = (0..n).map(|i| contract(&want, i)).collect();
     let s = b.iter().map(|v| v.abs()).sum::<f64>() / n as f64;
-    let d: Vec<f64> = a.iter().zip(&b).map(|(p, q)| (p - q).abs() / q.abs().max(s)).collect();
+    let d: Vec<f64> = a
+        .iter()
+        .zip(&b)
+        .map(|(p, q)| (p - q).abs() / q.abs().max(s))
+        .collect();
     println!(
         "sky head under a clear sky: f16 vs ONNX Runtime per record: median {:.2e}, p99 {:.2e}, max {:.2e}; mean ratio {:.6}",
         quantile(d.clone(), 0.5),

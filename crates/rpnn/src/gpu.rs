@@ -162,6 +162,19 @@ impl<'g> GpuDescriptor<'g> {
         indirect: Option<(&wgpu::Buffer, u64)>,
         timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
     ) {
+        let bound = self.bind_rows(configs, count, rows, out);
+        self.encode_bound(enc, &bound, indirect, timestamps);
+    }
+
+    /// The uniform block and bind group of a descriptor pass over `configs` into `out` (see
+    /// [`GpuDescriptor::encode_rows`]), made once for passes recorded again and again.
+    pub fn bind_rows(
+        &self,
+        configs: &wgpu::Buffer,
+        count: Option<&wgpu::Buffer>,
+        rows: usize,
+        out: &wgpu::Buffer,
+    ) -> BoundDescriptor {
         let params = DescParams {
             n_configs: rows as u32,
             ..self.params
@@ -178,18 +191,40 @@ impl<'g> GpuDescriptor<'g> {
                 (5, count.unwrap_or(&self.no_limit)),
             ],
         );
-        let (x, y) = Gpu::workgroups_1d((rows * DESCRIPTOR_LEN) as u32);
+        BoundDescriptor {
+            bind,
+            _params: ubuf,
+            rows,
+        }
+    }
+
+    /// Records a descriptor pass made by [`GpuDescriptor::bind_rows`].
+    pub fn encode_bound(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        bound: &BoundDescriptor,
+        indirect: Option<(&wgpu::Buffer, u64)>,
+        timestamps: Option<wgpu::ComputePassTimestampWrites<'_>>,
+    ) {
+        let (x, y) = Gpu::workgroups_1d((bound.rows * DESCRIPTOR_LEN) as u32);
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("rpnn descriptor"),
             timestamp_writes: timestamps,
         });
         pass.set_pipeline(&self.pipeline);
-        pass.set_bind_group(0, &bind, &[]);
+        pass.set_bind_group(0, &bound.bind, &[]);
         match indirect {
             Some((buf, offset)) => pass.dispatch_workgroups_indirect(buf, offset),
             None => pass.dispatch_workgroups(x, y, 1),
         }
     }
+}
+
+/// A descriptor pass's bind group and uniform block ([`GpuDescriptor::bind_rows`]).
+pub struct BoundDescriptor {
+    bind: wgpu::BindGroup,
+    _params: wgpu::Buffer,
+    rows: usize,
 }
 
 #[cfg(test)]

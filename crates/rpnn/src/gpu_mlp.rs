@@ -306,8 +306,9 @@ impl<'g> GpuMlp<'g> {
             input_len: model.input_len(),
             max_batch,
             acts: [0, 1, 2, 3].map(|i| {
-                // The fourth is the sky head's second buffer.
-                let bytes = if i == 3 && n_sky < 2 { 4 } else { act_bytes };
+                // The fourth is the sky head's second buffer (its second hidden layer's
+                // output: heads of three layers or more).
+                let bytes = if i == 3 && n_sky < 3 { 4 } else { act_bytes };
                 gpu.zeroed("rpnn activations", bytes)
             }),
             out: gpu.zeroed(
@@ -353,46 +354,79 @@ impl<'g> GpuMlp<'g> {
         rows: usize,
         row_limit: Option<&wgpu::Buffer>,
         indirect: Option<(&wgpu::Buffer, u64)>,
-        mut timer: Option<&mut StageTimer>,
+        timer: Option<&mut StageTimer>,
     ) {
+        let bound = self.bind(desc, rows, row_limit);
+        self.encode_bound(enc, &bound, indirect, timer);
+    }
+
+    /// Sets every layer's row count to `rows` ≤ `max_batch` and makes the bind groups that read
+    /// `desc` (and `row_limit`): what [`GpuMlp::encode_bound`] records, as often as wanted. The
+    /// layer uniforms are this network's own, so one row count holds for everything recorded
+    /// before the next submission: a caller with batches of several sizes in one command
+    /// buffer binds the largest and lowers it with `row_limit`.
+    pub fn bind(
+        &self,
+        desc: &wgpu::Buffer,
+        rows: usize,
+        row_limit: Option<&wgpu::Buffer>,
+    ) -> BoundMlp {
         assert!(rows <= self.max_batch, "batch larger than max_batch");
         let buf = |i: usize| if i == OUT { &self.out } else { &self.acts[i] };
-        for (k, (s, u)) in self.steps.iter().enumerate() {
-            let params = LayerParams {
-                rows: rows as u32,
-                ..s.params
-            };
-            self.gpu
-                .queue
-                .write_buffer(u, 0, bytemuck::bytes_of(&params));
-            let a = match s.a {
-                Src::Descriptor => desc,
-                Src::Act(i) => buf(i),
-            };
-            let bind = self.gpu.bind(
-                &self.pipeline,
-                &[
-                    (0, u),
-                    (1, &self.weights),
-                    (2, a),
-                    (3, s.b.map_or(&self.dummy, buf)),
-                    (4, s.res.map_or(&self.dummy, buf)),
-                    (5, buf(s.out)),
-                    (6, row_limit.unwrap_or(&self.no_limit)),
-                ],
-            );
+        let groups = self
+            .steps
+            .iter()
+            .map(|(s, u)| {
+                let params = LayerParams {
+                    rows: rows as u32,
+                    ..s.params
+                };
+                self.gpu
+                    .queue
+                    .write_buffer(u, 0, bytemuck::bytes_of(&params));
+                let a = match s.a {
+                    Src::Descriptor => desc,
+                    Src::Act(i) => buf(i),
+                };
+                self.gpu.bind(
+                    &self.pipeline,
+                    &[
+                        (0, u),
+                        (1, &self.weights),
+                        (2, a),
+                        (3, s.b.map_or(&self.dummy, buf)),
+                        (4, s.res.map_or(&self.dummy, buf)),
+                        (5, buf(s.out)),
+                        (6, row_limit.unwrap_or(&self.no_limit)),
+                    ],
+                )
+            })
+            .collect();
+        BoundMlp { groups, rows }
+    }
+
+    /// Records the layer passes of `bound` ([`GpuMlp::bind`]); with `indirect` the workgroup
+    /// counts of layer k are read at byte offset `base + 12 k` (see [`GpuMlp::layer_tiles`]).
+    pub fn encode_bound(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        bound: &BoundMlp,
+        indirect: Option<(&wgpu::Buffer, u64)>,
+        mut timer: Option<&mut StageTimer>,
+    ) {
+        for (k, ((s, _), bind)) in self.steps.iter().zip(&bound.groups).enumerate() {
             let tw = timer.as_mut().and_then(|t| t.pass("inference"));
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("rpnn layer"),
                 timestamp_writes: tw,
             });
             pass.set_pipeline(&self.pipeline);
-            pass.set_bind_group(0, &bind, &[]);
+            pass.set_bind_group(0, bind, &[]);
             match indirect {
                 Some((buf, base)) => pass.dispatch_workgroups_indirect(buf, base + 12 * k as u64),
                 None => pass.dispatch_workgroups(
-                    params.outputs.div_ceil(64),
-                    (rows as u32).div_ceil(64).max(1),
+                    s.params.outputs.div_ceil(64),
+                    (bound.rows as u32).div_ceil(64).max(1),
                     1,
                 ),
             }
@@ -421,6 +455,12 @@ impl<'g> GpuMlp<'g> {
         }
         Ok(out)
     }
+}
+
+/// The bind groups of one input for every layer ([`GpuMlp::bind`]).
+pub struct BoundMlp {
+    groups: Vec<wgpu::BindGroup>,
+    rows: usize,
 }
 
 /// Descriptor construction and network on the GPU in one command buffer per batch.

@@ -9,7 +9,9 @@
 //!
 //! Pixels go through in chunks of the network's batch ([`GpuMlp::max_batch`]); a chunk's
 //! queries are compacted by an atomic counter, so pixels that see only sky cost no network
-//! work, and the later passes read the count on the GPU.
+//! work, and the later passes are dispatched indirectly for the count. The chunks' uniform
+//! blocks and bind groups are made once; per sample only each chunk's sample index is
+//! written, and the chunks of one sample share a command buffer.
 //!
 //! Supported: HG or isotropic phase, a delta or disc sun, no sky, a constant sky or an
 //! environment map (nearest texel, as `nimbus_scene::EnvMap::radiance`), the sky through the
@@ -30,8 +32,8 @@ use nimbus_scene::{Image, Scene, Sky};
 use nimbus_trace::gpu::{Density, DensityStorage, scene_params};
 
 use crate::descriptor::DESCRIPTOR_LEN;
-use crate::gpu::{GpuConfig, GpuDescriptor};
-use crate::gpu_mlp::{GpuMlp, Precision};
+use crate::gpu::{BoundDescriptor, GpuConfig, GpuDescriptor};
+use crate::gpu_mlp::{BoundMlp, GpuMlp, Precision};
 use crate::model::Rpnn;
 use crate::pyramid::Pyramid;
 use crate::render::{RenderError, SkySh};
@@ -88,6 +90,17 @@ pub fn unsupported(scene: &Scene, model: &Rpnn, sky_sh: Option<&SkySh>) -> Optio
                 .into(),
         );
     }
+    if let Some(s) = sky_sh
+        && scene.sky.is_some()
+        && model.sky_coeffs() < crate::sky::coeffs(s.degree)
+    {
+        return Some(format!(
+            "the model's sky head gives {} coefficients, the sky's degree {} needs {}",
+            model.sky_coeffs(),
+            s.degree,
+            crate::sky::coeffs(s.degree)
+        ));
+    }
     None
 }
 
@@ -112,13 +125,27 @@ pub struct GpuSampler<'g> {
     counter: wgpu::Buffer,
     configs: wgpu::Buffer,
     extra: wgpu::Buffer,
-    descriptors: wgpu::Buffer,
     env: wgpu::Buffer,
     sky_tab: wgpu::Buffer,
     acc: wgpu::Buffer,
+    /// Per chunk of pixels: its uniform block and bind groups, made once (and again for a new
+    /// image size); the descriptor pass's and the layers' bind groups serve every chunk.
+    chunks: Vec<Chunk>,
+    desc_bound: BoundDescriptor,
+    mlp_bound: BoundMlp,
     samples: u32,
     timer: StageTimer,
     pub times: SampleTimes,
+}
+
+/// One chunk of pixels: `first .. first + count`.
+struct Chunk {
+    first: usize,
+    count: usize,
+    params: wgpu::Buffer,
+    shade: wgpu::BindGroup,
+    args: wgpu::BindGroup,
+    resolve: wgpu::BindGroup,
 }
 
 impl<'g> GpuSampler<'g> {
@@ -164,12 +191,13 @@ impl<'g> GpuSampler<'g> {
                 scene.source.display()
             )));
         }
-        let gpu_err = |e: nimbus_trace::gpu::GpuPtError| RenderError::Setting(e.to_string());
+        // The GPU's own refusals (a binding or atlas too large) stay GPU errors, so a caller
+        // can fall back to CPU shading; the rest are settings.
+        let gpu_err = |e: nimbus_trace::gpu::GpuPtError| match e {
+            nimbus_trace::gpu::GpuPtError::Gpu(g) => RenderError::Gpu(g),
+            e => RenderError::Setting(e.to_string()),
+        };
         let params = scene_params(scene).map_err(gpu_err)?;
-        let density = Density::upload(gpu, scene, storage).map_err(gpu_err)?;
-        let desc = GpuDescriptor::new(gpu, pyr)?;
-        let mlp = GpuMlp::with_precision(gpu, model, max_batch, precision)?;
-        let rows = mlp.max_batch;
         let (mut flags, mut env_w, mut env_h) = (0, 0, 0);
         // One black texel binds where there is no map.
         let mut texels: Vec<[f32; 4]> = vec![[0.0; 4]];
@@ -196,6 +224,21 @@ impl<'g> GpuSampler<'g> {
             }
             _ => (0, vec![0.0; 1]),
         };
+        // Without a sky to contract with, the sky head's layers are left out.
+        let sun_only;
+        let model = if flags & SKY_HEAD == 0 && model.sky_coeffs() > 0 {
+            sun_only = Rpnn {
+                sky_head: Vec::new(),
+                ..model.clone()
+            };
+            &sun_only
+        } else {
+            model
+        };
+        let density = Density::upload(gpu, scene, storage).map_err(gpu_err)?;
+        let desc = GpuDescriptor::new(gpu, pyr)?;
+        let mlp = GpuMlp::with_precision(gpu, model, max_batch, precision)?;
+        let rows = mlp.max_batch;
         gpu.check_storage("the descriptor batch", (rows * DESCRIPTOR_LEN * 4) as u64)?;
         let (w, h) = (scene.camera.width, scene.camera.height);
         gpu.check_storage("the image", (w * h) as u64 * 16)?;
@@ -206,7 +249,16 @@ impl<'g> GpuSampler<'g> {
         };
         let source = shaders::source(stage);
         let tiles = mlp.layer_tiles();
-        Ok(Self {
+        let counter = gpu.zeroed("rpnn query counter", 8);
+        let configs = gpu.zeroed(
+            "rpnn query configs",
+            (rows * std::mem::size_of::<GpuConfig>()) as u64,
+        );
+        let descriptors = gpu.zeroed("rpnn descriptors", (rows * DESCRIPTOR_LEN * 4) as u64);
+        let desc_bound = desc.bind_rows(&configs, Some(&counter), rows, &descriptors);
+        // Every chunk binds the whole batch; the count the shading pass writes lowers it.
+        let mlp_bound = mlp.bind(&descriptors, rows, Some(&counter));
+        let mut sampler = Self {
             gpu,
             shade: gpu.pipeline("rpnn shade", &source, "shade"),
             args_pipeline: gpu.pipeline("rpnn dispatch args", &source, "dispatch_args"),
@@ -234,20 +286,83 @@ impl<'g> GpuSampler<'g> {
             params,
             density,
             rows,
-            counter: gpu.zeroed("rpnn query counter", 8),
-            configs: gpu.zeroed(
-                "rpnn query configs",
-                (rows * std::mem::size_of::<GpuConfig>()) as u64,
-            ),
+            counter,
+            configs,
             extra: gpu.zeroed("rpnn query weights", rows as u64 * 32),
-            descriptors: gpu.zeroed("rpnn descriptors", (rows * DESCRIPTOR_LEN * 4) as u64),
             env: gpu.storage("environment map", &texels),
             sky_tab: gpu.storage("sky coefficients", &table),
             acc: gpu.zeroed("rpnn image sums", (w * h) as u64 * 16),
+            chunks: Vec::new(),
+            desc_bound,
+            mlp_bound,
             samples: 0,
             timer: StageTimer::new(gpu, TIMER_PASSES),
             times: SampleTimes::default(),
-        })
+        };
+        sampler.build_chunks();
+        Ok(sampler)
+    }
+
+    /// The chunks of the current image size with their bind groups.
+    fn build_chunks(&mut self) {
+        let gpu = self.gpu;
+        let pixels = (self.params.width * self.params.height) as usize;
+        self.chunks = (0..pixels)
+            .step_by(self.rows)
+            .map(|first| {
+                let count = (pixels - first).min(self.rows);
+                let params = gpu.uniform(
+                    "rpnn sample",
+                    &SampleParams {
+                        first: first as u32,
+                        count: count as u32,
+                        ..self.base
+                    },
+                );
+                let shade = self.density.bind(
+                    gpu,
+                    &self.shade,
+                    &[
+                        (0, &self.params_buf),
+                        (2, &params),
+                        (3, &self.counter),
+                        (4, &self.configs),
+                        (7, &self.extra),
+                        (8, &self.acc),
+                        (9, &self.env),
+                    ],
+                );
+                let args = gpu.bind(
+                    &self.args_pipeline,
+                    &[
+                        (2, &params),
+                        (3, &self.counter),
+                        (12, &self.args),
+                        (13, &self.layer_tiles),
+                    ],
+                );
+                let resolve = gpu.bind(
+                    &self.resolve,
+                    &[
+                        (2, &params),
+                        (3, &self.counter),
+                        (4, &self.configs),
+                        (7, &self.extra),
+                        (8, &self.acc),
+                        (10, self.mlp.output()),
+                        (11, &self.sky_tab),
+                    ],
+                );
+                Chunk {
+                    first,
+                    count,
+                    params,
+                    shade,
+                    args,
+                    resolve,
+                }
+            })
+            .collect();
     }
 
     /// Takes the scene's camera, sun and constant sky as they are now (the viewer moves them);
@@ -266,6 +381,7 @@ impl<'g> GpuSampler<'g> {
             self.gpu.check_storage("the image", w * h * 16)?;
             self.acc = self.gpu.zeroed("rpnn image sums", w * h * 16);
             self.samples = 0;
+            self.build_chunks();
         }
         Ok(())
     }
@@ -295,21 +411,32 @@ impl<'g> GpuSampler<'g> {
     }
 
     /// Adds `spp` samples per pixel to the sums (sample indices continue from those already
-    /// in them, so steps give the image one call gives). One submission per sample.
+    /// in them, so steps give the image one call gives). A submission holds the chunks of one
+    /// sample that the timer has room for (all of them below 2 048 timed passes).
     pub fn add(&mut self, spp: u32) -> Result<(), RenderError> {
         let t_all = Instant::now();
-        let pixels = (self.params.width * self.params.height) as usize;
-        // Timed passes per chunk: shade, descriptor, the layers, resolve; a submission holds
-        // as many chunks as the timer has room for (a sample of a large image takes several).
+        // Timed passes per chunk: shade, descriptor, the layers, resolve.
         let per_chunk = 3 + self.mlp.layer_tiles().len();
         let chunks_per_submit = (TIMER_PASSES as usize / per_chunk).max(1);
-        let firsts: Vec<usize> = (0..pixels).step_by(self.rows).collect();
         for s in 0..spp {
-            for group in firsts.chunks(chunks_per_submit) {
+            let sample = self.samples + s;
+            for lo in (0..self.chunks.len()).step_by(chunks_per_submit) {
+                let hi = (lo + chunks_per_submit).min(self.chunks.len());
                 let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-                for &first in group {
-                    let count = (pixels - first).min(self.rows);
-                    self.encode_chunk(&mut enc, first, count, self.samples + s);
+                for k in lo..hi {
+                    // Each chunk has its own uniform block: the writes land before this
+                    // submission, in queue order after the previous one.
+                    let c = &self.chunks[k];
+                    let p = SampleParams {
+                        first: c.first as u32,
+                        count: c.count as u32,
+                        sample,
+                        ..self.base
+                    };
+                    self.gpu
+                        .queue
+                        .write_buffer(&c.params, 0, bytemuck::bytes_of(&p));
+                    self.encode_chunk(&mut enc, k);
                 }
                 self.timer.resolve(&mut enc);
                 self.gpu.queue.submit([enc.finish()]);
@@ -334,95 +461,43 @@ impl<'g> GpuSampler<'g> {
         Ok(())
     }
 
-    fn encode_chunk(
-        &mut self,
-        enc: &mut wgpu::CommandEncoder,
-        first: usize,
-        count: usize,
-        sample: u32,
-    ) {
-        let gpu = self.gpu;
+    fn encode_chunk(&mut self, enc: &mut wgpu::CommandEncoder, k: usize) {
+        let c = &self.chunks[k];
         enc.clear_buffer(&self.counter, 0, Some(4));
-        let sp = gpu.uniform(
-            "rpnn sample",
-            &SampleParams {
-                first: first as u32,
-                count: count as u32,
-                sample,
-                ..self.base
-            },
-        );
-        let common = [
-            (0, &self.params_buf),
-            (2, &sp),
-            (3, &self.counter),
-            (4, &self.configs),
-            (7, &self.extra),
-            (8, &self.acc),
-            (9, &self.env),
-        ];
-        let bind = self.density.bind(gpu, &self.shade, &common);
         {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("rpnn shade"),
                 timestamp_writes: self.timer.pass("shade"),
             });
             pass.set_pipeline(&self.shade);
-            pass.set_bind_group(0, &bind, &[]);
-            let (x, y) = Gpu::workgroups_1d(count as u32);
+            pass.set_bind_group(0, &c.shade, &[]);
+            let (x, y) = Gpu::workgroups_1d(c.count as u32);
             pass.dispatch_workgroups(x, y, 1);
         }
-        let rows = count.min(self.rows);
         {
-            let bind = gpu.bind(
-                &self.args_pipeline,
-                &[
-                    (2, &sp),
-                    (3, &self.counter),
-                    (12, &self.args),
-                    (13, &self.layer_tiles),
-                ],
-            );
             let mut pass = enc.begin_compute_pass(&Default::default());
             pass.set_pipeline(&self.args_pipeline);
-            pass.set_bind_group(0, &bind, &[]);
+            pass.set_bind_group(0, &c.args, &[]);
             pass.dispatch_workgroups(1, 1, 1);
         }
-        self.desc.encode_rows(
+        self.desc.encode_bound(
             enc,
-            &self.configs,
-            Some(&self.counter),
-            rows,
-            &self.descriptors,
+            &self.desc_bound,
             Some((&self.args, 0)),
             self.timer.pass("descriptor"),
         );
-        self.mlp.encode_with(
+        self.mlp.encode_bound(
             enc,
-            &self.descriptors,
-            rows,
-            Some(&self.counter),
+            &self.mlp_bound,
             Some((&self.args, 24)),
             Some(&mut self.timer),
-        );
-        let bind = gpu.bind(
-            &self.resolve,
-            &[
-                (2, &sp),
-                (3, &self.counter),
-                (4, &self.configs),
-                (7, &self.extra),
-                (8, &self.acc),
-                (10, self.mlp.output()),
-                (11, &self.sky_tab),
-            ],
         );
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("rpnn resolve"),
             timestamp_writes: self.timer.pass("resolve"),
         });
         pass.set_pipeline(&self.resolve);
-        pass.set_bind_group(0, &bind, &[]);
+        pass.set_bind_group(0, &c.resolve, &[]);
         pass.dispatch_workgroups_indirect(&self.args, 12);
     }
 

@@ -271,8 +271,12 @@ pub fn accumulate(
         } else {
             y.len() / configs.len()
         };
+        // A sky head's columns follow the sun's; without `sky_sh` (no sky, or the paper's
+        // directions) they are not read — the sun column of a sky model is the sun model's.
         let sky_cols = opts.sky_sh.as_ref().map_or(0, |_| crate::sky::SH_COEFFS);
-        if !configs.is_empty() && outputs != opts.sun_outputs + sky_cols {
+        let fits = outputs == opts.sun_outputs + sky_cols
+            || (sky_cols == 0 && outputs == opts.sun_outputs + crate::sky::SH_COEFFS);
+        if !configs.is_empty() && !fits {
             return Err(RenderError::Setting(format!(
                 "the network gave {outputs} values per query, expected {} ({} of the sun{})",
                 opts.sun_outputs + sky_cols,

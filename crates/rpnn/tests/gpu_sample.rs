@@ -249,6 +249,14 @@ fn gpu_samples_are_progressive_repeatable_and_storage_independent() {
     assert_eq!(g.samples(), 4);
     let (steps, _) = g.image().unwrap();
     assert_eq!(one.pixels, steps.pixels);
+    // The chunking does not show: batches of 4 096 (one chunk of 384 pixels), 190 and 383 (a
+    // short last chunk, sharing one command buffer with the full ones) give the same image.
+    for batch in [4096, 190, 383] {
+        let mut c = GpuSampler::new(&gpu, &s, &pyr, &model, sky_sh.as_ref(), batch).unwrap();
+        c.reset(5);
+        c.add(4).unwrap();
+        assert_eq!(c.image().unwrap().0.pixels, one.pixels, "batch {batch}");
+    }
     let mut b = GpuSampler::with_storage(
         &gpu,
         &s,

@@ -87,7 +87,19 @@ pub(crate) fn runner<'g>(
             Some(why) => note = Some(format!("CPU shading: {why}")),
         }
     }
-    let (b, device) = rpnn_backend(choice, adapter, model_path, model, pyramid, precision)?;
+    // The WGSL network leaves out a sky head nothing contracts with (ONNX Runtime runs the
+    // file as it is; the renderer reads the sun's columns).
+    let sun_only;
+    let net = if sky_sh.is_none() && model.sky_coeffs() > 0 {
+        sun_only = Rpnn {
+            sky_head: Vec::new(),
+            ..model.clone()
+        };
+        &sun_only
+    } else {
+        model
+    };
+    let (b, device) = rpnn_backend(choice, adapter, model_path, net, pyramid, precision)?;
     Ok((Runner::Cpu(b), device, note))
 }
 
