@@ -227,10 +227,7 @@ impl<'g> GpuSampler<'g> {
         // Without a sky to contract with, the sky head's layers are left out.
         let sun_only;
         let model = if flags & SKY_HEAD == 0 && model.sky_coeffs() > 0 {
-            sun_only = Rpnn {
-                sky_head: Vec::new(),
-                ..model.clone()
-            };
+            sun_only = model.without_sky_head();
             &sun_only
         } else {
             model

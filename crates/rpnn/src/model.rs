@@ -145,6 +145,15 @@ impl Rpnn {
         self.sky_head.last().map_or(0, |l| l.outputs)
     }
 
+    /// The same network without its sky head (for a render with nothing to contract the sky
+    /// head's transfer with: its sun column is unchanged).
+    pub fn without_sky_head(&self) -> Self {
+        Self {
+            sky_head: Vec::new(),
+            ..self.clone()
+        }
+    }
+
     /// Values per query: the sun head's outputs, then the sky head's.
     pub fn outputs_per_query(&self) -> usize {
         self.outputs + self.sky_coeffs()

@@ -258,41 +258,48 @@ fn wgsl_network_agrees_with_the_cpu_reference() {
     assert!(max_rel(&got, &cpu) <= 1e-4, "{}", max_rel(&got, &cpu));
 }
 
-#[test]
-fn gpu_descriptor_and_network_equal_cpu_descriptor_and_onnx_runtime() {
+/// The density pyramid of a small generated cumulus and 70 shading configurations in it
+/// (positions along Lissajous-like curves with frequencies `f`, directions uniform from `seed`).
+fn cloud_configs(seed: u64, f: [f32; 3]) -> (nimbus_rpnn::Pyramid, Vec<nimbus_rpnn::Config>) {
     use glam::Vec3;
-    use nimbus_rpnn::gpu_mlp::GpuRpnn;
-    use nimbus_rpnn::ort_backend::OrtModel;
-    use nimbus_rpnn::{Config, Pyramid, descriptors};
-    let Some(gpu) = nimbus_gpu::testing::gpu(
-        "model::gpu_descriptor_and_network_equal_cpu_descriptor_and_onnx_runtime",
-    ) else {
-        return;
-    };
     let grid = nimbus_scene::generate::generate(nimbus_scene::CloudKind::Cumulus, 4, [32, 24, 32])
         .unwrap();
     let (lo, hi) = nimbus_scene::generate::default_aabb([32, 24, 32]);
     let aabb = nimbus_scene::Aabb::new(lo, hi).unwrap();
     let vol = nimbus_scene::Volume::new(grid, aabb, 30.0).unwrap();
-    let pyr = Pyramid::new(&vol).unwrap();
-    let mut rng = nimbus_trace::rng::Pcg32::new(5, 5);
+    let pyr = nimbus_rpnn::Pyramid::new(&vol).unwrap();
+    let mut rng = nimbus_trace::rng::Pcg32::new(seed, 5);
     let mut dir = || {
         let z = (rng.next_f64() as f32) * 2.0 - 1.0;
         let phi = (rng.next_f64() as f32) * std::f32::consts::TAU;
         let r = (1.0 - z * z).sqrt();
         Vec3::new(r * phi.cos(), z, r * phi.sin())
     };
-    let configs: Vec<Config> = (0..70)
-        .map(|i| Config {
+    let configs = (0..70)
+        .map(|i| nimbus_rpnn::Config {
             x: Vec3::new(
-                (i as f32 * 0.37).sin() * 0.3,
-                (i as f32 * 0.11).cos() * 0.2,
-                (i as f32 * 0.23).sin() * 0.3,
+                (i as f32 * f[0]).sin() * 0.3,
+                (i as f32 * f[1]).cos() * 0.2,
+                (i as f32 * f[2]).sin() * 0.3,
             ),
             view: dir(),
             to_light: dir(),
         })
         .collect();
+    (pyr, configs)
+}
+
+#[test]
+fn gpu_descriptor_and_network_equal_cpu_descriptor_and_onnx_runtime() {
+    use nimbus_rpnn::descriptors;
+    use nimbus_rpnn::gpu_mlp::GpuRpnn;
+    use nimbus_rpnn::ort_backend::OrtModel;
+    let Some(gpu) = nimbus_gpu::testing::gpu(
+        "model::gpu_descriptor_and_network_equal_cpu_descriptor_and_onnx_runtime",
+    ) else {
+        return;
+    };
+    let (pyr, configs) = cloud_configs(5, [0.37, 0.11, 0.23]);
     // The test fixtures and the shipped models (paper size, trained; with and without the sky
     // head, whose 25 coefficients follow the sun's value in each row).
     let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models");
@@ -390,39 +397,15 @@ fn a_sky_head_model_reads_and_agrees_everywhere() {
 /// their mean (a systematic shift), against 1e-4 for f32.
 #[test]
 fn f16_network_agrees_with_onnx_runtime_within_its_tolerance() {
-    use glam::Vec3;
+    use nimbus_rpnn::descriptors;
     use nimbus_rpnn::gpu_mlp::{GpuRpnn, Precision};
     use nimbus_rpnn::ort_backend::OrtModel;
-    use nimbus_rpnn::{Config, Pyramid, descriptors};
     let Some(gpu) = nimbus_gpu::testing::gpu(
         "model::f16_network_agrees_with_onnx_runtime_within_its_tolerance",
     ) else {
         return;
     };
-    let grid = nimbus_scene::generate::generate(nimbus_scene::CloudKind::Cumulus, 4, [32, 24, 32])
-        .unwrap();
-    let (lo, hi) = nimbus_scene::generate::default_aabb([32, 24, 32]);
-    let aabb = nimbus_scene::Aabb::new(lo, hi).unwrap();
-    let vol = nimbus_scene::Volume::new(grid, aabb, 30.0).unwrap();
-    let pyr = Pyramid::new(&vol).unwrap();
-    let mut rng = nimbus_trace::rng::Pcg32::new(6, 5);
-    let mut dir = || {
-        let z = (rng.next_f64() as f32) * 2.0 - 1.0;
-        let phi = (rng.next_f64() as f32) * std::f32::consts::TAU;
-        let r = (1.0 - z * z).sqrt();
-        Vec3::new(r * phi.cos(), z, r * phi.sin())
-    };
-    let configs: Vec<Config> = (0..70)
-        .map(|i| Config {
-            x: Vec3::new(
-                (i as f32 * 0.41).sin() * 0.3,
-                (i as f32 * 0.13).cos() * 0.2,
-                (i as f32 * 0.29).sin() * 0.3,
-            ),
-            view: dir(),
-            to_light: dir(),
-        })
-        .collect();
+    let (pyr, configs) = cloud_configs(6, [0.41, 0.13, 0.29]);
     let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models");
     for model_path in [models.join("rpnn-hg.onnx"), models.join("rpnn-hg-sky.onnx")] {
         let model = Rpnn::load(&model_path).unwrap();

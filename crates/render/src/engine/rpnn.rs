@@ -91,10 +91,7 @@ pub(crate) fn runner<'g>(
     // file as it is; the renderer reads the sun's columns).
     let sun_only;
     let net = if sky_sh.is_none() && model.sky_coeffs() > 0 {
-        sun_only = Rpnn {
-            sky_head: Vec::new(),
-            ..model.clone()
-        };
+        sun_only = model.without_sky_head();
         &sun_only
     } else {
         model
