@@ -76,7 +76,7 @@ else
   CMP_BUDGETS="--budgets pt-gpu=4,16,64,256,1024 --budgets pm=1,4,16,64,256 --budgets pm-march=4,16,100 --budgets rpnn=1,4,16"
   CMP_REF="--ref-spp 1024 --ref-time-cap 300"
   SUITE_SIZE=192x108
-  SUITE="--clouds 3 --size $SUITE_SIZE --ref-device gpu --ref-time-cap 30"
+  SUITE="--clouds 3 --size $SUITE_SIZE --ref-device gpu --ref-time-cap 30 --methods pt-gpu,pm,pm-elek2012,rpnn,rpnn-dirs"
 fi
 # The training environment of training/setup.sh where there is one, else python3 (with torch).
 py=${PYTHON:-$([ -x training/.venv/bin/python ] && echo training/.venv/bin/python || echo python3)}
@@ -252,9 +252,10 @@ for m in dict.fromkeys(r["method"] for r in rows):
 PY
 
 # 9. The users' table on held-out clouds: `bench-suite --device gpu` (pt-gpu the baseline, pm,
-# rpnn with the whole sample on the GPU) — per method and sky condition the median speed-up at
-# equal error and how many cases lie within twice their floor (full table in
-# DIR/suite/results.md).
+# rpnn with the whole sample on the GPU, and the papers' variants: pm-elek2012, rpnn-dirs — the
+# latter shades on the CPU, its sky directions are not in the GPU sample) — per method and sky
+# condition the median speed-up at equal error and how many cases lie within twice their floor
+# (full table in DIR/suite/results.md).
 # shellcheck disable=SC2086
 "$nimbus" bench-suite --device gpu $SUITE --out "$out/suite" --work "$out/suite_work" \
   --cache "$out/suite_cache" > "$out/suite.log" 2>&1 ||
