@@ -252,8 +252,8 @@ for m in dict.fromkeys(r["method"] for r in rows):
 PY
 
 # 9. The users' table on held-out clouds: `bench-suite --device gpu` (pt-gpu the baseline, pm,
-# rpnn with the whole sample on the GPU, and the papers' variants: pm-elek2012, rpnn-dirs — the
-# latter shades on the CPU, its sky directions are not in the GPU sample) — per method and sky
+# rpnn with the whole sample on the GPU, and the papers' variants: pm-elek2012, rpnn-dirs, whose
+# sky directions the GPU sample takes under the suite's constant sky) — per method and sky
 # condition the median speed-up at equal error and how many cases lie within twice their floor
 # (full table in DIR/suite/results.md).
 # shellcheck disable=SC2086

@@ -4,17 +4,21 @@
 //  1. `shade` (here): camera ray, delta tracking to the first real collision x (the path
 //     tracer's `tracking` module), the direct light there — the sun by next-event estimation
 //     with a ratio-tracked shadow ray (a delta sun, or a disc sampled in its cone), the sky's
-//     single scattering by one phase-sampled direction — and, at x, one network query: its
-//     configuration (x, ω, ω_sun) goes to `configs` at a slot taken from `counter`, with the
-//     radiance known without the network and the weights of the network's two heads. A camera
-//     ray that leaves the volume adds the sky (and the sun's disc) to its pixel at once.
+//     single scattering by one phase-sampled direction — and, at x, the network queries: the
+//     sun's (x, ω, ω_sun), and with the paper's sky directions (`sky_dirs`, a constant sky) one
+//     more per direction, uniform on the sphere. They take consecutive slots of `configs`
+//     (`counter[0]`), each with the weight of its prediction; the collision takes a head
+//     (`counter[2]`) with its pixel, its first slot and count and the radiance known without the
+//     network. A camera ray that leaves the volume adds the sky (and the sun's disc) to its pixel
+//     at once.
 //  1b. `dispatch_args` (here): workgroup counts of the later passes for the chunk's count, so
 //     no pass dispatches empty workgroups (on lavapipe they cost as much as full ones);
 //  2. the descriptor stage (`rpnn_descriptor.wgsl`) and 3. the layers (`rpnn_mlp.wgsl`) read
 //     the `counter[0]` slots and write the network's rows;
-//  4. `resolve` (here): per slot, known + sun weight × sun head + sky weight × Σ t_lm c'_lm (the
-//     sky head's transfer against the sky's coefficients rotated into the query's frame, by
-//     `nimbus_rpnn::sky::product_in_frame`'s sample-direction form) added to the pixel's sums.
+//  4. `resolve` (here): per head, known + Σ over its slots of weight × sun head (+ sky weight ×
+//     Σ t_lm c'_lm: the sky head's transfer against the sky's coefficients rotated into the
+//     query's frame, by `nimbus_rpnn::sky::product_in_frame`'s sample-direction form) added to
+//     the pixel's sums — one writer per pixel.
 // Nothing is read back until the image is: the sums are (R, G, B, Σ lum²) per pixel.
 #import params
 #import grid
@@ -34,7 +38,8 @@ struct Sample {
     sun_outputs: u32,  // of which the sun head's (1 grey, 3 RGB)
     degree: u32,       // highest SH degree of the contraction
     rows: u32,         // slots of a chunk (the network's batch)
-    _a: u32, _b: u32,
+    sky_dirs: u32,     // the paper's sky directions per collision (constant sky; 0: none)
+    _b: u32,
 };
 
 struct Config { x: vec4<f32>, view: vec4<f32>, to_light: vec4<f32> };
@@ -42,11 +47,14 @@ struct Config { x: vec4<f32>, view: vec4<f32>, to_light: vec4<f32> };
 @group(0) @binding(0) var<uniform> P: Params;
 // binding 1 (and 5, 6): the density, declared by the stage file.
 @group(0) @binding(2) var<uniform> S: Sample;
-// [0]: this chunk's queries (cleared per chunk); [1]: all queries since the sums were emptied.
+// [0]: this chunk's queries, [2]: its heads (both cleared per chunk); [1]: all queries since
+// the sums were emptied.
 @group(0) @binding(3) var<storage, read_write> counter: array<atomic<u32>>;
 @group(0) @binding(4) var<storage, read_write> configs: array<Config>;
-// Per slot: (known RGB, sky weight), (sun weight RGB, pixel as bits).
+// Per slot: (weight RGB of the sun head's prediction, weight of the sky head's contraction).
 @group(0) @binding(7) var<storage, read_write> extra: array<vec4<f32>>;
+// Per head (two entries): (known RGB, pixel as bits), (first slot, slots as bits, 0, 0).
+@group(0) @binding(14) var<storage, read_write> heads: array<vec4<f32>>;
 @group(0) @binding(8) var<storage, read_write> acc: array<vec4<f32>>;
 // The environment map's texels (RGB × scale), rows from the zenith, when flags & 2.
 @group(0) @binding(9) var<storage, read> env: array<vec4<f32>>;
@@ -133,19 +141,39 @@ fn shade(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
         }
     }
     let known = P.albedo * direct;
-    // The query: the sun's frame when there is a sun, else the zenith's (for the sky head).
+    // The first query: the sun's frame when there is a sun, else the zenith's (for the sky
+    // head); then the paper's sky directions.
     let sky_w = select(0.0, P.albedo, has_sky && (S.flags & 4u) != 0u);
-    if (!has_sun && sky_w == 0.0) {
+    let first = u32(has_sun || sky_w != 0.0);
+    let dirs = select(0u, S.sky_dirs, has_sky);
+    let n = first + dirs;
+    if (n == 0u) {
         add(pixel, known);
         return;
     }
-    let to_light = select(vec3<f32>(0.0, 1.0, 0.0), P.sun_dir, has_sun);
-    let sun_w = select(vec3<f32>(0.0), P.albedo * P.sun_irradiance, has_sun);
-    let slot = atomicAdd(&counter[0], 1u);
-    atomicAdd(&counter[1], 1u);
-    configs[slot] = Config(vec4<f32>(x, 0.0), vec4<f32>(d, 0.0), vec4<f32>(to_light, 0.0));
-    extra[2u * slot] = vec4<f32>(known, sky_w);
-    extra[2u * slot + 1u] = vec4<f32>(sun_w, bitcast<f32>(pixel));
+    let base = atomicAdd(&counter[0], n);
+    atomicAdd(&counter[1], n);
+    let h = atomicAdd(&counter[2], 1u);
+    heads[2u * h] = vec4<f32>(known, bitcast<f32>(pixel));
+    heads[2u * h + 1u] = vec4<f32>(bitcast<f32>(base), bitcast<f32>(n), 0.0, 0.0);
+    if (first == 1u) {
+        let to_light = select(vec3<f32>(0.0, 1.0, 0.0), P.sun_dir, has_sun);
+        let sun_w = select(vec3<f32>(0.0), P.albedo * P.sun_irradiance, has_sun);
+        configs[base] = Config(vec4<f32>(x, 0.0), vec4<f32>(d, 0.0), vec4<f32>(to_light, 0.0));
+        extra[base] = vec4<f32>(sun_w, sky_w);
+    }
+    // The paper's sky directions (Kallweit §4.4): uniform on the sphere, each prediction per
+    // unit irradiance weighted by 4π L_sky / N (a constant sky).
+    let w = P.albedo * P.sky_radiance * (4.0 * PI / f32(max(dirs, 1u)));
+    for (var k = 0u; k < dirs; k++) {
+        let z = 1.0 - 2.0 * rand(&rng);
+        let phi = 2.0 * PI * rand(&rng);
+        let r = sqrt(max(0.0, 1.0 - z * z));
+        let wi = vec3<f32>(r * cos(phi), r * sin(phi), z);
+        let slot = base + first + k;
+        configs[slot] = Config(vec4<f32>(x, 0.0), vec4<f32>(d, 0.0), vec4<f32>(wi, 0.0));
+        extra[slot] = vec4<f32>(w, 0.0);
+    }
 }
 
 // (x, y) workgroups covering n one-dimensional invocations (`nimbus_gpu::Gpu::workgroups_1d`).
@@ -166,7 +194,7 @@ fn dispatch_args() {
     let n = min(atomicLoad(&counter[0]), S.rows);
     let d = groups_1d(n * DESCRIPTOR_LEN);
     put_args(0u, d.x, d.y);
-    let r = groups_1d(n);
+    let r = groups_1d(min(atomicLoad(&counter[2]), S.rows));
     put_args(1u, r.x, r.y);
     let row_tiles = max((n + 63u) / 64u, 1u);
     for (var k = 0u; k < arrayLength(&layer_tiles); k++) {
@@ -243,16 +271,23 @@ fn sky_product(cfg: Config, base: u32) -> vec3<f32> {
 
 @compute @workgroup_size(WG)
 fn resolve(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let r = gid.x + gid.y * nwg.x * WG;
-    if (r >= min(S.rows, atomicLoad(&counter[0]))) { return; }
-    let e0 = extra[2u * r];
-    let e1 = extra[2u * r + 1u];
-    let base = r * S.outputs;
-    var pred = vec3<f32>(net[base]);
-    if (S.sun_outputs >= 3u) { pred = vec3<f32>(net[base], net[base + 1u], net[base + 2u]); }
-    var l = e0.xyz + e1.xyz * pred;
-    if (e0.w != 0.0) {
-        l += e0.w * sky_product(configs[r], base + S.sun_outputs);
+    let h = gid.x + gid.y * nwg.x * WG;
+    if (h >= min(S.rows, atomicLoad(&counter[2]))) { return; }
+    let e0 = heads[2u * h];
+    let e1 = heads[2u * h + 1u];
+    let base = bitcast<u32>(e1.x);
+    let n = bitcast<u32>(e1.y);
+    var l = e0.xyz;
+    for (var k = 0u; k < n; k++) {
+        let slot = base + k;
+        let w = extra[slot];
+        let row = slot * S.outputs;
+        var pred = vec3<f32>(net[row]);
+        if (S.sun_outputs >= 3u) { pred = vec3<f32>(net[row], net[row + 1u], net[row + 2u]); }
+        l += w.xyz * pred;
+        if (w.w != 0.0) {
+            l += w.w * sky_product(configs[slot], row + S.sun_outputs);
+        }
     }
-    add(bitcast<u32>(e1.w), l);
+    add(bitcast<u32>(e0.w), l);
 }

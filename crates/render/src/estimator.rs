@@ -334,6 +334,7 @@ pub fn prepare<'g>(
                 &pyramid,
                 scene,
                 sky_sh.as_ref(),
+                r.sky_dirs,
             )?;
             if let Some(n) = note
                 && !r.cpu_shading

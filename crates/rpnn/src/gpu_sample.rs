@@ -2,10 +2,11 @@
 //! without the CPU): `shaders/lib/rpnn_sample_core.wgsl` traces the camera rays, delta-tracks
 //! them to their first real collision with the path tracer's WGSL tracking code, adds the
 //! direct light there (ratio-tracked shadow rays to the sun, one phase-sampled sky direction)
-//! and writes one network query per collision straight into the descriptor stage's input; the
-//! descriptor and the layers ([`crate::gpu_mlp`]) follow, and a resolve pass adds
-//! known + sun head + sky head (contracted with the sky's coefficients, [`crate::sky`]) to the
-//! pixel's running sums. Nothing comes back until [`GpuSampler::image`].
+//! and writes its network queries (one per collision, and one more per sky direction with the
+//! paper's directions) straight into the descriptor stage's input; the descriptor and the
+//! layers ([`crate::gpu_mlp`]) follow, and a resolve pass adds known + the predictions (the sky
+//! head's contracted with the sky's coefficients, [`crate::sky`]) to the pixel's running sums.
+//! Nothing comes back until [`GpuSampler::image`].
 //!
 //! Pixels go through in chunks of the network's batch ([`GpuMlp::max_batch`]); a chunk's
 //! queries are compacted by an atomic counter, so pixels that see only sky cost no network
@@ -14,9 +15,11 @@
 //! written, and the chunks of one sample share a command buffer.
 //!
 //! Supported: HG or isotropic phase, a delta or disc sun, no sky, a constant sky or an
-//! environment map (nearest texel, as `nimbus_scene::EnvMap::radiance`), the sky through the
-//! model's sky head. The paper's directional sky sampling (`rpnn-dirs`) and tabulated (Mie)
-//! phase functions stay with [`crate::render`] (CPU shading, either network backend).
+//! environment map (nearest texel, as `nimbus_scene::EnvMap::radiance`) through the model's
+//! sky head, a constant sky in the paper's directions (`rpnn-dirs`: uniform on the sphere, one
+//! more query each). The paper's directions under an environment map (importance-sampled from
+//! the map) and tabulated (Mie) phase functions stay with [`crate::render`] (CPU shading,
+//! either network backend).
 //!
 //! The CPU twin is [`crate::render::accumulate`] with the same network: the tests compare the
 //! two images statistically (independent random numbers), and the contraction with
@@ -52,7 +55,7 @@ pub struct SampleParams {
     pub sun_outputs: u32,
     pub degree: u32,
     pub rows: u32,
-    pub _a: u32,
+    pub sky_dirs: u32,
     pub _b: u32,
 }
 
@@ -77,20 +80,57 @@ pub struct SampleTimes {
     pub total_ms: f64,
 }
 
+/// How a [`GpuSampler`] is built.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SamplerSettings {
+    /// Network queries per chunk, lowered to what the adapter's bindings hold.
+    pub max_batch: usize,
+    pub storage: DensityStorage,
+    pub precision: Precision,
+    /// Under a constant sky without the sky head: the paper's sky directions per collision
+    /// (Kallweit §4.4, `rpnn-dirs`).
+    pub sky_dirs: u32,
+}
+
+impl Default for SamplerSettings {
+    fn default() -> Self {
+        Self {
+            max_batch: crate::gpu_mlp::DEFAULT_BATCH,
+            storage: DensityStorage::Auto,
+            precision: Precision::F32,
+            sky_dirs: 4,
+        }
+    }
+}
+
 /// Why a scene or model needs the CPU shading path ([`crate::render`]); `None` when the whole
-/// sample runs on the GPU.
-pub fn unsupported(scene: &Scene, model: &Rpnn, sky_sh: Option<&SkySh>) -> Option<String> {
+/// sample runs on the GPU. Under a sky without `sky_sh` the paper's `sky_dirs` directions are
+/// taken, which the GPU sample does for a constant sky.
+pub fn unsupported(
+    scene: &Scene,
+    model: &Rpnn,
+    sky_sh: Option<&SkySh>,
+    sky_dirs: u32,
+) -> Option<String> {
     if let Err(e) = scene_params(scene) {
         return Some(e.to_string());
     }
-    if scene.sky.is_some() && (sky_sh.is_none() || model.sky_coeffs() == 0) {
-        return Some(
-            "the paper's directional sky sampling runs with CPU shading (a model with a sky head \
-             runs on the GPU)"
-                .into(),
-        );
+    let head = sky_sh.is_some() && model.sky_coeffs() > 0;
+    match &scene.sky {
+        Some(Sky::Env(_)) if !head => {
+            return Some(
+                "the paper's sky directions under an environment map run with CPU shading (its \
+                 importance sampling is not on the GPU; a model with a sky head runs there)"
+                    .into(),
+            );
+        }
+        Some(Sky::Constant(_)) if !head && sky_dirs == 0 => {
+            return Some("a sky without the sky head needs at least one sky direction".into());
+        }
+        _ => {}
     }
     if let Some(s) = sky_sh
+        && head
         && scene.sky.is_some()
         && model.sky_coeffs() < crate::sky::coeffs(s.degree)
     {
@@ -125,6 +165,7 @@ pub struct GpuSampler<'g> {
     counter: wgpu::Buffer,
     configs: wgpu::Buffer,
     extra: wgpu::Buffer,
+    heads: wgpu::Buffer,
     env: wgpu::Buffer,
     sky_tab: wgpu::Buffer,
     acc: wgpu::Buffer,
@@ -150,8 +191,9 @@ struct Chunk {
 
 impl<'g> GpuSampler<'g> {
     /// Uploads `scene`'s density and lights, the pyramid and the network. `sky_sh`: the sky
-    /// through the sky head (required with a sky, see [`unsupported`]); `max_batch`: network
-    /// queries per chunk, lowered to what the adapter's bindings hold.
+    /// through the sky head (else, under a constant sky, 4 of the paper's sky directions; see
+    /// [`unsupported`]); `max_batch`: network queries per chunk, lowered to what the adapter's
+    /// bindings hold.
     pub fn new(
         gpu: &'g Gpu,
         scene: &Scene,
@@ -160,32 +202,31 @@ impl<'g> GpuSampler<'g> {
         sky_sh: Option<&SkySh>,
         max_batch: usize,
     ) -> Result<Self, RenderError> {
-        Self::with_storage(
-            gpu,
-            scene,
-            pyr,
-            model,
-            sky_sh,
+        let s = SamplerSettings {
             max_batch,
-            DensityStorage::Auto,
-            Precision::F32,
-        )
+            ..Default::default()
+        };
+        Self::with_settings(gpu, scene, pyr, model, sky_sh, &s)
     }
 
-    /// Like [`GpuSampler::new`], choosing how the density is stored (tests compare both) and
-    /// how the network's weights and activations are ([`Precision`]).
-    #[allow(clippy::too_many_arguments)]
-    pub fn with_storage(
+    /// Like [`GpuSampler::new`], with every setting: how the density is stored (tests compare
+    /// both), how the network's weights and activations are ([`Precision`]), the paper's sky
+    /// directions.
+    pub fn with_settings(
         gpu: &'g Gpu,
         scene: &Scene,
         pyr: &Pyramid,
         model: &Rpnn,
         sky_sh: Option<&SkySh>,
-        max_batch: usize,
-        storage: DensityStorage,
-        precision: Precision,
+        settings: &SamplerSettings,
     ) -> Result<Self, RenderError> {
-        if let Some(why) = unsupported(scene, model, sky_sh) {
+        let SamplerSettings {
+            max_batch,
+            storage,
+            precision,
+            sky_dirs,
+        } = *settings;
+        if let Some(why) = unsupported(scene, model, sky_sh, sky_dirs) {
             return Err(RenderError::Setting(format!(
                 "{}: {why}",
                 scene.source.display()
@@ -224,6 +265,11 @@ impl<'g> GpuSampler<'g> {
             }
             _ => (0, vec![0.0; 1]),
         };
+        // The paper's directions: a constant sky without the sky head.
+        let dirs = match &scene.sky {
+            Some(Sky::Constant(_)) if flags & SKY_HEAD == 0 => sky_dirs,
+            _ => 0,
+        };
         // Without a sky to contract with, the sky head's layers are left out.
         let sun_only;
         let model = if flags & SKY_HEAD == 0 && model.sky_coeffs() > 0 {
@@ -246,7 +292,7 @@ impl<'g> GpuSampler<'g> {
         };
         let source = shaders::source(stage);
         let tiles = mlp.layer_tiles();
-        let counter = gpu.zeroed("rpnn query counter", 8);
+        let counter = gpu.zeroed("rpnn query counter", 12);
         let configs = gpu.zeroed(
             "rpnn query configs",
             (rows * std::mem::size_of::<GpuConfig>()) as u64,
@@ -275,6 +321,7 @@ impl<'g> GpuSampler<'g> {
                 sun_outputs: mlp.sun_outputs as u32,
                 degree,
                 rows: rows as u32,
+                sky_dirs: dirs,
                 ..Default::default()
             },
             desc,
@@ -285,7 +332,8 @@ impl<'g> GpuSampler<'g> {
             rows,
             counter,
             configs,
-            extra: gpu.zeroed("rpnn query weights", rows as u64 * 32),
+            extra: gpu.zeroed("rpnn query weights", rows as u64 * 16),
+            heads: gpu.zeroed("rpnn query heads", rows as u64 * 32),
             env: gpu.storage("environment map", &texels),
             sky_tab: gpu.storage("sky coefficients", &table),
             acc: gpu.zeroed("rpnn image sums", (w * h) as u64 * 16),
@@ -304,10 +352,12 @@ impl<'g> GpuSampler<'g> {
     fn build_chunks(&mut self) {
         let gpu = self.gpu;
         let pixels = (self.params.width * self.params.height) as usize;
+        // A collision takes up to 1 + sky_dirs slots of the batch.
+        let step = (self.rows / (1 + self.base.sky_dirs as usize)).max(1);
         self.chunks = (0..pixels)
-            .step_by(self.rows)
+            .step_by(step)
             .map(|first| {
-                let count = (pixels - first).min(self.rows);
+                let count = (pixels - first).min(step);
                 let params = gpu.uniform(
                     "rpnn sample",
                     &SampleParams {
@@ -327,6 +377,7 @@ impl<'g> GpuSampler<'g> {
                         (7, &self.extra),
                         (8, &self.acc),
                         (9, &self.env),
+                        (14, &self.heads),
                     ],
                 );
                 let args = gpu.bind(
@@ -347,6 +398,7 @@ impl<'g> GpuSampler<'g> {
                         (7, &self.extra),
                         (8, &self.acc),
                         (10, self.mlp.output()),
+                        (14, &self.heads),
                         (11, &self.sky_tab),
                     ],
                 );
@@ -461,6 +513,7 @@ impl<'g> GpuSampler<'g> {
     fn encode_chunk(&mut self, enc: &mut wgpu::CommandEncoder, k: usize) {
         let c = &self.chunks[k];
         enc.clear_buffer(&self.counter, 0, Some(4));
+        enc.clear_buffer(&self.counter, 8, Some(4));
         {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("rpnn shade"),
@@ -547,7 +600,7 @@ mod tests {
             "sun_outputs",
             "degree",
             "rows",
-            "_a",
+            "sky_dirs",
             "_b",
         ];
         assert_eq!(members.len(), names.len());

@@ -51,23 +51,20 @@ pub(crate) fn runner<'g>(
     pyramid: &Pyramid,
     scene: &Scene,
     sky_sh: Option<&SkySh>,
+    sky_dirs: u32,
 ) -> Result<(Runner<'g>, String, Option<String>)> {
     let mut note = None;
     if let Some(g) = adapter
         && choice.uses_wgpu(Some(g.is_software()))
     {
-        match nimbus_rpnn::gpu_sample::unsupported(scene, model, sky_sh) {
+        match nimbus_rpnn::gpu_sample::unsupported(scene, model, sky_sh, sky_dirs) {
             None if !cpu_shading => {
-                match GpuSampler::with_storage(
-                    g,
-                    scene,
-                    pyramid,
-                    model,
-                    sky_sh,
-                    nimbus_rpnn::gpu_mlp::DEFAULT_BATCH,
-                    nimbus_trace::gpu::DensityStorage::Auto,
+                let settings = nimbus_rpnn::gpu_sample::SamplerSettings {
                     precision,
-                ) {
+                    sky_dirs,
+                    ..Default::default()
+                };
+                match GpuSampler::with_settings(g, scene, pyramid, model, sky_sh, &settings) {
                     Ok(s) => {
                         return Ok((
                             Runner::Gpu(Box::new(s)),
@@ -236,6 +233,7 @@ impl<'g> RpnnEngine<'g> {
             &self.pyramid,
             scene,
             self.sky_sh.as_ref(),
+            self.sky_dirs,
         )?
         .0;
         if let Runner::Gpu(g) = &mut self.runner {
