@@ -2,7 +2,9 @@
 // the global majorant, ratio-tracking next-event estimation to the sun (a delta light, or a disc
 // sampled uniformly in its cone — NEE only, so phase-sampled paths that escape add the sky but
 // not the sun; camera rays that see the disc directly add it), HG/isotropic phase sampling,
-// constant sky, Russian roulette on throughput < 1 after 8 scatterings.
+// a constant sky or an environment map (Task.env_w > 0: the nearest texel, `lib/env_map.wgsl`;
+// reached by phase sampling alone, as the constant sky), Russian roulette on throughput < 1
+// after 8 scatterings.
 // Mirrors crates/trace/src/integrator.rs; imports Params, the grid lookups, RNG and HG. The
 // stage files `pt.wgsl` (dense density) and `pt_bricks.wgsl` (brick map) import this module
 // with their density module and bindings.
@@ -19,11 +21,12 @@
 #import rng
 #import tracking
 #import hg
+#import env_map
 #import constants
 
 struct Task {
     spp: u32, sample_offset: u32, mode: u32, max_depth: i32,
-    n_tasks: u32, slots: u32, _a: u32, _b: u32,
+    n_tasks: u32, slots: u32, env_w: u32, env_h: u32,
 };
 struct LiTask { x: vec4<f32>, view: vec4<f32>, to_light: vec4<f32> };
 
@@ -32,6 +35,14 @@ struct LiTask { x: vec4<f32>, view: vec4<f32>, to_light: vec4<f32> };
 @group(0) @binding(2) var<uniform> T: Task;
 @group(0) @binding(3) var<storage, read> li_tasks: array<LiTask>;
 @group(0) @binding(4) var<storage, read_write> out: array<vec4<f32>>;
+// The environment map's texels (RGB × scale) when Task.env_w > 0 (one black texel otherwise).
+@group(0) @binding(7) var<storage, read> env: array<vec4<f32>>;
+
+// The sky seen along d: the environment map, else the constant sky.
+fn sky_along(d: vec3<f32>) -> vec3<f32> {
+    if (T.env_w > 0u) { return env_radiance(d, T.env_w, T.env_h); }
+    return P.sky_radiance;
+}
 
 // Radiance along o + t d for a path that has scattered `scat0` times, lit by a delta sun
 // towards `sun_dir` with irradiance `sun_e` and the constant sky.
@@ -50,7 +61,7 @@ fn radiance(o0: vec3<f32>, d0: vec3<f32>, scat0: u32, sun_dir: vec3<f32>, sun_e:
         var t = -1.0;
         if (hit.x <= hit.y) { t = delta_track(o, d, hit.x, hit.y, P.sigma_max, rng); }
         if (t < 0.0) {
-            l += beta * P.sky_radiance;
+            l += beta * sky_along(d);
             if (disc && scat == 0u && dot(d, sun_dir) >= P.sun_cos_max) {
                 l += beta * sun_e * P.sun_disc_radiance;
             }

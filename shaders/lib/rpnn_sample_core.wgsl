@@ -26,6 +26,7 @@
 #import tracking
 #import hg
 #import rpnn_frame
+#import env_map
 #import constants
 
 struct Sample {
@@ -70,11 +71,7 @@ struct Config { x: vec4<f32>, view: vec4<f32>, to_light: vec4<f32> };
 fn sky(d: vec3<f32>) -> vec3<f32> {
     if ((S.flags & 1u) == 0u) { return vec3<f32>(0.0); }
     if ((S.flags & 2u) == 0u) { return P.sky_radiance; }
-    let u = atan2(d.x, -d.z) / (2.0 * PI) + 0.5;
-    let v = acos(clamp(d.y, -1.0, 1.0)) / PI;
-    let x = min(u32(max(u, 0.0) * f32(S.env_w)), S.env_w - 1u);
-    let y = min(u32(max(v, 0.0) * f32(S.env_h)), S.env_h - 1u);
-    return env[y * S.env_w + x].xyz;
+    return env_radiance(d, S.env_w, S.env_h);
 }
 
 fn finite(v: vec3<f32>) -> bool {

@@ -213,8 +213,7 @@ pub(crate) struct SuiteArgs {
     #[arg(long, default_value = "front,side,back")]
     lights: String,
     /// Lighting conditions: sun (sun only), sun+sky (a constant sky), sun+env (an environment
-    /// map: a clear sky with a ground; the GPU path tracer and photon mapping cannot take one
-    /// and are left out of it).
+    /// map: a clear sky with a ground; photon mapping cannot take one and is left out of it).
     #[arg(long, default_value = "sun,sun+sky")]
     skies: String,
     /// Image size WxH.

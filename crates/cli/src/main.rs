@@ -69,7 +69,7 @@ enum Command {
     Render {
         scene: PathBuf,
         /// pt (reference path tracer, CPU), pt-gpu (the path tracer in WGSL: f32, HG/isotropic,
-        /// any sun, constant sky), pm (photon mapping, Elek 2012, converged ring), pm-elek2012
+        /// any sun, constant sky or environment map), pm (photon mapping, Elek 2012, converged ring), pm-elek2012
         /// (the paper's photon mapping as published), rpnn (Kallweit 2017: MC direct light,
         /// network indirect light).
         #[arg(long, default_value = "pt", value_parser = method_name)]

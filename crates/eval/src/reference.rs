@@ -27,7 +27,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use nimbus_scene::{Image, Scene, Sky, io::npy};
+use nimbus_scene::{Image, Scene, io::npy};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
@@ -98,10 +98,9 @@ struct Meta {
     time_s: f64,
 }
 
-/// Whether the GPU path tracer can render `scene` (HG or isotropic phase, no environment map).
+/// Whether the GPU path tracer can render `scene` (HG or isotropic phase, f32 scales).
 pub fn gpu_supports(scene: &Scene) -> bool {
     !matches!(scene.medium.phase, nimbus_scene::Phase::Tabulated(_))
-        && !matches!(scene.sky, Some(Sky::Env(_)))
         && nimbus_render::check_f32_scale(scene, nimbus_render::Method::PtGpu).is_ok()
 }
 

@@ -40,6 +40,7 @@ pub const MODULES: &[(&str, &str)] = &[
     module!("photon_lookup"),
     module!("photon_raymarch_core"),
     module!("photon_gather_core"),
+    module!("env_map"),
     module!("rpnn_frame"),
     module!("rpnn_sample_core"),
 ];

@@ -10,7 +10,7 @@ use std::str::FromStr;
 pub enum Method {
     /// The CPU reference path tracer (f64; delta/ratio tracking, NEE + MIS).
     Pt,
-    /// The WGSL path tracer (f32; HG/isotropic phase, constant sky).
+    /// The WGSL path tracer (f32; HG/isotropic phase, a constant sky or an environment map).
     PtGpu,
     /// Photon mapping with final gathering (the default): the photon map of the default
     /// variant ([`nimbus_photon::PmVariant::default`]), read at the end of k phase-sampled
@@ -108,10 +108,13 @@ impl Method {
         matches!(self, Method::PmMarch | Method::PmElek2012)
     }
 
-    /// Whether the method takes a sky given as an environment map (the GPU path tracer and
-    /// photon mapping take a constant sky only).
+    /// Whether the method takes a sky given as an environment map (photon mapping takes a
+    /// constant sky only).
     pub fn supports_env_map(self) -> bool {
-        matches!(self, Method::Pt | Method::Rpnn | Method::RpnnDirs)
+        matches!(
+            self,
+            Method::Pt | Method::PtGpu | Method::Rpnn | Method::RpnnDirs
+        )
     }
 
     pub fn is_rpnn(self) -> bool {

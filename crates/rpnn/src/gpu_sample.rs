@@ -32,7 +32,7 @@ use nimbus_gpu::params::VolumeParams;
 use nimbus_gpu::timing::StageTimer;
 use nimbus_gpu::{Gpu, shaders};
 use nimbus_scene::{Image, Scene, Sky};
-use nimbus_trace::gpu::{Density, DensityStorage, scene_params};
+use nimbus_trace::gpu::{Density, DensityStorage, scene_params, upload_env};
 
 use crate::descriptor::DESCRIPTOR_LEN;
 use crate::gpu::{BoundDescriptor, GpuConfig, GpuDescriptor};
@@ -239,25 +239,12 @@ impl<'g> GpuSampler<'g> {
             e => RenderError::Setting(e.to_string()),
         };
         let params = scene_params(scene).map_err(gpu_err)?;
-        let (mut flags, mut env_w, mut env_h) = (0, 0, 0);
-        // One black texel binds where there is no map.
-        let mut texels: Vec<[f32; 4]> = vec![[0.0; 4]];
-        match &scene.sky {
-            None => {}
-            Some(Sky::Constant(_)) => flags |= SKY,
-            Some(Sky::Env(env)) => {
-                flags |= SKY | ENV;
-                let img = env.image();
-                let s = env.scale() as f32;
-                (env_w, env_h) = (img.width as u32, img.height as u32);
-                texels = img
-                    .pixels
-                    .iter()
-                    .map(|p| [p[0] * s, p[1] * s, p[2] * s, 0.0])
-                    .collect();
-                gpu.check_storage("the environment map", texels.len() as u64 * 16)?;
-            }
-        }
+        let mut flags = match &scene.sky {
+            None => 0,
+            Some(Sky::Constant(_)) => SKY,
+            Some(Sky::Env(_)) => SKY | ENV,
+        };
+        let (env, [env_w, env_h]) = upload_env(gpu, scene)?;
         let (degree, table) = match sky_sh {
             Some(s) if model.sky_coeffs() > 0 && scene.sky.is_some() => {
                 flags |= SKY_HEAD;
@@ -334,7 +321,7 @@ impl<'g> GpuSampler<'g> {
             configs,
             extra: gpu.zeroed("rpnn query weights", rows as u64 * 16),
             heads: gpu.zeroed("rpnn query heads", rows as u64 * 32),
-            env: gpu.storage("environment map", &texels),
+            env,
             sky_tab: gpu.storage("sky coefficients", &table),
             acc: gpu.zeroed("rpnn image sums", (w * h) as u64 * 16),
             chunks: Vec::new(),

@@ -2,8 +2,8 @@
 //! progressive) and batches of indirect-radiance estimates for RPNN training records. Same
 //! algorithm as [`crate::integrator`] in f32, with a global majorant instead of the majorant
 //! grid and next-event estimation alone (no MIS) for a sun disc. Supported: HG or isotropic
-//! phase, a delta or disc sun, a constant sky; other scenes get a clear error (use the CPU path
-//! tracer).
+//! phase, a delta or disc sun, a constant sky or an environment map (reached by phase sampling,
+//! the nearest texel); other scenes get a clear error (use the CPU path tracer).
 //!
 //! The density is one storage buffer when the grid is dense and fits one binding, else a brick
 //! map over a 3D-texture atlas ([`nimbus_gpu::density`]): a sparse grid is never densified, and
@@ -26,8 +26,9 @@ pub struct Task {
     pub max_depth: i32,
     pub n_tasks: u32,
     pub slots: u32,
-    pub _a: u32,
-    pub _b: u32,
+    /// The environment map's size (0: the constant sky).
+    pub env_w: u32,
+    pub env_h: u32,
 }
 
 /// `struct LiTask` of the shader: a shading configuration.
@@ -44,9 +45,7 @@ pub struct LiTask {
 pub enum GpuPtError {
     #[error(transparent)]
     Gpu(#[from] GpuError),
-    #[error(
-        "{0} (the GPU path tracer supports HG/isotropic phase and a constant sky; use --device cpu)"
-    )]
+    #[error("{0} (the GPU path tracer supports HG/isotropic phase; use --device cpu)")]
     Unsupported(String),
     #[error("{0}")]
     Memory(String),
@@ -70,6 +69,9 @@ pub struct GpuPathTracer<'g> {
     /// Progressive sums (R, G, B, Σ lum²) per pixel and the samples they hold.
     acc: Option<wgpu::Buffer>,
     samples: u32,
+    /// The environment map's texels (one black texel without one) and its size.
+    env: wgpu::Buffer,
+    env_size: [u32; 2],
 }
 
 /// The density as the shader reads it.
@@ -144,6 +146,27 @@ pub fn scene_params(scene: &Scene) -> Result<VolumeParams, GpuPtError> {
     })
 }
 
+/// The scene's environment map for the shaders' `lib/env_map.wgsl`: its texels × scale as
+/// RGBA f32 (one black texel without a map, so the binding exists) and its size ([0, 0]: the
+/// constant sky).
+pub fn upload_env(gpu: &Gpu, scene: &Scene) -> Result<(wgpu::Buffer, [u32; 2]), GpuError> {
+    let Some(Sky::Env(env)) = &scene.sky else {
+        return Ok((gpu.storage("environment map", &[[0.0f32; 4]]), [0, 0]));
+    };
+    let img = env.image();
+    let s = env.scale() as f32;
+    gpu.check_storage("the environment map", img.pixels.len() as u64 * 16)?;
+    let texels: Vec<[f32; 4]> = img
+        .pixels
+        .iter()
+        .map(|p| [p[0] * s, p[1] * s, p[2] * s, 0.0])
+        .collect();
+    Ok((
+        gpu.storage("environment map", &texels),
+        [img.width as u32, img.height as u32],
+    ))
+}
+
 impl Density {
     /// The scene's density on the GPU: one storage buffer when the grid is dense and fits one
     /// binding (with [`DensityStorage::Auto`]), else a brick map.
@@ -208,12 +231,7 @@ impl<'g> GpuPathTracer<'g> {
         storage: DensityStorage,
     ) -> Result<Self, GpuPtError> {
         let params = scene_params(scene)?;
-        if matches!(scene.sky, Some(Sky::Env(_))) {
-            return Err(GpuPtError::Unsupported(format!(
-                "{}: environment-map sky",
-                scene.source.display()
-            )));
-        }
+        let (env, env_size) = upload_env(gpu, scene)?;
         let density = Density::upload(gpu, scene, storage)?;
         let stage = if density.is_bricks() {
             "pt_bricks.wgsl"
@@ -233,6 +251,8 @@ impl<'g> GpuPathTracer<'g> {
                 .min(i32::MAX as u32) as i32,
             acc: None,
             samples: 0,
+            env,
+            env_size,
         })
     }
 
@@ -342,11 +362,22 @@ impl<'g> GpuPathTracer<'g> {
     }
 
     fn dispatch(&self, task: Task, tasks: &wgpu::Buffer, out: &wgpu::Buffer, invocations: u32) {
+        let task = Task {
+            env_w: self.env_size[0],
+            env_h: self.env_size[1],
+            ..task
+        };
         let tbuf = self.gpu.uniform("pt task", &task);
         let bind = self.density.bind(
             self.gpu,
             &self.pipeline,
-            &[(0, &self.params_buf), (2, &tbuf), (3, tasks), (4, out)],
+            &[
+                (0, &self.params_buf),
+                (2, &tbuf),
+                (3, tasks),
+                (4, out),
+                (7, &self.env),
+            ],
         );
         self.gpu.dispatch_1d(&self.pipeline, &bind, invocations);
     }
@@ -426,8 +457,8 @@ mod tests {
             offset_of!(Task, max_depth),
             offset_of!(Task, n_tasks),
             offset_of!(Task, slots),
-            offset_of!(Task, _a),
-            offset_of!(Task, _b),
+            offset_of!(Task, env_w),
+            offset_of!(Task, env_h),
         ];
         assert_eq!(off.iter().map(|&o| o as usize).collect::<Vec<_>>(), rust);
         let (off, span) = wgsl_layout("LiTask");
