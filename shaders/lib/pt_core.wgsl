@@ -45,7 +45,8 @@ fn sky_along(d: vec3<f32>) -> vec3<f32> {
 }
 
 // Radiance along o + t d for a path that has scattered `scat0` times, lit by a delta sun
-// towards `sun_dir` with irradiance `sun_e` and the constant sky.
+// towards `sun_dir` with irradiance `sun_e` and the sky (`sky_along`: the environment map in
+// image mode, the constant sky otherwise).
 fn radiance(o0: vec3<f32>, d0: vec3<f32>, scat0: u32, sun_dir: vec3<f32>, sun_e: vec3<f32>, disc: bool, rng: ptr<function, Rng>) -> vec3<f32> {
     // Disc: 1 − cos r from sin² r = 1 / (π L_unit) without cancellation; solid angle Ω.
     let sin2 = select(0.0, 1.0 / (PI * P.sun_disc_radiance), disc);

@@ -142,7 +142,8 @@ fn shade(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
     // head); then the paper's sky directions.
     let sky_w = select(0.0, P.albedo, has_sky && (S.flags & 4u) != 0u);
     let first = u32(has_sun || sky_w != 0.0);
-    let dirs = select(0u, S.sky_dirs, has_sky);
+    // (no directions for a black sky: their weights would be 0, as the CPU leaves them out)
+    let dirs = select(0u, S.sky_dirs, has_sky && any(P.sky_radiance > vec3<f32>(0.0)));
     let n = first + dirs;
     if (n == 0u) {
         add(pixel, known);

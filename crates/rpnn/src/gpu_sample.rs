@@ -8,7 +8,8 @@
 //! head's contracted with the sky's coefficients, [`crate::sky`]) to the pixel's running sums.
 //! Nothing comes back until [`GpuSampler::image`].
 //!
-//! Pixels go through in chunks of the network's batch ([`GpuMlp::max_batch`]); a chunk's
+//! Pixels go through in chunks of the network's batch ([`GpuMlp::max_batch`], divided by
+//! 1 + the sky directions per collision with the paper's directions); a chunk's
 //! queries are compacted by an atomic counter, so pixels that see only sky cost no network
 //! work, and the later passes are dispatched indirectly for the count. The chunks' uniform
 //! blocks and bind groups are made once; per sample only each chunk's sample index is
@@ -269,6 +270,13 @@ impl<'g> GpuSampler<'g> {
         let desc = GpuDescriptor::new(gpu, pyr)?;
         let mlp = GpuMlp::with_precision(gpu, model, max_batch, precision)?;
         let rows = mlp.max_batch;
+        if rows < 1 + dirs as usize {
+            return Err(RenderError::Setting(format!(
+                "{} sky directions need a network batch of at least {} queries, this one holds {rows}",
+                dirs,
+                dirs + 1
+            )));
+        }
         gpu.check_storage("the descriptor batch", (rows * DESCRIPTOR_LEN * 4) as u64)?;
         let (w, h) = (scene.camera.width, scene.camera.height);
         gpu.check_storage("the image", (w * h) as u64 * 16)?;

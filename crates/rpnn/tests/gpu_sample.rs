@@ -279,6 +279,39 @@ fn gpu_samples_are_progressive_repeatable_and_storage_independent() {
         c.add(4).unwrap();
         assert_eq!(c.image().unwrap().0.pixels, one.pixels, "batch {batch}");
     }
+    // The same with the paper's 4 sky directions (5 slots per collision: chunks of a fifth of
+    // the batch), with the sun and without it (directions alone); a batch too small for one
+    // collision's queries is refused.
+    let plain = Rpnn::load(&data("rpnn-tiny.onnx")).unwrap();
+    let mut no_sun = s.clone();
+    no_sun.sun = None;
+    for (what, sc) in [("sun + sky", &s), ("sky alone", &no_sun)] {
+        let dirs = |batch| SamplerSettings {
+            max_batch: batch,
+            sky_dirs: 4,
+            ..Default::default()
+        };
+        let image = |batch| {
+            let mut c =
+                GpuSampler::with_settings(&gpu, sc, &pyr, &plain, None, &dirs(batch)).unwrap();
+            c.reset(5);
+            c.add(4).unwrap();
+            c.image().unwrap().0
+        };
+        let whole = image(4096);
+        assert!(
+            whole.pixels.iter().flatten().all(|v| v.is_finite()),
+            "{what}"
+        );
+        for batch in [190, 383] {
+            assert_eq!(image(batch).pixels, whole.pixels, "{what}, batch {batch}");
+        }
+        let e = GpuSampler::with_settings(&gpu, sc, &pyr, &plain, None, &dirs(4))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("at least 5 queries"), "{e}");
+    }
     let bricks = SamplerSettings {
         max_batch: 100,
         storage: DensityStorage::Bricks { max_blocks: 4 },

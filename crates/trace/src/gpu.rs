@@ -362,9 +362,16 @@ impl<'g> GpuPathTracer<'g> {
     }
 
     fn dispatch(&self, task: Task, tasks: &wgpu::Buffer, out: &wgpu::Buffer, invocations: u32) {
+        // Images see the environment map; the training records' indirect radiance (mode 1) is
+        // for unit irradiance from one direction and no sky.
+        let [env_w, env_h] = if task.mode == 0 {
+            self.env_size
+        } else {
+            [0, 0]
+        };
         let task = Task {
-            env_w: self.env_size[0],
-            env_h: self.env_size[1],
+            env_w,
+            env_h,
             ..task
         };
         let tbuf = self.gpu.uniform("pt task", &task);

@@ -90,10 +90,12 @@ fn unsupported_scenes_are_refused() {
     assert!(e.contains("tabulated") && e.contains("--device cpu"), "{e}");
 }
 
-/// An environment map (a horizon gradient and a bright patch): the GPU path tracer, which
-/// reaches the map by phase sampling alone, and the CPU one, which importance-samples it and
-/// weights by MIS, estimate the same image: the mean luminance within 4.5 combined standard
-/// errors, the 4×4-block error at the noise level (as in `check`).
+/// An environment map (gradients in both texel directions and a bright patch): the GPU path
+/// tracer, which reaches the map by phase sampling alone, and the CPU one, which
+/// importance-samples it and weights by MIS, estimate the same image: the mean luminance within
+/// 4.5 combined standard errors, the 4×4-block error over the cube's pixels at the noise level
+/// (as in `check`), and the sky seen past the cube texel for texel (no noise there: a mirrored
+/// or shifted lookup reads another texel).
 #[test]
 fn gpu_environment_map_matches_cpu() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
@@ -108,8 +110,9 @@ fn gpu_environment_map_matches_cpu() {
             } else {
                 0.0
             };
+            let u = (x as f32 + 0.5) / w as f32;
             img.pixels[y * w + x] = [
-                0.1 + 0.3 * v + patch,
+                0.1 + 0.3 * v + 0.2 * u + patch,
                 0.15 + 0.2 * v + patch,
                 0.4 - 0.2 * v + 0.5 * patch,
             ];
@@ -139,14 +142,29 @@ fn gpu_environment_map_matches_cpu() {
         "GPU {a} vs CPU {b} (σ {})",
         (va + vb).sqrt()
     );
-    // The sky is seen around the cube: the map's own pixels must match (one texel, no noise).
+    // Pixels that see the sky past the cube (no noise on the CPU: every sample in one texel)
+    // read the same texels: a pixel on a texel edge may average a neighbour into a few of its
+    // jittered samples (one texel step is at most 0.019 in a channel), but on average over the
+    // sky the two agree to 0.1 % — a mirrored or shifted lookup moves them by several percent.
+    let sky: Vec<bool> = cpu.variance.iter().map(|v| *v == 0.0).collect();
+    let n_sky = sky.iter().filter(|s| **s).count();
+    assert!(n_sky > 100 && n_sky < sky.len() - 100, "{n_sky} sky pixels");
+    let mut sum_diff = 0.0f64;
+    let mut sum = 0.0f64;
+    for (i, _) in sky.iter().enumerate().filter(|(_, s)| **s) {
+        for (g, c) in gimg.pixels[i].iter().zip(cpu.image.pixels[i]) {
+            assert!((g - c).abs() <= 0.025, "pixel {i}: {g} vs {c}");
+            sum_diff += (g - c).abs() as f64;
+            sum += c.abs() as f64;
+        }
+    }
     assert!(
-        gimg.pixels[0]
-            .iter()
-            .zip(cpu.image.pixels[0])
-            .all(|(g, c)| (g - c).abs() <= 1e-5 * c.abs().max(1.0))
+        sum_diff <= 1e-3 * sum,
+        "sky pixels differ by {}",
+        sum_diff / sum
     );
-    let m = compare::compare(&gimg, &cpu.image, None);
+    let cube: Vec<bool> = sky.iter().map(|s| !s).collect();
+    let m = compare::compare(&gimg, &cpu.image, Some(&cube));
     assert!(m.rel_rmse_cloud_4x4 < 0.06, "{m:?}");
 }
 
