@@ -1,341 +1,16 @@
-//! Reading a trained RPNN from its ONNX file (the only model format; written by
-//! `training/train.py`, contract in `training/README.md`) and the CPU reference of its forward
-//! pass, which the WGSL kernels are tested against.
-//!
-//! The graph is not executed generically: it is matched, node by node, against the architecture
-//! of Kallweit 2017 §4.3 — for k = 1..K, z_k = Concat(Slice(x, level k), Slice(x, γ)),
-//! F1 = Relu(Gemm(z_k, V, b1) [+ MatMul(o_{k−1}, W1ᵀ)]), o_k = Relu(Gemm(F1, W2, b2) [+ o_{k−1}]),
-//! then Relu(Gemm(·)) head layers — and the weights are taken from the initializers; a model with
-//! a sky head (`training/train_sky.py`) has a second chain on the last block's output,
-//! Relu(Gemm(·)) layers and a last plain Gemm, and its output is Concat(sun head, sky head).
-//! Anything
-//! else (another op, another wiring, a shape mismatch) is refused with a message naming the
-//! file and the node, so a model that is not an RPNN cannot be rendered silently wrong.
+//! Matching an ONNX graph, node by node, against the RPNN architecture (see the parent module):
+//! the symbolic value of each graph value, the dense layers taken from the initializers, and
+//! the block / head / sky-head structure assembled from them.
 
 use std::collections::HashMap;
-use std::path::Path;
 
-use onnx_protobuf::{ModelProto, NodeProto, TensorProto};
-use protobuf::Message;
+use onnx_protobuf::{NodeProto, TensorProto};
 
-/// The shipped model, `models/rpnn-hg.onnx`: looked up from the current folder and its parents,
-/// then from the executable's folder and its parents; the plain relative path if not found (the
-/// error then names it).
-pub fn default_model_path() -> std::path::PathBuf {
-    find_model("models/rpnn-hg.onnx")
-}
-
-/// The shipped model for a scene's phase function: `models/rpnn-mie.onnx` for a Lorenz–Mie
-/// medium (`phase_desc` starting with `mie`) when it is there, else [`default_model_path`]
-/// (HG g = 0.857; RPNN warns about the mismatch).
-pub fn model_path_for(phase_desc: &str) -> std::path::PathBuf {
-    if phase_desc.starts_with("mie") {
-        let p = find_model("models/rpnn-mie.onnx");
-        if p.is_file() {
-            return p;
-        }
-    }
-    default_model_path()
-}
-
-/// The shipped model with a sky head for a scene's phase function
-/// (`models/rpnn-hg-sky.onnx`, HG g = 0.857), when it is there.
-pub fn sky_model_path_for(phase_desc: &str) -> Option<std::path::PathBuf> {
-    if phase_desc.starts_with("mie") {
-        return None;
-    }
-    let p = find_model("models/rpnn-hg-sky.onnx");
-    p.is_file().then_some(p)
-}
-
-/// `rel` in the working directory or the executable's folder, or one of their ancestors.
-fn find_model(rel: &str) -> std::path::PathBuf {
-    let rel = Path::new(rel);
-    let starts = [std::env::current_dir().ok(), std::env::current_exe().ok()];
-    for s in starts.into_iter().flatten() {
-        for dir in s.ancestors() {
-            let p = dir.join(rel);
-            if p.is_file() {
-                return p;
-            }
-        }
-    }
-    rel.to_path_buf()
-}
-
-/// Errors reading a model; every message names the file.
-#[derive(Debug, thiserror::Error)]
-#[error("{file}: {msg}")]
-pub struct ModelError {
-    pub file: String,
-    pub msg: String,
-}
-
-/// A dense layer: `out = W · in + b`, W row-major `[outputs][inputs]`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Dense {
-    pub inputs: usize,
-    pub outputs: usize,
-    pub w: Vec<f32>,
-    pub b: Vec<f32>,
-}
-
-impl Dense {
-    fn apply(&self, x: &[f32], out: &mut [f32]) {
-        for (o, (row, b)) in out
-            .iter_mut()
-            .zip(self.w.chunks_exact(self.inputs).zip(&self.b))
-        {
-            let mut s = 0.0f32;
-            for (w, v) in row.iter().zip(x) {
-                s += w * v;
-            }
-            *o += s + b;
-        }
-    }
-}
-
-/// One residual block (§4.3).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Block {
-    /// V with bias b1, on z_k = (Σ^k, γ).
-    pub v: Dense,
-    /// W1 (no bias) on o_{k−1}; `None` for the first block (o_0 = 0).
-    pub w1: Option<Dense>,
-    /// W2 with bias b2.
-    pub w2: Dense,
-}
-
-/// The weights of an RPNN and its shape.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Rpnn {
-    pub levels: usize,
-    pub points: usize,
-    pub width: usize,
-    pub outputs: usize,
-    pub blocks: Vec<Block>,
-    pub head: Vec<Dense>,
-    /// The sky head (`crate::sky`): ReLU layers and a last linear one from the last block's
-    /// output to the sky's transfer coefficients; empty for a sun-only model.
-    pub sky_head: Vec<Dense>,
-    /// `nimbus.rpnn.phase` from the metadata (`hg`, `mie`, or `unknown`).
-    pub phase: String,
-    /// The single-scattering albedo of the training data: `nimbus.rpnn.albedo` from the
-    /// metadata, else `data.albedo` of the model card (`<model>.json`) beside the file.
-    pub albedo: Option<f64>,
-}
-
-impl Rpnn {
-    pub fn input_len(&self) -> usize {
-        self.levels * self.points + 1
-    }
-
-    pub fn parameters(&self) -> usize {
-        let d = |l: &Dense| l.w.len() + l.b.len();
-        self.blocks
-            .iter()
-            // W1 has no bias (its zero bias is an implementation detail).
-            .map(|b| d(&b.v) + b.w1.as_ref().map_or(0, |w| w.w.len()) + d(&b.w2))
-            .sum::<usize>()
-            + self.head.iter().chain(&self.sky_head).map(d).sum::<usize>()
-    }
-
-    /// Coefficients of the sky's transfer the model predicts after its `outputs` (0: none).
-    pub fn sky_coeffs(&self) -> usize {
-        self.sky_head.last().map_or(0, |l| l.outputs)
-    }
-
-    /// The same network without its sky head (for a render with nothing to contract the sky
-    /// head's transfer with: its sun column is unchanged).
-    pub fn without_sky_head(&self) -> Self {
-        Self {
-            sky_head: Vec::new(),
-            ..self.clone()
-        }
-    }
-
-    /// Values per query: the sun head's outputs, then the sky head's.
-    pub fn outputs_per_query(&self) -> usize {
-        self.outputs + self.sky_coeffs()
-    }
-
-    /// Multiply-adds per query (2 FLOPs each).
-    pub fn macs(&self) -> usize {
-        let m = |l: &Dense| l.w.len();
-        self.blocks
-            .iter()
-            .map(|b| m(&b.v) + b.w1.as_ref().map_or(0, m) + m(&b.w2))
-            .sum::<usize>()
-            + self.head.iter().chain(&self.sky_head).map(m).sum::<usize>()
-    }
-
-    /// CPU forward pass of one descriptor (f32, the reference of the GPU kernels).
-    pub fn forward(&self, x: &[f32]) -> Vec<f32> {
-        assert_eq!(x.len(), self.input_len(), "descriptor length");
-        let (p, w) = (self.points, self.width);
-        let gamma = x[self.levels * p];
-        let mut z = vec![0.0f32; p + 1];
-        let mut o = vec![0.0f32; w];
-        let mut f1 = vec![0.0f32; w];
-        for (k, b) in self.blocks.iter().enumerate() {
-            z[..p].copy_from_slice(&x[k * p..(k + 1) * p]);
-            z[p] = gamma;
-            f1.iter_mut().for_each(|v| *v = 0.0);
-            b.v.apply(&z, &mut f1);
-            if let Some(w1) = &b.w1 {
-                w1.apply(&o, &mut f1);
-            }
-            f1.iter_mut().for_each(|v| *v = v.max(0.0));
-            // o_k = ReLU(W2 F1 + b2 + o_{k−1}): start from o_{k−1} (zero for k = 1).
-            let mut next = if k == 0 { vec![0.0; w] } else { o.clone() };
-            b.w2.apply(&f1, &mut next);
-            next.iter_mut().for_each(|v| *v = v.max(0.0));
-            o = next;
-        }
-        let trunk = o.clone();
-        for l in &self.head {
-            let mut next = vec![0.0; l.outputs];
-            l.apply(&o, &mut next);
-            next.iter_mut().for_each(|v| *v = v.max(0.0));
-            o = next;
-        }
-        let mut s = trunk;
-        for (i, l) in self.sky_head.iter().enumerate() {
-            let mut next = vec![0.0; l.outputs];
-            l.apply(&s, &mut next);
-            if i + 1 < self.sky_head.len() {
-                next.iter_mut().for_each(|v| *v = v.max(0.0));
-            }
-            s = next;
-        }
-        if !self.sky_head.is_empty() {
-            o.extend_from_slice(&s);
-        }
-        o
-    }
-
-    /// Reads and checks an ONNX file.
-    pub fn load(path: &Path) -> Result<Self, ModelError> {
-        let err = |msg: String| ModelError {
-            file: path.display().to_string(),
-            msg,
-        };
-        if !path.exists() {
-            return Err(err(
-                "model not found (train one with training/train.py, or use the \
-                            shipped models/rpnn-hg.onnx)"
-                    .into(),
-            ));
-        }
-        // A regular file whose bytes fit the memory budget, before it is read whole (a 6 GiB
-        // file named as a model was once read to the end before the protobuf parser refused it).
-        nimbus_scene::memory::check_file(path, 1).map_err(|e| {
-            let t = e.to_string();
-            let prefix = format!("{}: ", path.display());
-            err(t.strip_prefix(&prefix).unwrap_or(&t).to_string())
-        })?;
-        let bytes = std::fs::read(path).map_err(|e| err(e.to_string()))?;
-        let mut m = Self::from_bytes(&bytes).map_err(err)?;
-        if m.albedo.is_none() {
-            // Models exported before the albedo entered the metadata: read the card.
-            m.albedo = std::fs::read_to_string(path.with_extension("json"))
-                .ok()
-                .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-                .and_then(|v| v["data"]["albedo"].as_f64());
-        }
-        Ok(m)
-    }
-
-    /// Parses ONNX bytes (errors without the file name).
-    pub fn from_bytes(bytes: &[u8]) -> Result<Self, String> {
-        let model = ModelProto::parse_from_bytes(bytes)
-            .map_err(|e| format!("not a valid ONNX (protobuf) file: {e}"))?;
-        let meta: HashMap<&str, &str> = model
-            .metadata_props
-            .iter()
-            .map(|p| (p.key.as_str(), p.value.as_str()))
-            .collect();
-        let graph = model.graph.as_ref().ok_or("the model has no graph")?;
-        let mut tensors: HashMap<&str, &TensorProto> = graph
-            .initializer
-            .iter()
-            .map(|t| (t.name.as_str(), t))
-            .collect();
-        for n in &graph.node {
-            if n.op_type == "Constant" {
-                let t = n
-                    .attribute
-                    .iter()
-                    .find(|a| a.name == "value")
-                    .and_then(|a| a.t.as_ref())
-                    .ok_or_else(|| format!("node `{}`: Constant without a tensor value", n.name))?;
-                for o in &n.output {
-                    tensors.insert(o.as_str(), t);
-                }
-            }
-        }
-        if graph.input.len() != 1 || graph.output.len() != 1 {
-            return Err(format!(
-                "expected one input and one output, found {} and {}",
-                graph.input.len(),
-                graph.output.len()
-            ));
-        }
-        let input = graph.input[0].name.as_str();
-        let mut m = Matcher {
-            tensors,
-            values: HashMap::new(),
-            input,
-            denses: Vec::new(),
-        };
-        for n in &graph.node {
-            if n.op_type != "Constant" {
-                m.node(n)?;
-            }
-        }
-        let out = m
-            .values
-            .get(graph.output[0].name.as_str())
-            .cloned()
-            .ok_or_else(|| {
-                format!(
-                    "output `{}` is not computed by any node",
-                    graph.output[0].name
-                )
-            })?;
-        let mut rpnn = structure(out, m.denses)?;
-        rpnn.phase = meta
-            .get("nimbus.rpnn.phase")
-            .map_or("unknown".into(), |s| s.to_string());
-        rpnn.albedo = meta
-            .get("nimbus.rpnn.albedo")
-            .and_then(|a| a.parse::<f64>().ok())
-            .filter(|a| a.is_finite());
-        if let Some(cfg) = meta.get("nimbus.rpnn.config") {
-            let v: serde_json::Value = serde_json::from_str(cfg)
-                .map_err(|e| format!("metadata nimbus.rpnn.config: {e}"))?;
-            for (key, have) in [
-                ("levels", rpnn.levels),
-                ("points", rpnn.points),
-                ("width", rpnn.width),
-                ("outputs", rpnn.outputs),
-                ("head_layers", rpnn.head.len()),
-            ] {
-                if v.get(key).and_then(|x| x.as_u64()) != Some(have as u64) {
-                    return Err(format!(
-                        "metadata nimbus.rpnn.config says {key} = {}, the graph has {have}",
-                        v.get(key).map_or("nothing".into(), |x| x.to_string())
-                    ));
-                }
-            }
-        }
-        Ok(rpnn)
-    }
-}
+use super::{Block, Dense, Rpnn};
 
 /// What a graph value is, symbolically.
 #[derive(Debug, Clone)]
-enum Sym {
+pub(super) enum Sym {
     Input,
     /// Columns [a, b) of the input.
     Cols(usize, usize),
@@ -350,11 +25,11 @@ enum Sym {
     Relu(Box<Sym>),
 }
 
-struct Matcher<'a> {
-    tensors: HashMap<&'a str, &'a TensorProto>,
-    values: HashMap<String, Sym>,
-    input: &'a str,
-    denses: Vec<Dense>,
+pub(super) struct Matcher<'a> {
+    pub(super) tensors: HashMap<&'a str, &'a TensorProto>,
+    pub(super) values: HashMap<String, Sym>,
+    pub(super) input: &'a str,
+    pub(super) denses: Vec<Dense>,
 }
 
 fn floats(t: &TensorProto) -> Result<Vec<f32>, String> {
@@ -471,7 +146,7 @@ impl<'a> Matcher<'a> {
             .map_or(default, |a| a.f)
     }
 
-    fn node(&mut self, n: &NodeProto) -> Result<(), String> {
+    pub(super) fn node(&mut self, n: &NodeProto) -> Result<(), String> {
         let bad = |msg: &str| {
             format!(
                 "node `{}` ({}): {msg}; this is not an RPNN graph",
@@ -588,7 +263,7 @@ fn not_rpnn(msg: &str) -> String {
 }
 
 /// Matches the output's expression against the architecture, innermost block first.
-fn structure(out: Sym, denses: Vec<Dense>) -> Result<Rpnn, String> {
+pub(super) fn structure(out: Sym, denses: Vec<Dense>) -> Result<Rpnn, String> {
     let mut arena: Vec<Option<Dense>> = denses.into_iter().map(Some).collect();
     let mut take = |i: usize| -> Result<Dense, String> {
         arena
