@@ -299,13 +299,16 @@ fn compare_rejects_bad_arguments() {
     );
 }
 
-#[test]
-fn bench_suite_writes_the_table() {
-    if !nimbus_gpu::testing::has_adapter("eval::bench_suite_writes_the_table") {
-        return;
-    }
-    let d = tmp("suite");
-    let o = nimbus(&[
+/// `nimbus bench-suite` at CI size in `d`: the first held-out cloud, back-lit, under sun + sky
+/// and the environment map, 32×18 pixels, pm at a ring of 4 and rpnn at 2 spp, a single round
+/// of 128-spp references; `extra` adds the methods, their budgets and the devices.
+fn small_suite(d: &Path, extra: &[&str]) -> std::process::Output {
+    let (cache, out, work) = (
+        d.join("cache").to_str().unwrap().to_string(),
+        d.to_str().unwrap().to_string(),
+        d.join("work").to_str().unwrap().to_string(),
+    );
+    let mut args = vec![
         "bench-suite",
         "--clouds",
         "1",
@@ -315,10 +318,6 @@ fn bench_suite_writes_the_table() {
         "sun+sky,sun+env",
         "--size",
         "32x18",
-        "--methods",
-        "pt,pm,rpnn",
-        "--budgets",
-        "pt=2,8",
         "--budgets",
         "pm=4",
         "--budgets",
@@ -329,15 +328,34 @@ fn bench_suite_writes_the_table() {
         "128",
         "--ref-noise",
         "0",
-        "--ref-device",
-        "cpu",
         "--cache",
-        d.join("cache").to_str().unwrap(),
+        &cache,
         "--out",
-        d.to_str().unwrap(),
+        &out,
         "--work",
-        d.join("work").to_str().unwrap(),
-    ]);
+        &work,
+    ];
+    args.extend_from_slice(extra);
+    nimbus(&args)
+}
+
+#[test]
+fn bench_suite_writes_the_table() {
+    if !nimbus_gpu::testing::has_adapter("eval::bench_suite_writes_the_table") {
+        return;
+    }
+    let d = tmp("suite");
+    let o = small_suite(
+        &d,
+        &[
+            "--methods",
+            "pt,pm,rpnn",
+            "--budgets",
+            "pt=2,8",
+            "--ref-device",
+            "cpu",
+        ],
+    );
     assert!(o.status.success(), "{}", text(&o));
     assert!(d.join("work/clouds/cumulus_004.vol").is_file());
     let md = std::fs::read_to_string(d.join("results.md")).unwrap();
@@ -371,39 +389,17 @@ fn bench_suite_on_the_gpu_writes_the_gpu_table() {
         return;
     }
     let d = tmp("suite-gpu");
-    let o = nimbus(&[
-        "bench-suite",
-        "--device",
-        "gpu",
-        "--clouds",
-        "1",
-        "--lights",
-        "back",
-        "--skies",
-        "sun+sky,sun+env",
-        "--size",
-        "32x18",
-        "--budgets",
-        "pt-gpu=4,16",
-        "--budgets",
-        "pm=4",
-        "--budgets",
-        "rpnn=2",
-        "--beams",
-        "1024",
-        "--ref-spp",
-        "128",
-        "--ref-noise",
-        "0",
-        "--ref-device",
-        "gpu",
-        "--cache",
-        d.join("cache").to_str().unwrap(),
-        "--out",
-        d.to_str().unwrap(),
-        "--work",
-        d.join("work").to_str().unwrap(),
-    ]);
+    let o = small_suite(
+        &d,
+        &[
+            "--device",
+            "gpu",
+            "--budgets",
+            "pt-gpu=4,16",
+            "--ref-device",
+            "gpu",
+        ],
+    );
     assert!(o.status.success(), "{}", text(&o));
     let md = std::fs::read_to_string(d.join("results.md")).unwrap();
     assert!(

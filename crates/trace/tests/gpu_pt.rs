@@ -37,21 +37,17 @@ fn resize(scene: &mut Scene, w: usize, h: usize) {
     scene.camera = scene.camera.with_size(w, h).unwrap();
 }
 
-fn check(disc_deg: Option<f64>) {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let mut scene = Scene::load(root.join("scenes/refs/cube_iso.toml")).unwrap();
-    if let Some(r) = disc_deg {
-        let s = scene.sun.clone().unwrap();
-        scene.sun = Some(nimbus_scene::Sun::new(s.dir, s.irradiance, r).unwrap());
-    }
-    resize(&mut scene, 64, 48);
-    let Some(gpu) = nimbus_gpu::testing::gpu("gpu_pt::check") else {
-        return;
-    };
-    let mut gpt = GpuPathTracer::new(&gpu, &scene).unwrap();
-    let (gimg, gvar) = gpt.render(64, 3).unwrap();
+/// The GPU image at `gpu_spp` (seed 3) and the CPU render at 64 spp (seed 4) of `scene`, after
+/// checking that their mean luminances agree within 4.5 combined standard errors.
+fn gpu_and_cpu(
+    gpu: &nimbus_gpu::Gpu,
+    scene: &Scene,
+    gpu_spp: u32,
+) -> ((nimbus_scene::Image, Vec<f32>), nimbus_trace::RenderOutput) {
+    let mut gpt = GpuPathTracer::new(gpu, scene).unwrap();
+    let (gimg, gvar) = gpt.render(gpu_spp, 3).unwrap();
     let cpu = render(
-        &scene,
+        scene,
         &RenderOptions {
             spp: 64,
             seed: 4,
@@ -65,6 +61,21 @@ fn check(disc_deg: Option<f64>) {
         "GPU {a} vs CPU {b} (σ {})",
         (va + vb).sqrt()
     );
+    ((gimg, gvar), cpu)
+}
+
+fn check(disc_deg: Option<f64>) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let mut scene = Scene::load(root.join("scenes/refs/cube_iso.toml")).unwrap();
+    if let Some(r) = disc_deg {
+        let s = scene.sun.clone().unwrap();
+        scene.sun = Some(nimbus_scene::Sun::new(s.dir, s.irradiance, r).unwrap());
+    }
+    resize(&mut scene, 64, 48);
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu_pt::check") else {
+        return;
+    };
+    let ((gimg, _), cpu) = gpu_and_cpu(&gpu, &scene, 64);
     assert!(gimg.pixels.iter().flatten().all(|v| v.is_finite()));
     let m = compare::compare(&gimg, &cpu.image, None);
     // Per-sample relative noise ≈ 0.94 (cube_iso): a 4×4 block at 64 spp has ≈ 3 % per image,
@@ -125,23 +136,7 @@ fn gpu_environment_map_matches_cpu() {
     let Some(gpu) = nimbus_gpu::testing::gpu("gpu_pt::gpu_environment_map_matches_cpu") else {
         return;
     };
-    let mut gpt = GpuPathTracer::new(&gpu, &scene).unwrap();
-    let (gimg, gvar) = gpt.render(128, 3).unwrap();
-    let cpu = render(
-        &scene,
-        &RenderOptions {
-            spp: 64,
-            seed: 4,
-            progress: false,
-        },
-    );
-    let (a, va) = mean(&gimg, &gvar);
-    let (b, vb) = mean(&cpu.image, &cpu.variance);
-    assert!(
-        (a - b).abs() < 4.5 * (va + vb).sqrt(),
-        "GPU {a} vs CPU {b} (σ {})",
-        (va + vb).sqrt()
-    );
+    let ((gimg, _), cpu) = gpu_and_cpu(&gpu, &scene, 128);
     // Pixels that see the sky past the cube (no noise on the CPU: every sample in one texel)
     // read the same texels: a pixel on a texel edge may average a neighbour into a few of its
     // jittered samples (one texel step is at most 0.019 in a channel), but on average over the
