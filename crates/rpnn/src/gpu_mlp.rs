@@ -200,63 +200,46 @@ impl<'g> GpuMlp<'g> {
         }
         let trunk = prev.expect("at least one block");
         let total = model.outputs_per_query() as u32;
+        // A chain of dense layers from the trunk: hidden outputs alternate between the buffers
+        // `bufs`, the last writes its columns from `first_col` of the output rows.
+        let mut chain = |layers: &[Dense], bufs: [usize; 2], first_col: u32, relu_last: bool| {
+            let mut cur = trunk;
+            for (i, l) in layers.iter().enumerate() {
+                let (w, b) = push(l);
+                let last = i + 1 == layers.len();
+                let next = if last {
+                    OUT
+                } else if cur == bufs[0] {
+                    bufs[1]
+                } else {
+                    bufs[0]
+                };
+                steps.push(Step {
+                    params: LayerParams {
+                        outputs: l.outputs as u32,
+                        ka: l.inputs as u32,
+                        a_stride: stride as u32,
+                        a_gamma_col: NO_GAMMA,
+                        wa_offset: w,
+                        bias_offset: b,
+                        out_stride: if last { total } else { stride as u32 },
+                        out_offset: if last { first_col } else { 0 },
+                        relu: (relu_last || !last) as u32,
+                        ..Default::default()
+                    },
+                    a: Src::Act(cur),
+                    b: None,
+                    res: None,
+                    out: next,
+                });
+                cur = next;
+            }
+        };
+        // The sky head first (its hidden layers in 2 and 3, so the trunk stays readable), its
+        // last layer linear; then the sun head's ReLU layers in 0 and 1.
+        chain(&model.sky_head, [2, 3], model.outputs as u32, false);
+        chain(&model.head, [0, 1], 0, true);
         let n_sky = model.sky_head.len();
-        let mut cur = trunk;
-        for (i, l) in model.sky_head.iter().enumerate() {
-            let (w, b) = push(l);
-            let last = i + 1 == n_sky;
-            let next = if last {
-                OUT
-            } else if cur == 2 {
-                3
-            } else {
-                2
-            };
-            steps.push(Step {
-                params: LayerParams {
-                    outputs: l.outputs as u32,
-                    ka: l.inputs as u32,
-                    a_stride: stride as u32,
-                    a_gamma_col: NO_GAMMA,
-                    wa_offset: w,
-                    bias_offset: b,
-                    out_stride: if last { total } else { stride as u32 },
-                    out_offset: if last { model.outputs as u32 } else { 0 },
-                    relu: (!last) as u32,
-                    ..Default::default()
-                },
-                a: Src::Act(cur),
-                b: None,
-                res: None,
-                out: next,
-            });
-            cur = next;
-        }
-        let n_head = model.head.len();
-        let mut cur = trunk;
-        for (i, l) in model.head.iter().enumerate() {
-            let (w, b) = push(l);
-            let last = i + 1 == n_head;
-            let next = if last { OUT } else { 1 - cur };
-            steps.push(Step {
-                params: LayerParams {
-                    outputs: l.outputs as u32,
-                    ka: l.inputs as u32,
-                    a_stride: stride as u32,
-                    a_gamma_col: NO_GAMMA,
-                    wa_offset: w,
-                    bias_offset: b,
-                    out_stride: if last { total } else { stride as u32 },
-                    relu: 1,
-                    ..Default::default()
-                },
-                a: Src::Act(cur),
-                b: None,
-                res: None,
-                out: next,
-            });
-            cur = next;
-        }
         // f16: the weights, and every activation buffer but the descriptors and the output.
         if precision == Precision::F16 {
             for st in &mut steps {
