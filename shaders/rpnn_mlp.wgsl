@@ -21,9 +21,18 @@
 // bit 1 a, bit 2 b, bit 3 res, bit 4 out. The products accumulate in f32 either way; an f16
 // output is written as the pairs (j, j + 1) a thread owns (out_stride and out_offset even).
 //
-// Tiles: 64 queries × 64 outputs per workgroup of 16 × 16 threads, k-slices of 16 inputs in
-// workgroup memory; each thread accumulates a 4 × 4 block in four vec4 registers (named
-// variables: private arrays indexed in loops are far slower on some drivers).
+// Tiles: MLP_TILE_ROWS = 64 queries × MLP_TILE_OUTPUTS = 64 outputs per workgroup of 16 × 16
+// threads (crates/gpu/src/consts.rs: the dispatches count in these units), k-slices of 16
+// inputs in workgroup memory; each thread accumulates a 4 × 4 block in four vec4 registers
+// (named variables: private arrays indexed in loops are far slower on some drivers).
+//
+// Tried on lavapipe (`cargo bench -p nimbus-rpnn --bench network`: 4 096 queries of the shipped
+// model take 2.2–2.5 s in f32, a ±10 % spread between runs on the 2-core machine), and no faster
+// there (2.5 s and 2.7 s): 4 queries × 8 outputs per thread (64 × 128 tiles, half the workgroup reads per
+// product) with slices loaded along k; separate load paths, without per-element tests, for
+// slices wholly inside `a` or `b`. Neither has been measured on a GPU.
+
+#import constants
 
 struct Layer {
     rows: u32,
@@ -169,8 +178,8 @@ fn dense(
     @builtin(workgroup_id) wg: vec3<u32>,
     @builtin(local_invocation_id) lid: vec3<u32>,
 ) {
-    let j0 = wg.x * 64u;
-    let r0 = wg.y * 64u;
+    let j0 = wg.x * MLP_TILE_OUTPUTS;
+    let r0 = wg.y * MLP_TILE_ROWS;
     let tx = lid.x; // output group
     let ty = lid.y; // row group
     let t = ty * 16u + tx;

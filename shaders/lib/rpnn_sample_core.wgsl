@@ -194,7 +194,7 @@ fn dispatch_args() {
     put_args(0u, d.x, d.y);
     let r = groups_1d(min(atomicLoad(&counter[2]), S.rows));
     put_args(1u, r.x, r.y);
-    let row_tiles = max((n + 63u) / 64u, 1u);
+    let row_tiles = max((n + MLP_TILE_ROWS - 1u) / MLP_TILE_ROWS, 1u);
     for (var k = 0u; k < arrayLength(&layer_tiles); k++) {
         put_args(2u + k, layer_tiles[k], row_tiles);
     }

@@ -22,6 +22,12 @@ pub const STENCIL_LEVELS: u32 = 10;
 /// RPNN descriptor length: every level's points, then γ.
 pub const DESCRIPTOR_LEN: u32 = STENCIL_LEVELS * STENCIL_POINTS + 1;
 
+/// RPNN network layers (`shaders/rpnn_mlp.wgsl`): queries per workgroup, so a layer dispatches
+/// ⌈rows / this⌉ workgroups along y (16 × 16 threads, each 4 queries × 4 outputs).
+pub const MLP_TILE_ROWS: u32 = 64;
+/// RPNN network layers: outputs per workgroup, so a layer dispatches ⌈outputs / this⌉ along x.
+pub const MLP_TILE_OUTPUTS: u32 = 64;
+
 /// One WGSL constant: name and value.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Const {
@@ -36,6 +42,8 @@ pub const ALL: &[Const] = &[
     Const::U32("CELL_WORDS", CELL_WORDS),
     Const::U32("STENCIL_POINTS", STENCIL_POINTS),
     Const::U32("DESCRIPTOR_LEN", DESCRIPTOR_LEN),
+    Const::U32("MLP_TILE_ROWS", MLP_TILE_ROWS),
+    Const::U32("MLP_TILE_OUTPUTS", MLP_TILE_OUTPUTS),
 ];
 
 /// WGSL source of the `constants` module, one `const` per entry of [`ALL`].

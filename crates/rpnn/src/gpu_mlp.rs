@@ -66,6 +66,9 @@ const F16_OUT: u32 = 16;
 
 const NO_GAMMA: u32 = u32::MAX;
 
+/// Queries and outputs per workgroup of a layer (`shaders/rpnn_mlp.wgsl`).
+pub use nimbus_gpu::consts::{MLP_TILE_OUTPUTS as TILE_OUTPUTS, MLP_TILE_ROWS as TILE_ROWS};
+
 /// Where a layer reads its first input.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Src {
@@ -133,7 +136,7 @@ impl<'g> GpuMlp<'g> {
         let max_batch = max_batch
             .min(limit / (DESCRIPTOR_LEN.max(model.input_len()) * 4))
             .min(limit / (stride * 4))
-            .clamp(1, 65535 * 64);
+            .clamp(1, 65535 * TILE_ROWS as usize);
         let mut weights: Vec<f32> = Vec::new();
         let mut push = |d: &Dense| -> (u32, u32) {
             let w = weights.len() as u32;
@@ -317,13 +320,13 @@ impl<'g> GpuMlp<'g> {
         self.encode_with(enc, desc, rows, row_limit, None, timer)
     }
 
-    /// Workgroups along x (output tiles of 64) of each layer's dispatch, in dispatch order:
-    /// with [`GpuMlp::encode_with`]'s indirect arguments, a GPU pass writes
-    /// (tiles, ⌈rows / 64⌉, 1) for each.
+    /// Workgroups along x (output tiles of [`TILE_OUTPUTS`]) of each layer's dispatch, in
+    /// dispatch order: with [`GpuMlp::encode_with`]'s indirect arguments, a GPU pass writes
+    /// (tiles, ⌈rows / [`TILE_ROWS`]⌉, 1) for each.
     pub fn layer_tiles(&self) -> Vec<u32> {
         self.steps
             .iter()
-            .map(|(s, _)| s.params.outputs.div_ceil(64))
+            .map(|(s, _)| s.params.outputs.div_ceil(TILE_OUTPUTS))
             .collect()
     }
 
@@ -408,8 +411,8 @@ impl<'g> GpuMlp<'g> {
             match indirect {
                 Some((buf, base)) => pass.dispatch_workgroups_indirect(buf, base + 12 * k as u64),
                 None => pass.dispatch_workgroups(
-                    s.params.outputs.div_ceil(64),
-                    (bound.rows as u32).div_ceil(64).max(1),
+                    s.params.outputs.div_ceil(TILE_OUTPUTS),
+                    (bound.rows as u32).div_ceil(TILE_ROWS).max(1),
                     1,
                 ),
             }
