@@ -25,7 +25,11 @@
 #      whole sample on the GPU), median speed-up and cases within the floor per sky condition
 #      (DIR/suite/results.md).
 #
-#   bash bench/device.sh [--small] [--out DIR]
+#   bash bench/device.sh [--small] [--steps LIST] [--out DIR]
+#
+# `--steps 2,9` runs only those steps (default: all), so a lent GPU's time can go first to what
+# is unmeasured, or a run can be split over two calls of a device's per-command time limit
+# (each with its own --out).
 #
 # On an H200 the full run took 134 s (2026-12-04), before steps 7–9 (step 9 renders 18 scenes
 # with references capped at 30 s each: allow several minutes more). `--small` runs the same steps at reduced
@@ -40,16 +44,27 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 small=0
+steps=1,2,3,4,5,6,7,8,9
 out=out/device
 while [ $# -gt 0 ]; do
   case "$1" in
     --small) small=1 ;;
     --out) out="$2"; shift ;;
-    -h|--help) sed -n '2,38p' "$0"; exit 0 ;;
+    --steps) steps="$2"; shift ;;
+    -h|--help) sed -n '2,43p' "$0"; exit 0 ;;
     *) echo "bench/device.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
   shift
 done
+case ",$steps," in
+  *[!0-9,]*|*,,,*) echo "bench/device.sh: --steps '$steps': expected step numbers 1-9, e.g. 2,9" >&2; exit 2 ;;
+esac
+[ -n "${steps//,/}" ] || { echo "bench/device.sh: --steps is empty" >&2; exit 2; }
+for n in ${steps//,/ }; do
+  [ "$n" -ge 1 ] && [ "$n" -le 9 ] ||
+    { echo "bench/device.sh: --steps '$steps': there is no step $n (1-9)" >&2; exit 2; }
+done
+want() { case ",$steps," in *",$1,"*) return 0 ;; esac; return 1; }
 nimbus=${NIMBUS:-./target/release/nimbus}
 [ -x "$nimbus" ] || { echo "bench/device.sh: $nimbus not found (cargo build --release -p nimbus-cli)" >&2; exit 1; }
 export XDG_RUNTIME_DIR=${XDG_RUNTIME_DIR:-/tmp}
@@ -90,6 +105,7 @@ sized() { # SRC W H -> path
 adapter=$("$nimbus" info --gpu | head -1 | sed 's/^used *//')
 echo "adapter: $adapter" >&2
 
+if want 1; then
 # 1. Photon mapping per stage (Elek Table 1 analogue).
 for spec in "altostratus 15,10,15" "cumulus_congestus 10,12,18" "wide_cloud 15,10,15"; do
   set -- $spec
@@ -102,7 +118,9 @@ for spec in "altostratus 15,10,15" "cumulus_congestus 10,12,18" "wide_cloud 15,1
             s,set,t/n, s,set,u/n, s,set,p/n, s,set,r/n, s,set,x/n, s,set,(t+u+p+r+x)/n }' \
     "$out/pm_$1/timings.csv" >> "$csv"
 done
+fi # step 1
 
+if want 2; then
 # 2. RPNN ms per sample under sun and under sun + sky (the sky head): the whole sample on the
 # GPU (wgpu; its network in f32 and in f16), the network on the GPU with CPU shading
 # (wgpu --cpu-shading) and ONNX Runtime (ort), each split into its stages (`--timings`): whole sample: shade, descriptor, inference,
@@ -127,7 +145,9 @@ for name in rpnn_720p rpnn_720p_sky; do
     done
   done
 done
+fi # step 2
 
+if want 3; then
 # 3. Camera paths/s: GPU path tracer against the CPU one (the shared cumulus, its volume path
 # made absolute for the sized copy; at 128×96 a large GPU would sit mostly idle).
 src=scenes/refs/cumulus_side.toml
@@ -142,7 +162,9 @@ for dev in gpu cpu; do
   rate=$(echo "$line" | sed -E 's/.*\(([0-9.e+-]+) camera paths\/s.*/\1/')
   row pt_paths_per_s cumulus_side "${PW}x${PH} device=$dev spp=$spp" "$rate" paths/s
 done
+fi # step 3
 
+if want 4; then
 # 4. Training records per hour with the GPU path tracer.
 rm -rf "$out/datagen"
 line=$("$nimbus" datagen --clouds gen:5 --records "$DG_RECORDS" --val-records 0 --test-records 0 \
@@ -150,7 +172,9 @@ line=$("$nimbus" datagen --clouds gen:5 --records "$DG_RECORDS" --val-records 0 
 rps=$(echo "$line" | sed -E 's/.*, ([0-9.]+) records\/s.*/\1/')
 row datagen_records_per_hour gen:5 "device=gpu samples=$DG_SAMPLES records=$DG_RECORDS" \
   "$(awk -v r="$rps" 'BEGIN { printf "%.0f", r * 3600 }')" records/h
+fi # step 4
 
+if want 5; then
 # 5. Training records/s (CUDA where torch sees a GPU).
 # (found, not imported: importing torch alone takes seconds)
 "$py" -c "import importlib.util, sys; sys.exit(importlib.util.find_spec('torch') is None)" 2> /dev/null ||
@@ -160,7 +184,9 @@ row datagen_records_per_hour gen:5 "device=gpu samples=$DG_SAMPLES records=$DG_R
   while read -r rate dev rows batch; do
     row train_records_per_s synthetic "device=$dev batch=$batch rows=$rows" "$rate" records/s
   done
+fi # step 5
 
+if want 6; then
 # 6. Memory and time at scale, every estimator (the photon map's light volumes are coarser than
 # the grid when J would not fit one storage binding; the render lines, in DIR/scale.log, say
 # which). Peak RSS from GNU time, else from Python's getrusage of the child; for the GPU
@@ -204,7 +230,9 @@ for m in "0 --method pt" "1 --device gpu" "1 $SCALE_PM" "1 --method rpnn --spp 2
   scale_row "${m%% *}" "${m#* }" "$nimbus" render "$out/scenes/scale.toml" ${m#* } -o "$out/scale_img"
 done
 rm -f "$out/scale.vol"
+fi # step 6
 
+if want 7; then
 # 7. Photon mapping with final gathering on the Table 1 scenes: the converged ring, then GSPP
 # gathered samples (ms per sample: wall time of the dispatches, synchronised), and the viewer's
 # live frame with the sun turning (every frame traces and upsamples a generation and gathers one
@@ -230,7 +258,9 @@ for s in altostratus cumulus_congestus wide_cloud; do
   ms=$(echo "$line" | sed -E 's/.* ([0-9.]+) ms per frame.*/\1/')
   row pm_live_frame_ms "$s" "${GW}x${GH} pm sun turning 8 frames" "$ms" ms
 done
+fi # step 7
 
+if want 8; then
 # 8. Error against time on this GPU (the users' table for choosing an estimator): every GPU
 # estimator on one scene against a GPU path-traced reference.
 cmp_scene=$(sized scenes/bench/cumulus_congestus.toml "$CW" "$CH")
@@ -250,7 +280,9 @@ for m in dict.fromkeys(r["method"] for r in rows):
     if rs[-1]["speedup_error"]:
         print(f"speedup_equal_error,cumulus_congestus,{sys.argv[2]} {m} at {rs[-1]['budget']} {rs[-1]['budget_unit']},{rs[-1]['speedup_error']},x")
 PY
+fi # step 8
 
+if want 9; then
 # 9. The users' table on held-out clouds: `bench-suite --device gpu` (pt-gpu the baseline, pm,
 # rpnn with the whole sample on the GPU, and the papers' variants: pm-elek2012, rpnn-dirs, whose
 # sky directions the GPU sample takes under the suite's constant sky) — per method and sky
@@ -273,12 +305,13 @@ for line in open(sys.argv[1]):
     if w and int(w.group(1)) > 0:
         print(f"suite_within_floor,held-out clouds {f[1]},{sys.argv[2]} {f[0]} of {w.group(2)},{w.group(1)},cases")
 PY
+fi # step 9
 
 # The Markdown table.
 {
   echo "# Device benchmark ($(date -u +%Y-%m-%d), $adapter$([ "$small" = 1 ] && echo ', --small'))"
   echo
-  echo "Command: \`bash bench/device.sh$([ "$small" = 1 ] && echo ' --small')\`"
+  echo "Command: \`bash bench/device.sh$([ "$small" = 1 ] && echo ' --small')$([ "$steps" != 1,2,3,4,5,6,7,8,9 ] && echo " --steps $steps")\`"
   echo
   echo "| measure | scene | setting | value | unit |"
   echo "|---|---|---|---:|---|"

@@ -553,6 +553,47 @@ fn device_benchmark_script_small() {
     );
 }
 
+/// `bench/device.sh --steps`: only the steps asked for run (a lent GPU's time goes to what is
+/// unmeasured), and a list naming no step 1–9 is refused before anything runs.
+#[test]
+fn device_benchmark_script_runs_only_the_steps_asked() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let run = |args: &[&str], out: &std::path::Path| {
+        std::process::Command::new("bash")
+            .current_dir(&root)
+            .arg("bench/device.sh")
+            .args(args)
+            .args(["--out", out.to_str().unwrap()])
+            .env("NIMBUS", env!("CARGO_BIN_EXE_nimbus"))
+            .env("XDG_RUNTIME_DIR", "/tmp")
+            .output()
+            .unwrap()
+    };
+    for bad in ["0", "10", "2,x", ","] {
+        let d = tmp("device_bad_steps");
+        let o = run(&["--small", "--steps", bad], &d);
+        assert_eq!(o.status.code(), Some(2), "--steps {bad}: {}", text(&o));
+        assert!(text(&o).contains("--steps"), "{}", text(&o));
+        assert!(
+            !d.join("device.csv").exists(),
+            "--steps {bad} ran something"
+        );
+    }
+    // Step 3 alone: the two path tracers' rates and nothing else.
+    let d = tmp("device_step3");
+    let o = run(&["--small", "--steps", "3"], &d);
+    assert!(o.status.success(), "{}", text(&o));
+    let csv = std::fs::read_to_string(d.join("device.csv")).unwrap();
+    let rows: Vec<&str> = csv.lines().skip(1).collect();
+    assert_eq!(rows.len(), 2, "{csv}");
+    assert!(
+        rows.iter().all(|r| r.starts_with("pt_paths_per_s,")),
+        "{csv}"
+    );
+    let md = std::fs::read_to_string(d.join("device.md")).unwrap();
+    assert!(md.contains("--small --steps 3"), "{md}");
+}
+
 /// `training/device_stage.sh --small`: the GPU fine-tuning stage runs end to end on this
 /// machine's adapter (lavapipe in CI, CPU training): an independent precise test set, a growing
 /// training set and an extra set of one cloud kind (EXTRA_CLOUDS), a run from the shipped weights
