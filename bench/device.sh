@@ -3,8 +3,8 @@
 #   1. photon mapping per stage at 1920×1200 on the Elek 2012 Table 1 scenes (a turning sun, so
 #      every frame traces, updates, upsamples and ray marches; mean over frames 2..N);
 #   2. RPNN milliseconds per sample at 1280×720 under sun and sun + sky: the whole sample on
-#      the GPU (network in f32 and f16), the GPU network with CPU shading, and ONNX Runtime,
-#      split into stages (`--timings`);
+#      the GPU (network in f32 and f16, each with both kernels' tiles), the GPU network with CPU
+#      shading, and ONNX Runtime, split into stages (`--timings`);
 #   3. GPU path tracer camera paths/s against the CPU path tracer on scenes/refs/cumulus_side
 #      at 1280×720;
 #   4. `datagen --device gpu` records per hour (fixed-count labels, --samples 1024);
@@ -122,17 +122,19 @@ fi # step 1
 
 if want 2; then
 # 2. RPNN ms per sample under sun and under sun + sky (the sky head): the whole sample on the
-# GPU (wgpu; its network in f32 and in f16), the network on the GPU with CPU shading
-# (wgpu --cpu-shading) and ONNX Runtime (ort), each split into its stages (`--timings`): whole sample: shade, descriptor, inference,
-# resolve (GPU timestamps) and the rest of the wall time; CPU shading: descriptor, inference
-# (transfers included) and the rest on the CPU (camera rays, delta tracking, shadow rays).
+# GPU (wgpu; its network in f32 and in f16, each with the default 64×128 tiles and with 64×64),
+# the network on the GPU with CPU shading (wgpu --cpu-shading) and ONNX Runtime (ort), each
+# split into its stages (`--timings`): whole sample: shade, descriptor, inference, resolve (GPU
+# timestamps) and the rest of the wall time; CPU shading: descriptor, inference (transfers
+# included) and the rest on the CPU (camera rays, delta tracking, shadow rays).
 scene=$(sized scenes/bench/rpnn_720p.toml "$RW" "$RH")
 sky_scene="${scene%.toml}_sky.toml"
 { cat "$scene"; printf '\n[sky]\nradiance = [0.12, 0.2, 0.38]\n'; } > "$sky_scene"
 for name in rpnn_720p rpnn_720p_sky; do
   path=$([ "$name" = rpnn_720p ] && echo "$scene" || echo "$sky_scene")
   set -- "$name" "$path"
-  for b in "wgpu" "wgpu --net-precision f16" "wgpu --cpu-shading" "ort"; do
+  for b in "wgpu" "wgpu --net-precision f16" "wgpu --net-tiles 64x64" \
+    "wgpu --net-precision f16 --net-tiles 64x64" "wgpu --cpu-shading" "ort"; do
     tag=$(echo "$b" | tr -d ' -' | sed 's/cpushading/_cpu_shading/')
     # shellcheck disable=SC2086
     "$nimbus" render "$2" --method rpnn --backend $b --spp "$RSPP" --timings -q \

@@ -21,16 +21,23 @@
 // bit 1 a, bit 2 b, bit 3 res, bit 4 out. The products accumulate in f32 either way; an f16
 // output is written as the pairs (j, j + 1) a thread owns (out_stride and out_offset even).
 //
-// Tiles: MLP_TILE_ROWS = 64 queries × MLP_TILE_OUTPUTS = 64 outputs per workgroup of 16 × 16
-// threads (crates/gpu/src/consts.rs: the dispatches count in these units), k-slices of 16
-// inputs in workgroup memory; each thread accumulates a 4 × 4 block in four vec4 registers
-// (named variables: private arrays indexed in loops are far slower on some drivers).
+// Two kernels, chosen per network (`nimbus_rpnn::gpu_mlp::Tiles`), both with k-slices of 16
+// inputs in workgroup memory and accumulators in named vec4 variables (private arrays indexed
+// in loops are far slower on some drivers):
+// - `dense_wide` (the default): MLP_TILE_ROWS = 64 queries × MLP_WIDE_TILE_OUTPUTS = 128
+//   outputs per workgroup of 16 × 16 threads, each 4 queries × 8 outputs (outputs 4 tx … and
+//   64 + 4 tx …): 3 vec4 workgroup reads per 32 products. A slice is loaded with consecutive
+//   threads on consecutive inputs of one row (the rows of the batch and of the weight matrices
+//   are contiguous in k: coalesced on a GPU).
+// - `dense`: 64 queries × MLP_TILE_OUTPUTS = 64 outputs per 16 × 16 threads, each a 4 × 4
+//   block: 2 vec4 reads per 16 products; each thread loads one row group's four rows at one
+//   input of the slice.
+// The dispatches count in these units (crates/gpu/src/consts.rs).
 //
-// Tried on lavapipe (`cargo bench -p nimbus-rpnn --bench network`: 4 096 queries of the shipped
-// model take 2.2–2.5 s in f32, a ±10 % spread between runs on the 2-core machine), and no faster
-// there (2.5 s and 2.7 s): 4 queries × 8 outputs per thread (64 × 128 tiles, half the workgroup reads per
-// product) with slices loaded along k; separate load paths, without per-element tests, for
-// slices wholly inside `a` or `b`. Neither has been measured on a GPU.
+// On lavapipe `dense_wide` takes 11–23 % less time (`cargo bench -p nimbus-rpnn --bench
+// network`, and the whole sample at 320×180: BENCHMARKS.md). A third variant, `dense` with
+// separate load paths, free of per-element tests, for slices wholly inside `a` or `b`, was
+// slower there and was dropped. Which is faster on a GPU is `bench/device.sh` step 2's.
 
 #import constants
 
@@ -223,4 +230,79 @@ fn dense(
     finish(r + 1u, j, acc1, rows);
     finish(r + 2u, j, acc2, rows);
     finish(r + 3u, j, acc3, rows);
+}
+
+// `dense_wide`'s tiles: [k][row group] × 4 rows and [k][output group] × 4 outputs, each row of
+// the tile one vec4 longer than it needs (the slice's stores run down k and then fall in
+// different banks).
+const WIDE_A_PITCH: u32 = 17u;
+const WIDE_W_PITCH: u32 = 33u;
+var<workgroup> wa_tile: array<vec4<f32>, 272>; // 16 × WIDE_A_PITCH
+var<workgroup> ww_tile: array<vec4<f32>, 528>; // 16 × WIDE_W_PITCH
+
+@compute @workgroup_size(16, 16)
+fn dense_wide(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(local_invocation_id) lid: vec3<u32>,
+) {
+    let j0 = wg.x * MLP_WIDE_TILE_OUTPUTS;
+    let r0 = wg.y * MLP_TILE_ROWS;
+    let tx = lid.x; // output groups tx and 16 + tx
+    let ty = lid.y; // row group
+    let t = ty * 16u + tx;
+    if (t == 0u) {
+        wg_rows = min(L.rows, row_limit[0]);
+    }
+    let rows = workgroupUniformLoad(&wg_rows);
+    if (r0 >= rows) {
+        return;
+    }
+    var c00 = vec4<f32>(0.0);
+    var c01 = vec4<f32>(0.0);
+    var c10 = vec4<f32>(0.0);
+    var c11 = vec4<f32>(0.0);
+    var c20 = vec4<f32>(0.0);
+    var c21 = vec4<f32>(0.0);
+    var c30 = vec4<f32>(0.0);
+    var c31 = vec4<f32>(0.0);
+    let k_total = L.ka + L.kb;
+    for (var k0 = 0u; k0 < k_total; k0 += 16u) {
+        // Queries: 16 inputs × 64 rows, 4 per thread; weights: 16 inputs × 128 outputs, 8.
+        for (var s = t; s < 1024u; s += 256u) {
+            let lk = s % 16u;
+            let q = s / 16u;
+            wa_tile[lk * WIDE_A_PITCH + q / 4u][q % 4u] = input(r0 + q, k0 + lk, rows);
+        }
+        for (var s = t; s < 2048u; s += 256u) {
+            let lk = s % 16u;
+            let o = s / 16u;
+            ww_tile[lk * WIDE_W_PITCH + o / 4u][o % 4u] = weight(j0 + o, k0 + lk);
+        }
+        workgroupBarrier();
+        for (var k = 0u; k < 16u; k++) {
+            let a = wa_tile[k * WIDE_A_PITCH + ty];
+            let w0 = ww_tile[k * WIDE_W_PITCH + tx];
+            let w1 = ww_tile[k * WIDE_W_PITCH + 16u + tx];
+            c00 += a.x * w0;
+            c01 += a.x * w1;
+            c10 += a.y * w0;
+            c11 += a.y * w1;
+            c20 += a.z * w0;
+            c21 += a.z * w1;
+            c30 += a.w * w0;
+            c31 += a.w * w1;
+        }
+        workgroupBarrier();
+    }
+    let r = r0 + ty * 4u;
+    let j = j0 + tx * 4u;
+    let j1 = j0 + 64u + tx * 4u;
+    finish(r, j, c00, rows);
+    finish(r, j1, c01, rows);
+    finish(r + 1u, j, c10, rows);
+    finish(r + 1u, j1, c11, rows);
+    finish(r + 2u, j, c20, rows);
+    finish(r + 2u, j1, c21, rows);
+    finish(r + 3u, j, c30, rows);
+    finish(r + 3u, j1, c31, rows);
 }

@@ -133,6 +133,7 @@ impl EvalArgs {
                 sky_degree: self.rpnn.sky_degree as usize,
                 cpu_shading: self.rpnn.cpu_shading,
                 rpnn_precision: self.rpnn.net_precision.into(),
+                rpnn_tiles: self.rpnn.net_tiles.into(),
             },
             reference: ReferenceSettings {
                 spp: self.ref_spp,

@@ -55,6 +55,30 @@ pub(crate) struct RpnnArgs {
     /// f16 halves their memory traffic, the products accumulate in f32 either way.
     #[arg(long, value_enum, default_value = "f32")]
     pub(crate) net_precision: NetPrecision,
+    /// RPNN with the network on the GPU: its kernel's tiles, queries × outputs per workgroup
+    /// (the same products; which is faster depends on the GPU).
+    #[arg(long, value_enum, default_value = "64x128")]
+    pub(crate) net_tiles: NetTiles,
+}
+
+/// `--net-tiles` (see [`nimbus_rpnn::gpu_mlp::Tiles`]).
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub(crate) enum NetTiles {
+    /// 4 × 4 per thread.
+    #[value(name = "64x64")]
+    Square,
+    /// 4 × 8 per thread, slices loaded along the inputs.
+    #[value(name = "64x128")]
+    Wide,
+}
+
+impl From<NetTiles> for nimbus_rpnn::gpu_mlp::Tiles {
+    fn from(t: NetTiles) -> Self {
+        match t {
+            NetTiles::Square => Self::Square,
+            NetTiles::Wide => Self::Wide,
+        }
+    }
 }
 
 /// `--net-precision` (see [`nimbus_rpnn::gpu_mlp::Precision`]).
@@ -85,6 +109,7 @@ impl RpnnArgs {
             sky_degree: self.sky_degree as usize,
             cpu_shading: self.cpu_shading,
             precision: self.net_precision.into(),
+            tiles: self.net_tiles.into(),
         }
     }
 }

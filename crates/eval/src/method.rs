@@ -78,6 +78,8 @@ pub struct RunSettings {
     pub cpu_shading: bool,
     /// RPNN with the network on the GPU: f32 or f16 weights and activations.
     pub rpnn_precision: nimbus_rpnn::gpu_mlp::Precision,
+    /// RPNN with the network on the GPU: its kernel.
+    pub rpnn_tiles: nimbus_rpnn::gpu_mlp::Tiles,
 }
 
 impl Default for RunSettings {
@@ -92,6 +94,7 @@ impl Default for RunSettings {
             sky_degree: nimbus_rpnn::sky::SH_DEGREE,
             cpu_shading: false,
             rpnn_precision: Default::default(),
+            rpnn_tiles: Default::default(),
         }
     }
 }
@@ -168,6 +171,7 @@ impl RunSettings {
                 sky_degree: self.sky_degree,
                 cpu_shading: self.cpu_shading,
                 precision: self.rpnn_precision,
+                tiles: self.rpnn_tiles,
             },
         }
     }

@@ -27,6 +27,9 @@ pub const DESCRIPTOR_LEN: u32 = STENCIL_LEVELS * STENCIL_POINTS + 1;
 pub const MLP_TILE_ROWS: u32 = 64;
 /// RPNN network layers: outputs per workgroup, so a layer dispatches ⌈outputs / this⌉ along x.
 pub const MLP_TILE_OUTPUTS: u32 = 64;
+/// RPNN network layers, the wide kernel (`dense_wide`: 16 × 16 threads, each 4 queries × 8
+/// outputs): outputs per workgroup; its workgroups hold [`MLP_TILE_ROWS`] queries too.
+pub const MLP_WIDE_TILE_OUTPUTS: u32 = 128;
 
 /// One WGSL constant: name and value.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -44,6 +47,7 @@ pub const ALL: &[Const] = &[
     Const::U32("DESCRIPTOR_LEN", DESCRIPTOR_LEN),
     Const::U32("MLP_TILE_ROWS", MLP_TILE_ROWS),
     Const::U32("MLP_TILE_OUTPUTS", MLP_TILE_OUTPUTS),
+    Const::U32("MLP_WIDE_TILE_OUTPUTS", MLP_WIDE_TILE_OUTPUTS),
 ];
 
 /// WGSL source of the `constants` module, one `const` per entry of [`ALL`].

@@ -43,6 +43,18 @@ pub struct RpnnSettings {
     /// With the network on the GPU: how its weights and hidden activations are stored (f32,
     /// or f16 with f32 accumulation).
     pub precision: nimbus_rpnn::gpu_mlp::Precision,
+    /// With the network on the GPU: its kernel (the same products, tiled differently).
+    pub tiles: nimbus_rpnn::gpu_mlp::Tiles,
+}
+
+impl RpnnSettings {
+    /// How the WGSL network is built.
+    pub fn net(&self) -> nimbus_rpnn::gpu_mlp::NetOptions {
+        nimbus_rpnn::gpu_mlp::NetOptions {
+            precision: self.precision,
+            tiles: self.tiles,
+        }
+    }
 }
 
 impl Default for RpnnSettings {
@@ -55,6 +67,7 @@ impl Default for RpnnSettings {
             sky_degree: nimbus_rpnn::sky::SH_DEGREE,
             cpu_shading: false,
             precision: Default::default(),
+            tiles: Default::default(),
         }
     }
 }
@@ -327,7 +340,7 @@ pub fn prepare<'g>(
             let (runner, device, note) = engine::rpnn::runner(
                 r.backend,
                 r.cpu_shading,
-                r.precision,
+                r.net(),
                 adapter,
                 &model_path,
                 &model,
@@ -379,7 +392,7 @@ pub fn rpnn_backend<'g>(
     model_path: &std::path::Path,
     model: &Rpnn,
     pyramid: &Pyramid,
-    precision: nimbus_rpnn::gpu_mlp::Precision,
+    net: nimbus_rpnn::gpu_mlp::NetOptions,
 ) -> Result<(Backend<'g>, String)> {
     if choice.uses_wgpu(adapter.map(Gpu::is_software)) {
         let Some(g) = adapter else {
@@ -387,12 +400,12 @@ pub fn rpnn_backend<'g>(
                 "the RPNN network on wgpu needs a GPU adapter (--backend ort runs it on the CPU)"
             );
         };
-        match nimbus_rpnn::gpu_mlp::GpuRpnn::with_precision(
+        match nimbus_rpnn::gpu_mlp::GpuRpnn::with_options(
             g,
             pyramid,
             model,
             nimbus_rpnn::gpu_mlp::DEFAULT_BATCH,
-            precision,
+            net,
         ) {
             Ok(b) => {
                 return Ok((

@@ -1,5 +1,5 @@
 //! Network throughput: queries per second of the shipped sun model (`models/rpnn-hg.onnx`) in
-//! ONNX Runtime and in WGSL (`shaders/rpnn_mlp.wgsl`, f32 and f16 storage), on one batch of
+//! ONNX Runtime and in WGSL (`shaders/rpnn_mlp.wgsl`, f32 and f16 storage, both kernels: `--net-tiles`), on one batch of
 //! 4 096 real descriptors (random points inside the demo cumulus of
 //! `scenes/bench/rpnn_720p.toml`, random views, its sun). Each WGSL iteration uploads the batch
 //! and reads the predictions back, as `GpuMlp::predict` does.
@@ -11,7 +11,7 @@ use std::path::Path;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use glam::DVec3;
 use nimbus_rpnn::descriptor::{Config, DESCRIPTOR_LEN, descriptors};
-use nimbus_rpnn::gpu_mlp::{GpuMlp, Precision};
+use nimbus_rpnn::gpu_mlp::{GpuMlp, NetOptions, Precision, Tiles};
 use nimbus_rpnn::model::Rpnn;
 use nimbus_rpnn::ort_backend::OrtModel;
 use nimbus_rpnn::pyramid::Pyramid;
@@ -59,8 +59,14 @@ fn bench(c: &mut Criterion) {
     match nimbus_gpu::Gpu::new() {
         Ok(gpu) => {
             let model = Rpnn::load(&model_path).expect("the shipped model");
-            for (name, p) in [("wgsl_f32", Precision::F32), ("wgsl_f16", Precision::F16)] {
-                let mlp = GpuMlp::with_precision(&gpu, &model, N, p).expect("GPU network");
+            for (name, precision, tiles) in [
+                ("wgsl_f32_64x128", Precision::F32, Tiles::Wide),
+                ("wgsl_f16_64x128", Precision::F16, Tiles::Wide),
+                ("wgsl_f32_64x64", Precision::F32, Tiles::Square),
+                ("wgsl_f16_64x64", Precision::F16, Tiles::Square),
+            ] {
+                let opts = NetOptions { precision, tiles };
+                let mlp = GpuMlp::with_options(&gpu, &model, N, opts).expect("GPU network");
                 g.bench_function(name, |b| b.iter(|| mlp.predict(&x, N).unwrap()));
             }
         }

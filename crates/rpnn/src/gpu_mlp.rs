@@ -58,6 +58,53 @@ pub enum Precision {
     F16,
 }
 
+/// Which kernel of `shaders/rpnn_mlp.wgsl` computes the layers (the same products; they differ
+/// in how a workgroup's tile is split among its threads).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Tiles {
+    /// `dense`: 64 queries × 64 outputs per workgroup, 4 × 4 per thread.
+    Square,
+    /// `dense_wide` (the default): 64 queries × 128 outputs per workgroup, 4 × 8 per thread,
+    /// slices loaded along the inputs (coalesced on a GPU). On lavapipe it takes 11–23 % less
+    /// time than [`Tiles::Square`] (`BENCHMARKS.md`); no GPU has compared them yet
+    /// (`bench/device.sh` step 2 does).
+    #[default]
+    Wide,
+}
+
+impl Tiles {
+    /// Outputs per workgroup.
+    pub fn outputs(self) -> u32 {
+        match self {
+            Tiles::Square => TILE_OUTPUTS,
+            Tiles::Wide => nimbus_gpu::consts::MLP_WIDE_TILE_OUTPUTS,
+        }
+    }
+
+    fn entry_point(self) -> &'static str {
+        match self {
+            Tiles::Square => "dense",
+            Tiles::Wide => "dense_wide",
+        }
+    }
+}
+
+/// How the WGSL network is built.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct NetOptions {
+    pub precision: Precision,
+    pub tiles: Tiles,
+}
+
+impl From<Precision> for NetOptions {
+    fn from(precision: Precision) -> Self {
+        Self {
+            precision,
+            ..Default::default()
+        }
+    }
+}
+
 const F16_W: u32 = 1;
 const F16_A: u32 = 2;
 const F16_B: u32 = 4;
@@ -92,6 +139,7 @@ const OUT: usize = usize::MAX;
 pub struct GpuMlp<'g> {
     gpu: &'g Gpu,
     pipeline: wgpu::ComputePipeline,
+    tiles: Tiles,
     weights: wgpu::Buffer,
     steps: Vec<(Step, wgpu::Buffer)>,
     /// Values per query: the sun head's, then the sky head's coefficients.
@@ -120,6 +168,17 @@ impl<'g> GpuMlp<'g> {
         max_batch: usize,
         precision: Precision,
     ) -> Result<Self, GpuError> {
+        Self::with_options(gpu, model, max_batch, precision.into())
+    }
+
+    /// [`GpuMlp::new`] with the storage precision and the kernel of `opts`.
+    pub fn with_options(
+        gpu: &'g Gpu,
+        model: &Rpnn,
+        max_batch: usize,
+        opts: NetOptions,
+    ) -> Result<Self, GpuError> {
+        let NetOptions { precision, tiles } = opts;
         let limit = gpu
             .limits
             .max_storage_buffer_binding_size
@@ -284,7 +343,12 @@ impl<'g> GpuMlp<'g> {
             .collect();
         Ok(Self {
             gpu,
-            pipeline: gpu.pipeline("rpnn mlp", &shaders::source("rpnn_mlp.wgsl"), "dense"),
+            pipeline: gpu.pipeline(
+                "rpnn mlp",
+                &shaders::source("rpnn_mlp.wgsl"),
+                tiles.entry_point(),
+            ),
+            tiles,
             weights: gpu.storage("rpnn weights", &words),
             steps,
             outputs: model.outputs_per_query(),
@@ -320,13 +384,13 @@ impl<'g> GpuMlp<'g> {
         self.encode_with(enc, desc, rows, row_limit, None, timer)
     }
 
-    /// Workgroups along x (output tiles of [`TILE_OUTPUTS`]) of each layer's dispatch, in
+    /// Workgroups along x (output tiles of [`Tiles::outputs`]) of each layer's dispatch, in
     /// dispatch order: with [`GpuMlp::encode_with`]'s indirect arguments, a GPU pass writes
     /// (tiles, ⌈rows / [`TILE_ROWS`]⌉, 1) for each.
     pub fn layer_tiles(&self) -> Vec<u32> {
         self.steps
             .iter()
-            .map(|(s, _)| s.params.outputs.div_ceil(TILE_OUTPUTS))
+            .map(|(s, _)| s.params.outputs.div_ceil(self.tiles.outputs()))
             .collect()
     }
 
@@ -411,7 +475,7 @@ impl<'g> GpuMlp<'g> {
             match indirect {
                 Some((buf, base)) => pass.dispatch_workgroups_indirect(buf, base + 12 * k as u64),
                 None => pass.dispatch_workgroups(
-                    s.params.outputs.div_ceil(TILE_OUTPUTS),
+                    s.params.outputs.div_ceil(self.tiles.outputs()),
                     (bound.rows as u32).div_ceil(TILE_ROWS).max(1),
                     1,
                 ),
@@ -483,10 +547,21 @@ impl<'g> GpuRpnn<'g> {
         max_batch: usize,
         precision: Precision,
     ) -> Result<Self, GpuError> {
+        Self::with_options(gpu, pyr, model, max_batch, precision.into())
+    }
+
+    /// [`GpuRpnn::new`] with the network built as `opts` says.
+    pub fn with_options(
+        gpu: &'g Gpu,
+        pyr: &crate::pyramid::Pyramid,
+        model: &Rpnn,
+        max_batch: usize,
+        opts: NetOptions,
+    ) -> Result<Self, GpuError> {
         Ok(Self {
             gpu,
             desc: GpuDescriptor::new(gpu, pyr)?,
-            mlp: GpuMlp::with_precision(gpu, model, max_batch, precision)?,
+            mlp: GpuMlp::with_options(gpu, model, max_batch, opts)?,
             timer: StageTimer::new(gpu, 1 + 64),
             last_ms: (0.0, 0.0),
         })

@@ -88,6 +88,8 @@ pub struct SamplerSettings {
     pub max_batch: usize,
     pub storage: DensityStorage,
     pub precision: Precision,
+    /// The network's kernel.
+    pub tiles: crate::gpu_mlp::Tiles,
     /// Under a constant sky without the sky head: the paper's sky directions per collision
     /// (Kallweit §4.4, `rpnn-dirs`).
     pub sky_dirs: u32,
@@ -99,6 +101,7 @@ impl Default for SamplerSettings {
             max_batch: crate::gpu_mlp::DEFAULT_BATCH,
             storage: DensityStorage::Auto,
             precision: Precision::F32,
+            tiles: Default::default(),
             sky_dirs: 4,
         }
     }
@@ -225,6 +228,7 @@ impl<'g> GpuSampler<'g> {
             max_batch,
             storage,
             precision,
+            tiles,
             sky_dirs,
         } = *settings;
         if let Some(why) = unsupported(scene, model, sky_sh, sky_dirs) {
@@ -268,7 +272,12 @@ impl<'g> GpuSampler<'g> {
         };
         let density = Density::upload(gpu, scene, storage).map_err(gpu_err)?;
         let desc = GpuDescriptor::new(gpu, pyr)?;
-        let mlp = GpuMlp::with_precision(gpu, model, max_batch, precision)?;
+        let mlp = GpuMlp::with_options(
+            gpu,
+            model,
+            max_batch,
+            crate::gpu_mlp::NetOptions { precision, tiles },
+        )?;
         let rows = mlp.max_batch;
         if rows < 1 + dirs as usize {
             return Err(RenderError::Setting(format!(

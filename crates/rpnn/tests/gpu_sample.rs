@@ -8,7 +8,7 @@ use std::path::Path;
 
 use glam::DVec3;
 use nimbus_rpnn::Pyramid;
-use nimbus_rpnn::gpu_mlp::Precision;
+use nimbus_rpnn::gpu_mlp::{Precision, Tiles};
 use nimbus_rpnn::gpu_sample::{GpuSampler, SamplerSettings, unsupported};
 use nimbus_rpnn::model::Rpnn;
 use nimbus_rpnn::ort_backend::OrtModel;
@@ -279,6 +279,34 @@ fn gpu_samples_are_progressive_repeatable_and_storage_independent() {
         c.add(4).unwrap();
         assert_eq!(c.image().unwrap().0.pixels, one.pixels, "batch {batch}");
     }
+    // The wide kernel: chunkings agree bit for bit among themselves, and with the square
+    // kernel to f32 rounding (the same products summed in another order).
+    let wide = |batch| {
+        let settings = SamplerSettings {
+            max_batch: batch,
+            tiles: Tiles::Wide,
+            ..Default::default()
+        };
+        let mut c =
+            GpuSampler::with_settings(&gpu, &s, &pyr, &model, sky_sh.as_ref(), &settings).unwrap();
+        c.reset(5);
+        c.add(4).unwrap();
+        c.image().unwrap().0
+    };
+    let w = wide(4096);
+    assert_eq!(wide(190).pixels, w.pixels);
+    let top = one
+        .pixels
+        .iter()
+        .flatten()
+        .fold(0.0f32, |m, v| m.max(v.abs()));
+    let diff = w
+        .pixels
+        .iter()
+        .flatten()
+        .zip(one.pixels.iter().flatten())
+        .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+    assert!(diff <= 1e-4 * top, "wide against square: {diff} of {top}");
     // The same with the paper's 4 sky directions (5 slots per collision: chunks of a fifth of
     // the batch), with the sun and without it (directions alone); a batch too small for one
     // collision's queries is refused.

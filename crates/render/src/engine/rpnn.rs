@@ -10,7 +10,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use nimbus_gpu::Gpu;
 use nimbus_rpnn::Pyramid;
-use nimbus_rpnn::gpu_mlp::Precision;
+use nimbus_rpnn::gpu_mlp::{NetOptions, Precision, Tiles};
 use nimbus_rpnn::gpu_sample::GpuSampler;
 use nimbus_rpnn::model::Rpnn;
 use nimbus_rpnn::render::{Backend, RpnnOptions, RpnnSums, SkySh, StageTimes};
@@ -44,7 +44,7 @@ impl Runner<'_> {
 pub(crate) fn runner<'g>(
     choice: NetBackend,
     cpu_shading: bool,
-    precision: Precision,
+    net_opts: NetOptions,
     adapter: Option<&'g Gpu>,
     model_path: &std::path::Path,
     model: &Rpnn,
@@ -60,7 +60,8 @@ pub(crate) fn runner<'g>(
         match nimbus_rpnn::gpu_sample::unsupported(scene, model, sky_sh, sky_dirs) {
             None if !cpu_shading => {
                 let settings = nimbus_rpnn::gpu_sample::SamplerSettings {
-                    precision,
+                    precision: net_opts.precision,
+                    tiles: net_opts.tiles,
                     sky_dirs,
                     ..Default::default()
                 };
@@ -93,7 +94,7 @@ pub(crate) fn runner<'g>(
     } else {
         model
     };
-    let (b, device) = rpnn_backend(choice, adapter, model_path, net, pyramid, precision)?;
+    let (b, device) = rpnn_backend(choice, adapter, model_path, net, pyramid, net_opts)?;
     Ok((Runner::Cpu(b), device, note))
 }
 
@@ -106,7 +107,7 @@ pub(crate) struct RpnnEngine<'g> {
     adapter: Option<&'g Gpu>,
     choice: NetBackend,
     cpu_shading: bool,
-    precision: Precision,
+    net: NetOptions,
     /// The sky's degree for the sky head (its coefficients follow a moved sun's sky).
     sky_degree: usize,
     majorants: MajorantGrid,
@@ -144,7 +145,7 @@ impl<'g> RpnnEngine<'g> {
             adapter: net.adapter,
             choice: settings.backend,
             cpu_shading: settings.cpu_shading,
-            precision: settings.precision,
+            net: settings.net(),
             sky_degree: settings.sky_degree,
             majorants: nimbus_rpnn::render::majorants(scene),
             sums: RpnnSums::new(scene.camera.width, scene.camera.height),
@@ -226,7 +227,7 @@ impl<'g> RpnnEngine<'g> {
         self.runner = runner(
             self.choice,
             self.cpu_shading,
-            self.precision,
+            self.net,
             self.adapter,
             &self.model_path,
             &self.model,
@@ -324,10 +325,20 @@ impl Engine for RpnnEngine<'_> {
             summary: format!(
                 "RPNN ({}, {}{}) {}x{} at {} spp in {:.2} s — {:.1} ms per spp, {} network queries",
                 self.model_path.display(),
-                match (&self.runner, self.precision) {
-                    (Runner::Cpu(Backend::Ort(_)), _) | (_, Precision::F32) =>
-                        self.runner.name().to_string(),
-                    (_, Precision::F16) => format!("{}, f16 network", self.runner.name()),
+                match &self.runner {
+                    Runner::Cpu(Backend::Ort(_)) => self.runner.name().to_string(),
+                    _ => format!(
+                        "{}{}{}",
+                        self.runner.name(),
+                        match self.net.precision {
+                            Precision::F32 => "",
+                            Precision::F16 => ", f16 network",
+                        },
+                        match self.net.tiles {
+                            Tiles::Square => ", 64x64 tiles",
+                            Tiles::Wide => "",
+                        }
+                    ),
                 },
                 match &self.sky_sh {
                     Some(s) => format!(", sky head of degree {}", s.degree),
