@@ -60,10 +60,14 @@ case ",$steps," in
   *[!0-9,]*|*,,,*) echo "bench/device.sh: --steps '$steps': expected step numbers 1-9, e.g. 2,9" >&2; exit 2 ;;
 esac
 [ -n "${steps//,/}" ] || { echo "bench/device.sh: --steps is empty" >&2; exit 2; }
+asked=
 for n in ${steps//,/ }; do
+  n=$((10#$n))
   [ "$n" -ge 1 ] && [ "$n" -le 9 ] ||
     { echo "bench/device.sh: --steps '$steps': there is no step $n (1-9)" >&2; exit 2; }
+  asked="$asked,$n"
 done
+steps=${asked#,}
 want() { case ",$steps," in *",$1,"*) return 0 ;; esac; return 1; }
 nimbus=${NIMBUS:-./target/release/nimbus}
 [ -x "$nimbus" ] || { echo "bench/device.sh: $nimbus not found (cargo build --release -p nimbus-cli)" >&2; exit 1; }

@@ -26,16 +26,16 @@
 // in loops are far slower on some drivers):
 // - `dense_wide` (the default): MLP_TILE_ROWS = 64 queries × MLP_WIDE_TILE_OUTPUTS = 128
 //   outputs per workgroup of 16 × 16 threads, each 4 queries × 8 outputs (outputs 4 tx … and
-//   64 + 4 tx …): 3 vec4 workgroup reads per 32 products. A slice is loaded with consecutive
-//   threads on consecutive inputs of one row (the rows of the batch and of the weight matrices
-//   are contiguous in k: coalesced on a GPU).
+//   64 + 4 tx …): 3 vec4 workgroup reads per 32 products (a quarter fewer per product). A slice
+//   is loaded with consecutive threads on consecutive inputs of the same rows (the rows of the
+//   batch and of the weight matrices are contiguous in k: coalesced on a GPU).
 // - `dense`: 64 queries × MLP_TILE_OUTPUTS = 64 outputs per 16 × 16 threads, each a 4 × 4
-//   block: 2 vec4 reads per 16 products; each thread loads one row group's four rows at one
-//   input of the slice.
+//   block: 2 vec4 reads per 16 products; consecutive threads load consecutive row groups at
+//   one input of the slice.
 // The dispatches count in these units (crates/gpu/src/consts.rs).
 //
-// On lavapipe `dense_wide` takes 11–23 % less time (`cargo bench -p nimbus-rpnn --bench
-// network`, and the whole sample at 320×180: BENCHMARKS.md). A third variant, `dense` with
+// On lavapipe `dense_wide` takes 18–27 % less time for the network alone (`cargo bench -p
+// nimbus-rpnn --bench network`) and 8–18 % less for a whole sample at 320×180 (BENCHMARKS.md). A third variant, `dense` with
 // separate load paths, free of per-element tests, for slices wholly inside `a` or `b`, was
 // slower there and was dropped. Which is faster on a GPU is `bench/device.sh` step 2's.
 
@@ -267,16 +267,21 @@ fn dense_wide(
     var c31 = vec4<f32>(0.0);
     let k_total = L.ka + L.kb;
     for (var k0 = 0u; k0 < k_total; k0 += 16u) {
-        // Queries: 16 inputs × 64 rows, 4 per thread; weights: 16 inputs × 128 outputs, 8.
-        for (var s = t; s < 1024u; s += 256u) {
-            let lk = s % 16u;
-            let q = s / 16u;
-            wa_tile[lk * WIDE_A_PITCH + q / 4u][q % 4u] = input(r0 + q, k0 + lk, rows);
-        }
-        for (var s = t; s < 2048u; s += 256u) {
-            let lk = s % 16u;
-            let o = s / 16u;
-            ww_tile[lk * WIDE_W_PITCH + o / 4u][o % 4u] = weight(j0 + o, k0 + lk);
+        // Queries: 16 inputs × 16 row groups, one vec4 (4 rows at one input) per thread;
+        // weights: 16 inputs × 32 output groups, two per thread. Consecutive threads take
+        // consecutive inputs of the same rows, and each stores whole vec4s.
+        let lk = t % 16u;
+        let g = t / 16u;
+        let kk = k0 + lk;
+        let rr = r0 + g * 4u;
+        wa_tile[lk * WIDE_A_PITCH + g] = vec4<f32>(
+            input(rr, kk, rows), input(rr + 1u, kk, rows), input(rr + 2u, kk, rows),
+            input(rr + 3u, kk, rows));
+        for (var h = 0u; h < 2u; h++) {
+            let og = g + 16u * h;
+            let jj = j0 + og * 4u;
+            ww_tile[lk * WIDE_W_PITCH + og] = vec4<f32>(
+                weight(jj, kk), weight(jj + 1u, kk), weight(jj + 2u, kk), weight(jj + 3u, kk));
         }
         workgroupBarrier();
         for (var k = 0u; k < 16u; k++) {
