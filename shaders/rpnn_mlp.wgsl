@@ -25,19 +25,22 @@
 // inputs in workgroup memory and accumulators in named vec4 variables (private arrays indexed
 // in loops are far slower on some drivers):
 // - `dense_wide` (the default): MLP_TILE_ROWS = 64 queries × MLP_WIDE_TILE_OUTPUTS = 128
-//   outputs per workgroup of 16 × 16 threads, each 4 queries × 8 outputs (outputs 4 tx … and
-//   64 + 4 tx …): 3 vec4 workgroup reads per 32 products (a quarter fewer per product). A slice
-//   is loaded with consecutive threads on consecutive inputs of the same rows (the rows of the
-//   batch and of the weight matrices are contiguous in k: coalesced on a GPU).
+//   outputs per workgroup of 16 × 8 threads, each 8 queries × 8 outputs (queries 8 ty …,
+//   outputs 4 tx … and 64 + 4 tx …): 4 vec4 workgroup reads per 64 products, half as many per
+//   product as `dense`. A slice is loaded with consecutive threads on consecutive inputs of the
+//   same rows (the rows of the batch and of the weight matrices are contiguous in k: coalesced
+//   on a GPU).
 // - `dense`: 64 queries × MLP_TILE_OUTPUTS = 64 outputs per 16 × 16 threads, each a 4 × 4
 //   block: 2 vec4 reads per 16 products; consecutive threads load consecutive row groups at
 //   one input of the slice.
 // The dispatches count in these units (crates/gpu/src/consts.rs).
 //
-// On lavapipe `dense_wide` takes 18–27 % less time for the network alone (`cargo bench -p
-// nimbus-rpnn --bench network`) and 8–18 % less for a whole sample at 320×180 (BENCHMARKS.md). A third variant, `dense` with
-// separate load paths, free of per-element tests, for slices wholly inside `a` or `b`, was
-// slower there and was dropped. Which is faster on a GPU is `bench/device.sh` step 2's.
+// On lavapipe `dense_wide` takes 25–33 % less time than `dense` for the network alone (`cargo
+// bench -p nimbus-rpnn --bench network`) and 25–31 % less for a whole sample at 320×180
+// (BENCHMARKS.md). Dropped there: 4 × 8 per thread on 16 × 16 threads (15–20 % slower than
+// 8 × 8), and `dense` with separate load paths, free of per-element tests, for slices wholly
+// inside `a` or `b` (slower than `dense`). Which is faster on a GPU is `bench/device.sh`
+// step 2's.
 
 #import constants
 
@@ -234,21 +237,21 @@ fn dense(
 
 // `dense_wide`'s tiles: [k][row group] × 4 rows and [k][output group] × 4 outputs, each row of
 // the tile one vec4 longer than it needs (the slice's stores run down k and then fall in
-// different banks).
+// different banks). 16 × 8 threads, each 8 rows × 8 outputs in sixteen vec4 accumulators.
 const WIDE_A_PITCH: u32 = 17u;
 const WIDE_W_PITCH: u32 = 33u;
 var<workgroup> wa_tile: array<vec4<f32>, 272>; // 16 × WIDE_A_PITCH
 var<workgroup> ww_tile: array<vec4<f32>, 528>; // 16 × WIDE_W_PITCH
 
-@compute @workgroup_size(16, 16)
+@compute @workgroup_size(16, 8)
 fn dense_wide(
     @builtin(workgroup_id) wg: vec3<u32>,
     @builtin(local_invocation_id) lid: vec3<u32>,
 ) {
     let j0 = wg.x * MLP_WIDE_TILE_OUTPUTS;
     let r0 = wg.y * MLP_TILE_ROWS;
-    let tx = lid.x; // output groups tx and 16 + tx
-    let ty = lid.y; // row group
+    let tx = lid.x; // outputs j0 + 4 tx … and j0 + 64 + 4 tx …
+    let ty = lid.y; // rows r0 + 8 ty …
     let t = ty * 16u + tx;
     if (t == 0u) {
         wg_rows = min(L.rows, row_limit[0]);
@@ -265,41 +268,64 @@ fn dense_wide(
     var c21 = vec4<f32>(0.0);
     var c30 = vec4<f32>(0.0);
     var c31 = vec4<f32>(0.0);
+    var c40 = vec4<f32>(0.0);
+    var c41 = vec4<f32>(0.0);
+    var c50 = vec4<f32>(0.0);
+    var c51 = vec4<f32>(0.0);
+    var c60 = vec4<f32>(0.0);
+    var c61 = vec4<f32>(0.0);
+    var c70 = vec4<f32>(0.0);
+    var c71 = vec4<f32>(0.0);
     let k_total = L.ka + L.kb;
     for (var k0 = 0u; k0 < k_total; k0 += 16u) {
-        // Queries: 16 inputs × 16 row groups, one vec4 (4 rows at one input) per thread;
-        // weights: 16 inputs × 32 output groups, two per thread. Consecutive threads take
-        // consecutive inputs of the same rows, and each stores whole vec4s.
-        let lk = t % 16u;
-        let g = t / 16u;
-        let kk = k0 + lk;
-        let rr = r0 + g * 4u;
-        wa_tile[lk * WIDE_A_PITCH + g] = vec4<f32>(
-            input(rr, kk, rows), input(rr + 1u, kk, rows), input(rr + 2u, kk, rows),
-            input(rr + 3u, kk, rows));
+        // Queries: 16 inputs × 16 row groups of 4, two vec4 per thread; weights: 16 inputs × 32
+        // output groups of 4, four per thread. Consecutive threads take consecutive inputs of
+        // the same rows, and each stores whole vec4s.
         for (var h = 0u; h < 2u; h++) {
-            let og = g + 16u * h;
+            let s = t + 128u * h;
+            let lk = s % 16u;
+            let g = s / 16u;
+            let kk = k0 + lk;
+            let rr = r0 + g * 4u;
+            wa_tile[lk * WIDE_A_PITCH + g] = vec4<f32>(
+                input(rr, kk, rows), input(rr + 1u, kk, rows), input(rr + 2u, kk, rows),
+                input(rr + 3u, kk, rows));
+        }
+        for (var h = 0u; h < 4u; h++) {
+            let s = t + 128u * h;
+            let lk = s % 16u;
+            let og = s / 16u;
+            let kk = k0 + lk;
             let jj = j0 + og * 4u;
             ww_tile[lk * WIDE_W_PITCH + og] = vec4<f32>(
                 weight(jj, kk), weight(jj + 1u, kk), weight(jj + 2u, kk), weight(jj + 3u, kk));
         }
         workgroupBarrier();
         for (var k = 0u; k < 16u; k++) {
-            let a = wa_tile[k * WIDE_A_PITCH + ty];
+            let a0 = wa_tile[k * WIDE_A_PITCH + 2u * ty];
+            let a1 = wa_tile[k * WIDE_A_PITCH + 2u * ty + 1u];
             let w0 = ww_tile[k * WIDE_W_PITCH + tx];
             let w1 = ww_tile[k * WIDE_W_PITCH + 16u + tx];
-            c00 += a.x * w0;
-            c01 += a.x * w1;
-            c10 += a.y * w0;
-            c11 += a.y * w1;
-            c20 += a.z * w0;
-            c21 += a.z * w1;
-            c30 += a.w * w0;
-            c31 += a.w * w1;
+            c00 += a0.x * w0;
+            c01 += a0.x * w1;
+            c10 += a0.y * w0;
+            c11 += a0.y * w1;
+            c20 += a0.z * w0;
+            c21 += a0.z * w1;
+            c30 += a0.w * w0;
+            c31 += a0.w * w1;
+            c40 += a1.x * w0;
+            c41 += a1.x * w1;
+            c50 += a1.y * w0;
+            c51 += a1.y * w1;
+            c60 += a1.z * w0;
+            c61 += a1.z * w1;
+            c70 += a1.w * w0;
+            c71 += a1.w * w1;
         }
         workgroupBarrier();
     }
-    let r = r0 + ty * 4u;
+    let r = r0 + ty * 8u;
     let j = j0 + tx * 4u;
     let j1 = j0 + 64u + tx * 4u;
     finish(r, j, c00, rows);
@@ -310,4 +336,12 @@ fn dense_wide(
     finish(r + 2u, j1, c21, rows);
     finish(r + 3u, j, c30, rows);
     finish(r + 3u, j1, c31, rows);
+    finish(r + 4u, j, c40, rows);
+    finish(r + 4u, j1, c41, rows);
+    finish(r + 5u, j, c50, rows);
+    finish(r + 5u, j1, c51, rows);
+    finish(r + 6u, j, c60, rows);
+    finish(r + 6u, j1, c61, rows);
+    finish(r + 7u, j, c70, rows);
+    finish(r + 7u, j1, c71, rows);
 }

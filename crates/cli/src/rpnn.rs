@@ -67,7 +67,7 @@ pub(crate) enum NetTiles {
     /// 4 × 4 per thread.
     #[value(name = "64x64")]
     Square,
-    /// 4 × 8 per thread, slices loaded along the inputs.
+    /// 8 × 8 per thread, slices loaded along the inputs.
     #[value(name = "64x128")]
     Wide,
 }

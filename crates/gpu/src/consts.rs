@@ -23,11 +23,11 @@ pub const STENCIL_LEVELS: u32 = 10;
 pub const DESCRIPTOR_LEN: u32 = STENCIL_LEVELS * STENCIL_POINTS + 1;
 
 /// RPNN network layers (`shaders/rpnn_mlp.wgsl`): queries per workgroup, so a layer dispatches
-/// ⌈rows / this⌉ workgroups along y (16 × 16 threads, each 4 queries; both kernels).
+/// ⌈rows / this⌉ workgroups along y (both kernels).
 pub const MLP_TILE_ROWS: u32 = 64;
 /// RPNN network layers: outputs per workgroup, so a layer dispatches ⌈outputs / this⌉ along x.
 pub const MLP_TILE_OUTPUTS: u32 = 64;
-/// RPNN network layers, the wide kernel (`dense_wide`: 16 × 16 threads, each 4 queries × 8
+/// RPNN network layers, the wide kernel (`dense_wide`: 16 × 8 threads, each 8 queries × 8
 /// outputs): outputs per workgroup; its workgroups hold [`MLP_TILE_ROWS`] queries too.
 pub const MLP_WIDE_TILE_OUTPUTS: u32 = 128;
 

@@ -64,10 +64,10 @@ pub enum Precision {
 pub enum Tiles {
     /// `dense`: 64 queries × 64 outputs per workgroup, 4 × 4 per thread.
     Square,
-    /// `dense_wide` (the default): 64 queries × 128 outputs per workgroup, 4 × 8 per thread,
-    /// slices loaded along the inputs (coalesced on a GPU). On lavapipe a whole sample takes
-    /// 8–18 % less time than with [`Tiles::Square`] (`BENCHMARKS.md`); no GPU has compared them yet
-    /// (`bench/device.sh` step 2 does).
+    /// `dense_wide` (the default): 64 queries × 128 outputs per workgroup of 16 × 8 threads,
+    /// 8 × 8 per thread, slices loaded along the inputs (coalesced on a GPU). On lavapipe a
+    /// whole sample takes 25–31 % less time than with [`Tiles::Square`] (`BENCHMARKS.md`); no
+    /// GPU has compared them yet (`bench/device.sh` step 2 does).
     #[default]
     Wide,
 }
