@@ -106,7 +106,9 @@ sized() { # SRC W H -> path
   sed -e "s/^width = .*/width = $2/" -e "s/^height = .*/height = $3/" "$1" > "$dst"
   echo "$dst"
 }
-adapter=$("$nimbus" info --gpu | head -1 | sed 's/^used *//')
+# (Filters that read to the end, never `head`: under pipefail a pipe closed before nimbus has
+# written its last line fails the script, now and then, as the timing goes.)
+adapter=$("$nimbus" info --gpu | sed -n '1s/^used *//p')
 echo "adapter: $adapter" >&2
 
 if want 1; then
@@ -164,7 +166,7 @@ vol=$vol awk '/^file = / { print "file = \"" ENVIRON["vol"] "\""; next } { print
 for dev in gpu cpu; do
   spp=$([ "$dev" = gpu ] && echo "$GPTSPP" || echo "$PTSPP")
   line=$("$nimbus" render "$pt_scene" --device "$dev" --spp "$spp" -q \
-    -o "$out/pt_$dev.exr" | grep "camera paths/s" | head -1)
+    -o "$out/pt_$dev.exr" | awk '/camera paths\/s/ { if (!n++) print }')
   rate=$(echo "$line" | sed -E 's/.*\(([0-9.e+-]+) camera paths\/s.*/\1/')
   row pt_paths_per_s cumulus_side "${PW}x${PH} device=$dev spp=$spp" "$rate" paths/s
 done

@@ -98,7 +98,7 @@ export XDG_RUNTIME_DIR=${XDG_RUNTIME_DIR:-/tmp}
 mkdir -p "$out"
 t0=$(date +%s)
 say() { echo "[device_stage $(($(date +%s) - t0)) s] $*"; }
-"$nimbus" info --gpu | head -1
+"$nimbus" info --gpu | sed -n 1p  # (not `head`: see bench/device.sh)
 
 # The independent test sets: the first set's clouds and settings (TEST_CLOUDS) with other seeds
 # (TEST_SEEDS), two-stage precise labels, float16 descriptors (predictions move by < 1e-3
