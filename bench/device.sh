@@ -221,7 +221,7 @@ scale_row() { # GPU SETTING CMD...: wall time and peak RSS of CMD, and its GPU m
     echo "bench/device.sh: '$setting' failed (exit $rc); its output is in $out/scale.log" >&2
     exit "$rc"
   fi
-  row scale_wall_s "cumulus ${VOLRES}³ .vol" "$setting" "$(awk -v a="$t0" -v b="$t1" 'BEGIN { printf "%.1f", b - a }')" s
+  row scale_wall_s "cumulus ${VOLRES}³ .vol" "$setting" "$(awk -v a="$t0" -v b="$t1" 'BEGIN { printf "%.3f", b - a }')" s
   row scale_peak_rss "cumulus ${VOLRES}³ .vol" "$setting" "$(cat "$out/rss" 2> /dev/null || echo "-")" MB
   if [ -n "$gpid" ]; then
     # The most of the numeric samples; "-" when the command ended before the first one.
