@@ -141,6 +141,17 @@ fn weight(j: u32, i: u32) -> f32 {
     return 0.0;
 }
 
+// Input i of queries r … r + 3 (a row group of a tile).
+fn input4(r: u32, i: u32, rows: u32) -> vec4<f32> {
+    return vec4<f32>(input(r, i, rows), input(r + 1u, i, rows), input(r + 2u, i, rows),
+        input(r + 3u, i, rows));
+}
+
+// Weights of input i for outputs j … j + 3 (an output group of a tile).
+fn weight4(j: u32, i: u32) -> vec4<f32> {
+    return vec4<f32>(weight(j, i), weight(j + 1u, i), weight(j + 2u, i), weight(j + 3u, i));
+}
+
 // The layer's output value (bias, residual, ReLU) of query r, output j, from the product v.
 fn value(r: u32, j: u32, v: f32) -> f32 {
     var s = v + w_at(L.bias_offset + j);
@@ -210,12 +221,9 @@ fn dense(
     for (var k0 = 0u; k0 < k_total; k0 += 16u) {
         let kk = k0 + lk;
         let rr = r0 + lg * 4u;
-        a_tile[lk * 16u + lg] = vec4<f32>(
-            input(rr, kk, rows), input(rr + 1u, kk, rows), input(rr + 2u, kk, rows),
-            input(rr + 3u, kk, rows));
+        a_tile[lk * 16u + lg] = input4(rr, kk, rows);
         let jj = j0 + lg * 4u;
-        w_tile[lk * 16u + lg] = vec4<f32>(
-            weight(jj, kk), weight(jj + 1u, kk), weight(jj + 2u, kk), weight(jj + 3u, kk));
+        w_tile[lk * 16u + lg] = weight4(jj, kk);
         workgroupBarrier();
         for (var k = 0u; k < 16u; k++) {
             let a = a_tile[k * 16u + ty];
@@ -287,9 +295,7 @@ fn dense_wide(
             let g = s / 16u;
             let kk = k0 + lk;
             let rr = r0 + g * 4u;
-            wa_tile[lk * WIDE_A_PITCH + g] = vec4<f32>(
-                input(rr, kk, rows), input(rr + 1u, kk, rows), input(rr + 2u, kk, rows),
-                input(rr + 3u, kk, rows));
+            wa_tile[lk * WIDE_A_PITCH + g] = input4(rr, kk, rows);
         }
         for (var h = 0u; h < 4u; h++) {
             let s = t + 128u * h;
@@ -297,8 +303,7 @@ fn dense_wide(
             let og = s / 16u;
             let kk = k0 + lk;
             let jj = j0 + og * 4u;
-            ww_tile[lk * WIDE_W_PITCH + og] = vec4<f32>(
-                weight(jj, kk), weight(jj + 1u, kk), weight(jj + 2u, kk), weight(jj + 3u, kk));
+            ww_tile[lk * WIDE_W_PITCH + og] = weight4(jj, kk);
         }
         workgroupBarrier();
         for (var k = 0u; k < 16u; k++) {
