@@ -82,10 +82,10 @@ pub fn descriptor_scaled(
             "stencil scale {s}: pyramid level {level} is not stored (Pyramid::with_every_level)"
         );
         let scale = (1u32 << (k - 1)) as f32 * mfp * s;
-        for p in 0..POINTS {
+        let sampler = pyr.sampler(level);
+        for (p, o) in out[(k - 1) * POINTS..k * POINTS].iter_mut().enumerate() {
             let s = stencil_point(p);
-            let q = x + (ex * s.x + ey * s.y + ez * s.z) * scale;
-            out[(k - 1) * POINTS + p] = pyr.lookup(level, q);
+            *o = sampler.at(x + (ex * s.x + ey * s.y + ez * s.z) * scale);
         }
     }
     // γ = angle between ω and ω_l, as atan2(|ω × ω_l|, ω · ω_l): accurate near 0 and π, where

@@ -153,6 +153,44 @@ pub enum PyramidError {
 
 /// Resolutions of every level of a pyramid over a grid of `res` (halved, ceil, until one cell
 /// on every axis; at most 16 levels).
+/// One pyramid level's trilinear lookups ([`Pyramid::sampler`]).
+pub struct LevelSampler<'a> {
+    level: &'a Level,
+    lo: glam::Vec3A,
+    hi: glam::Vec3A,
+    extent: glam::Vec3A,
+    resf: glam::Vec3A,
+    /// The last cell index per axis.
+    last: glam::Vec3A,
+}
+
+impl LevelSampler<'_> {
+    /// ρ at world point p (trilinear, clamp-to-edge inside the box, 0 outside), in the f32
+    /// arithmetic and order of `shaders/rpnn_descriptor.wgsl` (lane-wise SIMD: the same IEEE
+    /// operations per axis).
+    #[inline]
+    pub fn at(&self, p: glam::Vec3) -> f32 {
+        let p = glam::Vec3A::from(p);
+        if !(p.cmpge(self.lo).all() && p.cmple(self.hi).all()) {
+            return 0.0;
+        }
+        let u = (p - self.lo) / self.extent * self.resf - glam::Vec3A::splat(0.5);
+        let b = u.floor();
+        let f = u - b;
+        let i0 = b.clamp(glam::Vec3A::ZERO, self.last);
+        let i1 = (b + glam::Vec3A::ONE).clamp(glam::Vec3A::ZERO, self.last);
+        let pair = |a: f32, b: f32| [a as usize, b as usize];
+        let (x, y, z) = (pair(i0.x, i1.x), pair(i0.y, i1.y), pair(i0.z, i1.z));
+        let c = self.level.corners(x, y, z);
+        let mix = |a: f32, b: f32, t: f32| a * (1.0 - t) + b * t;
+        let c00 = mix(c[0], c[1], f.x);
+        let c10 = mix(c[2], c[3], f.x);
+        let c01 = mix(c[4], c[5], f.x);
+        let c11 = mix(c[6], c[7], f.x);
+        mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z)
+    }
+}
+
 fn level_resolutions(res: [usize; 3]) -> Vec<[usize; 3]> {
     let mut v = vec![res];
     while v.len() < 16 && v.last().expect("level 0").iter().any(|&r| r > 1) {
@@ -344,27 +382,24 @@ impl Pyramid {
     /// ρ at world point p from level `i` (trilinear, clamp-to-edge inside the box, 0 outside).
     /// f32 arithmetic in the same order as `shaders/rpnn_descriptor.wgsl`.
     pub fn lookup(&self, i: usize, p: glam::Vec3) -> f32 {
-        let (lo, hi) = (self.aabb_min.as_vec3(), self.aabb_max.as_vec3());
-        if !(p.cmpge(lo).all() && p.cmple(hi).all()) {
-            return 0.0;
-        }
+        self.sampler(i).at(p)
+    }
+
+    /// Level `i`'s lookups with what they share computed once: the descriptor reads 225
+    /// points of each level per query ([`LevelSampler::at`] is [`Pyramid::lookup`], bit for bit).
+    pub fn sampler(&self, i: usize) -> LevelSampler<'_> {
         let l = &self.levels[i];
         debug_assert!(l.is_stored(), "level {i} is not stored");
-        let resf = glam::DVec3::new(l.res[0] as f64, l.res[1] as f64, l.res[2] as f64);
-        let u = (p - lo) / (hi - lo) * resf.as_vec3() - glam::Vec3::splat(0.5);
-        let b = u.floor();
-        let f = u - b;
-        let hi = resf.as_vec3() - glam::Vec3::ONE;
-        let i0 = b.clamp(glam::Vec3::ZERO, hi);
-        let i1 = (b + glam::Vec3::ONE).clamp(glam::Vec3::ZERO, hi);
-        let pair = |a: f32, b: f32| [a as usize, b as usize];
-        let c = l.corners(pair(i0.x, i1.x), pair(i0.y, i1.y), pair(i0.z, i1.z));
-        let mix = |a: f32, b: f32, t: f32| a * (1.0 - t) + b * t;
-        let c00 = mix(c[0], c[1], f.x);
-        let c10 = mix(c[2], c[3], f.x);
-        let c01 = mix(c[4], c[5], f.x);
-        let c11 = mix(c[6], c[7], f.x);
-        mix(mix(c00, c10, f.y), mix(c01, c11, f.y), f.z)
+        let (lo, hi) = (self.aabb_min.as_vec3a(), self.aabb_max.as_vec3a());
+        let resf = glam::DVec3::new(l.res[0] as f64, l.res[1] as f64, l.res[2] as f64).as_vec3a();
+        LevelSampler {
+            level: l,
+            lo,
+            hi,
+            extent: hi - lo,
+            resf,
+            last: resf - glam::Vec3A::ONE,
+        }
     }
 
     /// Total "mass" Σ ρ × cell volume of a level (world units³).
