@@ -9,7 +9,7 @@ use std::path::Path;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use glam::DVec3;
-use nimbus_rpnn::descriptor::{Config, descriptors};
+use nimbus_rpnn::descriptor::{Config, descriptors, descriptors_into};
 use nimbus_rpnn::pyramid::Pyramid;
 use nimbus_scene::Scene;
 use nimbus_scene::frame::uniform_sphere;
@@ -42,6 +42,10 @@ fn bench(c: &mut Criterion) {
     g.throughput(Throughput::Elements(N as u64));
     g.sample_size(20);
     g.bench_function("cpu", |b| b.iter(|| descriptors(&pyr, &configs)));
+    let mut buf = Vec::new();
+    g.bench_function("cpu_reused_buffer", |b| {
+        b.iter(|| descriptors_into(&pyr, &configs, &mut buf))
+    });
     g.finish();
 }
 

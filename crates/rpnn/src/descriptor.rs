@@ -96,12 +96,20 @@ pub fn descriptor_scaled(
 
 /// Descriptors of many configurations (rows of [`DESCRIPTOR_LEN`]), in parallel.
 pub fn descriptors(pyr: &Pyramid, configs: &[Config]) -> Vec<f32> {
+    let mut out = Vec::new();
+    descriptors_into(pyr, configs, &mut out);
+    out
+}
+
+/// [`descriptors`] into `out` (resized to fit; every value overwritten). A renderer keeps
+/// one buffer across samples: a fresh one of megabytes is fresh pages for the kernel to
+/// zero on every sample.
+pub fn descriptors_into(pyr: &Pyramid, configs: &[Config], out: &mut Vec<f32>) {
     use rayon::prelude::*;
-    let mut out = vec![0.0f32; configs.len() * DESCRIPTOR_LEN];
+    out.resize(configs.len() * DESCRIPTOR_LEN, 0.0);
     out.par_chunks_mut(DESCRIPTOR_LEN)
         .zip(configs)
         .for_each(|(row, c)| descriptor(pyr, c.x, c.view, c.to_light, row));
-    out
 }
 
 /// A shading configuration: position, view (camera-ray) direction, direction to the light.

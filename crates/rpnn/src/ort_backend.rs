@@ -139,11 +139,13 @@ impl OrtModel {
             return Err(err("model not found".into()));
         }
         let mut b = ort::session::Session::builder(env).map_err(|e| err(e.to_string()))?;
-        // No spinning between runs: a renderer alternates the network with descriptors and
-        // shading on the same cores, which spinning intra-op threads would take from rayon's
-        // (on 2 cores a 32-spp RPNN render took 20-25 % longer with it).
+        // Intra-op threads spin within a run and stop at its end: a renderer alternates the
+        // network with descriptors and shading on the same cores, and threads spinning after
+        // the run take them from rayon's. On 2 cores a 32-spp render at 128×72 took 29 ms per
+        // spp so, 37 ms with spinning left on and 38 ms with it off (the network ≈ 40 % slower
+        // then): BENCHMARKS.md, "The CPU sample".
         b = b
-            .with_intra_op_spinning(false)
+            .with_config_entry("session.force_spinning_stop", "1")
             .map_err(|e| err(e.to_string()))?;
         if threads > 0 {
             b = b

@@ -28,7 +28,7 @@ use nimbus_trace::Pcg32;
 use nimbus_trace::tracking::Tracker;
 use rayon::prelude::*;
 
-use crate::descriptor::{Config, descriptors};
+use crate::descriptor::{Config, descriptors_into};
 use crate::gpu_mlp::GpuRpnn;
 use crate::ort_backend::OrtModel;
 use crate::pyramid::Pyramid;
@@ -228,6 +228,8 @@ pub fn accumulate(
     let sum = &mut sums.sum;
     let sum_l2 = &mut sums.sum_l2;
     let mut times = StageTimes::default();
+    // The descriptors of one sample pass, reused by the next.
+    let mut rows: Vec<f32> = Vec::new();
     for s in 0..opts.spp {
         let shades: Vec<Shade> = (0..w * h)
             .into_par_iter()
@@ -244,10 +246,10 @@ pub fn accumulate(
         let y = match backend {
             Backend::Ort(m) => {
                 let t = Instant::now();
-                let d = descriptors(pyr, &configs);
+                descriptors_into(pyr, &configs, &mut rows);
                 times.descriptor_ms += t.elapsed().as_secs_f64() * 1e3;
                 let t = Instant::now();
-                let y = m.predict(&d, configs.len())?;
+                let y = m.predict(&rows, configs.len())?;
                 times.inference_ms += t.elapsed().as_secs_f64() * 1e3;
                 y
             }

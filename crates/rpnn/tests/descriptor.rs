@@ -319,3 +319,88 @@ fn pyramid_stores_only_what_stencils_read() {
         }
     }
 }
+
+/// A renderer's reused buffer: `descriptors_into` gives what `descriptors` gives, bit for bit,
+/// whatever the buffer held and however long it was (longer: cut; shorter: grown).
+#[test]
+fn descriptors_into_a_reused_buffer() {
+    let vol = cloud([24, 16, 24]);
+    let pyr = Pyramid::new(&vol).unwrap();
+    let mut r = rng(9);
+    let (lo, hi) = (vol.aabb().min.as_vec3(), vol.aabb().max.as_vec3());
+    let configs: Vec<Config> = (0..40)
+        .map(|_| Config {
+            x: lo + (hi - lo) * Vec3::new(r(), r(), r()),
+            view: dir(&mut r),
+            to_light: dir(&mut r),
+        })
+        .collect();
+    let mut buf = vec![f32::NAN; 60 * DESCRIPTOR_LEN];
+    for n in [25, 40, 7] {
+        nimbus_rpnn::descriptor::descriptors_into(&pyr, &configs[..n], &mut buf);
+        let want = descriptors(&pyr, &configs[..n]);
+        assert_eq!(buf.len(), want.len(), "{n} configurations");
+        assert!(
+            buf.iter()
+                .zip(&want)
+                .all(|(a, b)| a.to_bits() == b.to_bits()),
+            "{n} configurations: a reused buffer differs"
+        );
+    }
+}
+
+/// The per-level sampler the descriptor reads against trilinear interpolation in f64 written
+/// out here: on random points inside the box (and some outside: 0) of every stored level,
+/// within 1e-5 of the level's largest value (f32 rounding of the weights, ≈ 1e-7).
+#[test]
+fn level_sampler_is_trilinear_interpolation() {
+    let vol = cloud([20, 12, 16]);
+    let pyr = Pyramid::with_every_level(&vol).unwrap();
+    let mut r = rng(21);
+    let (lo, hi) = (vol.aabb().min, vol.aabb().max);
+    for (i, l) in pyr.levels.iter().enumerate() {
+        let Some(cells) = l.dense() else { continue };
+        let top = cells.iter().fold(0.0f32, |m, v| m.max(*v)) as f64;
+        let s = pyr.sampler(i);
+        for _ in 0..400 {
+            // ±10 % beyond the box on each side.
+            let t = DVec3::new(r() as f64, r() as f64, r() as f64) * 1.2 - DVec3::splat(0.1);
+            let p = (lo + (hi - lo) * t).as_vec3();
+            let pd = p.as_dvec3();
+            let inside = (0..3).all(|a| pd[a] >= lo[a] && pd[a] <= hi[a]);
+            let want = if inside {
+                let mut v = 0.0;
+                let (mut c0, mut w) = ([0usize; 3], [0.0f64; 3]);
+                for a in 0..3 {
+                    let u = (pd[a] - lo[a]) / (hi[a] - lo[a]) * l.res[a] as f64 - 0.5;
+                    let b = u.floor();
+                    c0[a] = b as i64 as usize;
+                    w[a] = u - b;
+                    if b < 0.0 {
+                        c0[a] = 0;
+                        w[a] = 0.0;
+                    }
+                }
+                for corner in 0..8 {
+                    let mut weight = 1.0;
+                    let mut idx = [0usize; 3];
+                    for a in 0..3 {
+                        let up = (corner >> a) & 1 == 1;
+                        weight *= if up { w[a] } else { 1.0 - w[a] };
+                        idx[a] = (c0[a] + up as usize).min(l.res[a] - 1);
+                    }
+                    v += weight * l.get(idx[0], idx[1], idx[2]) as f64;
+                }
+                v
+            } else {
+                0.0
+            };
+            let got = s.at(p) as f64;
+            assert!(
+                (got - want).abs() <= 1e-5 * top.max(1e-6),
+                "level {i} at {p:?}: sampler {got}, trilinear {want}"
+            );
+            assert_eq!(got.to_bits(), (pyr.lookup(i, p) as f64).to_bits());
+        }
+    }
+}
