@@ -151,8 +151,6 @@ pub enum PyramidError {
     Memory(#[from] nimbus_scene::FieldError),
 }
 
-/// Resolutions of every level of a pyramid over a grid of `res` (halved, ceil, until one cell
-/// on every axis; at most 16 levels).
 /// One pyramid level's trilinear lookups ([`Pyramid::sampler`]).
 pub struct LevelSampler<'a> {
     level: &'a Level,
@@ -191,6 +189,8 @@ impl LevelSampler<'_> {
     }
 }
 
+/// Resolutions of every level of a pyramid over a grid of `res` (halved, ceil, until one cell
+/// on every axis; at most 16 levels).
 fn level_resolutions(res: [usize; 3]) -> Vec<[usize; 3]> {
     let mut v = vec![res];
     while v.len() < 16 && v.last().expect("level 0").iter().any(|&r| r > 1) {
@@ -382,6 +382,11 @@ impl Pyramid {
     /// ρ at world point p from level `i` (trilinear, clamp-to-edge inside the box, 0 outside).
     /// f32 arithmetic in the same order as `shaders/rpnn_descriptor.wgsl`.
     pub fn lookup(&self, i: usize, p: glam::Vec3) -> f32 {
+        // Outside the box: 0 before the level is looked at, as `at` answers.
+        let (lo, hi) = (self.aabb_min.as_vec3(), self.aabb_max.as_vec3());
+        if !(p.cmpge(lo).all() && p.cmple(hi).all()) {
+            return 0.0;
+        }
         self.sampler(i).at(p)
     }
 
