@@ -134,6 +134,7 @@ impl EvalArgs {
                 cpu_shading: self.rpnn.cpu_shading,
                 rpnn_precision: self.rpnn.net_precision.into(),
                 rpnn_tiles: self.rpnn.net_tiles.into(),
+                traced_bounces: self.rpnn.traced_bounces,
             },
             reference: ReferenceSettings {
                 spp: self.ref_spp,

@@ -59,6 +59,10 @@ pub(crate) struct RpnnArgs {
     /// (the same products; which is faster depends on the GPU).
     #[arg(long, value_enum, default_value = "64x128")]
     pub(crate) net_tiles: NetTiles,
+    /// RPNN: bounces traced before the network is asked (0: the paper). Lowers the error on
+    /// thin clouds (cirrus), adds noise on thick ones; shades on the CPU.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=16))]
+    pub(crate) traced_bounces: u32,
 }
 
 /// `--net-tiles` (see [`nimbus_rpnn::gpu_mlp::Tiles`]).
@@ -110,6 +114,7 @@ impl RpnnArgs {
             cpu_shading: self.cpu_shading,
             precision: self.net_precision.into(),
             tiles: self.net_tiles.into(),
+            traced_bounces: self.traced_bounces,
         }
     }
 }

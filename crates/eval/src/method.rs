@@ -80,6 +80,8 @@ pub struct RunSettings {
     pub rpnn_precision: nimbus_rpnn::gpu_mlp::Precision,
     /// RPNN with the network on the GPU: its kernel.
     pub rpnn_tiles: nimbus_rpnn::gpu_mlp::Tiles,
+    /// RPNN: bounces traced before the network is asked (0: the paper).
+    pub traced_bounces: u32,
 }
 
 impl Default for RunSettings {
@@ -95,6 +97,7 @@ impl Default for RunSettings {
             cpu_shading: false,
             rpnn_precision: Default::default(),
             rpnn_tiles: Default::default(),
+            traced_bounces: 0,
         }
     }
 }
@@ -172,6 +175,7 @@ impl RunSettings {
                 cpu_shading: self.cpu_shading,
                 precision: self.rpnn_precision,
                 tiles: self.rpnn_tiles,
+                traced_bounces: self.traced_bounces,
             },
         }
     }

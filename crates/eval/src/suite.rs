@@ -390,6 +390,14 @@ fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> St
         100.0 * c.reference.target_rel_noise,
         c.reference.time_cap_s
     );
+    if c.run.traced_bounces > 0 && methods.iter().any(|m| m.name().starts_with("rpnn")) {
+        let _ = writeln!(
+            s,
+            "RPNN traces {} bounce(s) before it asks the network (`--traced-bounces`; beyond the \
+             paper, which asks at the first collision).\n",
+            c.run.traced_bounces
+        );
+    }
     // Summary: converged runs per method and condition.
     s += "## Summary (largest budget of each method, all clouds and sun placements)\n\n";
     s += "| method | condition | mean ratio median [min, max] | bias median [min, max] | bias floor median | within the floor | speed-up, time to equal error: median [min, max] | speed-up, TTUV (variance only): median |\n|---|---|---|---|---|---|---|---|\n";

@@ -45,6 +45,9 @@ pub struct RpnnSettings {
     pub precision: nimbus_rpnn::gpu_mlp::Precision,
     /// With the network on the GPU: its kernel (the same products, tiled differently).
     pub tiles: nimbus_rpnn::gpu_mlp::Tiles,
+    /// Bounces traced before the network is asked (0: the paper;
+    /// [`nimbus_rpnn::render::RpnnOptions::traced_bounces`]). More than 0 shades on the CPU.
+    pub traced_bounces: u32,
 }
 
 impl RpnnSettings {
@@ -68,6 +71,7 @@ impl Default for RpnnSettings {
             cpu_shading: false,
             precision: Default::default(),
             tiles: Default::default(),
+            traced_bounces: 0,
         }
     }
 }
@@ -337,9 +341,11 @@ pub fn prepare<'g>(
                 }
                 None
             };
+            // Traced bounces are shaded on the CPU (the GPU sample asks at the first vertex).
+            let cpu_shading = r.cpu_shading || r.traced_bounces > 0;
             let (runner, device, note) = engine::rpnn::runner(
                 r.backend,
-                r.cpu_shading,
+                cpu_shading,
                 r.net(),
                 adapter,
                 &model_path,
@@ -350,7 +356,7 @@ pub fn prepare<'g>(
                 r.sky_dirs,
             )?;
             if let Some(n) = note
-                && !r.cpu_shading
+                && !cpu_shading
             {
                 warnings.push(format!("note: {label}: {n}"));
             }

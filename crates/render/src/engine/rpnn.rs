@@ -114,6 +114,8 @@ pub(crate) struct RpnnEngine<'g> {
     sums: RpnnSums,
     seed: u64,
     sky_dirs: u32,
+    /// Bounces traced before the network is asked (CPU shading).
+    traced_bounces: u32,
     /// The sky through the sky head (`None`: the paper's directions).
     sky_sh: Option<SkySh>,
     /// Stage times since the last restart.
@@ -144,13 +146,14 @@ impl<'g> RpnnEngine<'g> {
             runner: net.runner,
             adapter: net.adapter,
             choice: settings.backend,
-            cpu_shading: settings.cpu_shading,
+            cpu_shading: settings.cpu_shading || settings.traced_bounces > 0,
             net: settings.net(),
             sky_degree: settings.sky_degree,
             majorants: nimbus_rpnn::render::majorants(scene),
             sums: RpnnSums::new(scene.camera.width, scene.camera.height),
             seed: scene.render.seed,
             sky_dirs: settings.sky_dirs,
+            traced_bounces: settings.traced_bounces,
             sky_sh,
             times: StageTimes::default(),
         }
@@ -170,6 +173,7 @@ impl<'g> RpnnEngine<'g> {
         let ro = RpnnOptions {
             sky_sh: self.sky_sh.clone(),
             sun_outputs: self.model.outputs,
+            traced_bounces: self.traced_bounces,
             ..RpnnOptions::new(spp, self.seed, self.sky_dirs)
         };
         let t = nimbus_rpnn::render::accumulate(
