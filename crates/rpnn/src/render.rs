@@ -146,10 +146,11 @@ pub enum RenderError {
 /// What one camera sample found before the network is asked.
 struct Shade {
     pixel: usize,
-    /// Radiance known without the network (background, or albedo × direct).
+    /// Radiance known without the network (background, or each vertex's direct light times
+    /// the path's throughput: the albedos and phase weights so far).
     known: DVec3,
-    /// Queries: (configuration, RGB weight of the sun head's prediction including the albedo,
-    /// weight of the sky head's contraction (the albedo; 0 without)).
+    /// Queries: (configuration, RGB weight of the sun head's prediction including the path's
+    /// throughput, weight of the sky head's contraction (the throughput; 0 without)).
     queries: Vec<(Config, DVec3, f64)>,
 }
 

@@ -231,8 +231,9 @@ fn a_sky_head_answers_sun_and_sky_in_one_query() {
 /// Traced bounces are unbiased: with the network's last layer zeroed (it predicts no multiple
 /// scattering at all), RPNN with k traced bounces is the path tracer limited to k + 1
 /// scattering events, whose light it then computes by Monte Carlo at every vertex. Checked for
-/// k = 0 and 2 under sun and sky at albedo 0.9, on the mean cloud luminance and over 4×4
-/// blocks; the path tracer without the limit is far brighter, so the limit is what is matched.
+/// k = 0 and 2 at albedo 0.7, under the sun alone (a sky's single scattering would dominate the
+/// cloud and hide a wrong vertex) and under sun + sky, on the mean luminance of the cloud's
+/// pixels (camera optical depth ≥ 0.1).
 #[test]
 fn traced_bounces_match_the_path_tracer_of_as_many_events() {
     let Some(gpu) =
@@ -240,65 +241,75 @@ fn traced_bounces_match_the_path_tracer_of_as_many_events() {
     else {
         return;
     };
-    let mut s = scene(true, 20, 14, 7);
-    // An albedo below 1, so that every vertex's weight is seen.
-    s.medium.albedo = 0.9;
-    let pyr = Pyramid::new(&s.volume).unwrap();
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rpnn-hg.onnx");
-    let mut model = Rpnn::load(&path).unwrap();
+    // The tiny test model, zeroed: only the Monte Carlo vertices are left.
+    let mut model = Rpnn::load(&data("rpnn-tiny.onnx")).unwrap();
     let last = model.head.last_mut().unwrap();
     last.w.iter_mut().for_each(|v| *v = 0.0);
     last.b.iter_mut().for_each(|v| *v = 0.0);
-    let mut g = Backend::Wgpu(Box::new(GpuRpnn::new(&gpu, &pyr, &model, 4096).unwrap()));
-    let full = nimbus_trace::render(
-        &s,
-        &nimbus_trace::RenderOptions {
-            spp: 256,
-            seed: 2,
-            progress: false,
-        },
-    );
-    for k in [0u32, 2] {
-        let opts = RpnnOptions {
-            traced_bounces: k,
-            ..RpnnOptions::new(48, 1, 1)
+    for sky in [false, true] {
+        let mut s = scene(sky, 12, 8, 7);
+        // An albedo well below 1: a vertex's albedo counted once too often or too few times
+        // moves the image by 30 %.
+        s.medium.albedo = 0.7;
+        // A milder lobe than the clouds' g = 0.857: next-event estimation at later vertices
+        // then has no heavy tail (a path along the sun meets a phase peak of 8 × the mean),
+        // and the means converge in a test's samples. The zeroed network does not mind.
+        s.medium.phase = nimbus_scene::Phase::HenyeyGreenstein(
+            nimbus_scene::phase::HenyeyGreenstein::new(0.5).unwrap(),
+        );
+        let pyr = Pyramid::new(&s.volume).unwrap();
+        let cloud = nimbus_scene::tau::cloud_mask(&nimbus_scene::tau::optical_depth_image(&s));
+        assert!(cloud.iter().filter(|c| **c).count() >= 30);
+        let mut g = Backend::Wgpu(Box::new(GpuRpnn::new(&gpu, &pyr, &model, 4096).unwrap()));
+        let pt_of = |depth: Option<u32>| {
+            let mut limited = s.clone();
+            limited.render.max_depth = depth;
+            nimbus_trace::render(
+                &limited,
+                &nimbus_trace::RenderOptions {
+                    spp: 8192,
+                    seed: 2,
+                    progress: false,
+                },
+            )
+            .image
         };
-        let rp = render(&s, &pyr, &mut g, &opts).unwrap();
-        let mut limited = s.clone();
-        limited.render.max_depth = Some(k + 1);
-        let pt = nimbus_trace::render(
-            &limited,
-            &nimbus_trace::RenderOptions {
-                spp: 256,
-                seed: 2,
-                progress: false,
-            },
-        );
-        let m = nimbus_scene::compare::compare(&rp.image, &pt.image, None);
-        let mf = nimbus_scene::compare::compare(&rp.image, &full.image, None);
-        eprintln!(
-            "k = {k}: against the path tracer of {} events: mean ratio {:.4}, 4x4 {:.4}; \
-             against the unlimited one: mean ratio {:.4}",
-            k + 1,
-            m.mean_lum_ratio,
-            m.rel_rmse_cloud_4x4,
-            mf.mean_lum_ratio
-        );
-        assert_eq!(m.nonfinite, 0);
-        // 48 spp against 256 at 20×14: measured mean ratios within 0.004 of 1 and 4×4 errors
-        // of 0.010–0.012 (the noise of both); the bounds leave 5× of that. A missing or
-        // doubled vertex, or an albedo counted once too often, moves the mean by ≥ 10 %
-        // (the unlimited path tracer is 14–21 % brighter).
-        assert!(
-            (m.mean_lum_ratio - 1.0).abs() < 0.02,
-            "k = {k}: {}",
-            m.mean_lum_ratio
-        );
-        assert!(
-            m.rel_rmse_cloud_4x4 < 0.06,
-            "k = {k}: {}",
-            m.rel_rmse_cloud_4x4
-        );
-        assert!(mf.mean_lum_ratio < 0.93, "k = {k}: {}", mf.mean_lum_ratio);
+        let full = pt_of(None);
+        for k in [0u32, 2] {
+            let opts = RpnnOptions {
+                traced_bounces: k,
+                ..RpnnOptions::new(1024, 1, 1)
+            };
+            let rp = render(&s, &pyr, &mut g, &opts).unwrap();
+            let m = nimbus_scene::compare::compare(&rp.image, &pt_of(Some(k + 1)), Some(&cloud));
+            let mf = nimbus_scene::compare::compare(&rp.image, &full, Some(&cloud));
+            eprintln!(
+                "sky {sky}, k = {k}: against the path tracer of {} events: mean ratio {:.4}; \
+                 against the unlimited one: {:.4}",
+                k + 1,
+                m.mean_lum_ratio,
+                mf.mean_lum_ratio
+            );
+            assert_eq!(m.nonfinite, 0);
+            // See TRACED_MEAN_TOLERANCE.
+            assert!(
+                (m.mean_lum_ratio - 1.0).abs() < TRACED_MEAN_TOLERANCE,
+                "sky {sky}, k = {k}: {}",
+                m.mean_lum_ratio
+            );
+            // The limit is what is matched: the unlimited path tracer is brighter.
+            assert!(
+                mf.mean_lum_ratio < 1.0 - 2.0 * TRACED_MEAN_TOLERANCE,
+                "sky {sky}, k = {k}: {}",
+                mf.mean_lum_ratio
+            );
+        }
     }
 }
+
+/// Mean-luminance tolerance of the traced-bounce test: 1 024 RPNN against 8 192 path-traced
+/// samples over the cloud's pixels of a 12×8 image read 0.986–1.000 (seeded; with the network
+/// zeroed the numbers do not depend on the GPU). A vertex too many (the next order: ≥ 10 % of
+/// the image here), one too few, or an albedo of 0.7 counted once too often or too few times
+/// moves the mean by more.
+const TRACED_MEAN_TOLERANCE: f64 = 0.03;

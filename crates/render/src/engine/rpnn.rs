@@ -327,7 +327,7 @@ impl Engine for RpnnEngine<'_> {
         let n = budget.max(1) as f64;
         Ok(Rendered {
             summary: format!(
-                "RPNN ({}, {}{}) {}x{} at {} spp in {:.2} s — {:.1} ms per spp, {} network queries",
+                "RPNN ({}, {}{}{}) {}x{} at {} spp in {:.2} s — {:.1} ms per spp, {} network queries",
                 self.model_path.display(),
                 match &self.runner {
                     Runner::Cpu(Backend::Ort(_)) => self.runner.name().to_string(),
@@ -348,6 +348,11 @@ impl Engine for RpnnEngine<'_> {
                     Some(s) => format!(", sky head of degree {}", s.degree),
                     None if scene.sky.is_some() => format!(", {} sky directions", self.sky_dirs),
                     None => String::new(),
+                },
+                match self.traced_bounces {
+                    0 => String::new(),
+                    1 => ", 1 traced bounce".to_string(),
+                    k => format!(", {k} traced bounces"),
                 },
                 cam.width,
                 cam.height,
