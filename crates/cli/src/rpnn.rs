@@ -61,7 +61,7 @@ pub(crate) struct RpnnArgs {
     pub(crate) net_tiles: NetTiles,
     /// RPNN: bounces traced before the network is asked (0: the paper). Lowers the error on
     /// thin clouds (cirrus), adds noise on thick ones; shades on the CPU.
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=16))]
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=nimbus_rpnn::render::MAX_TRACED_BOUNCES as i64))]
     pub(crate) traced_bounces: u32,
 }
 

@@ -51,6 +51,12 @@ pub struct RpnnSettings {
 }
 
 impl RpnnSettings {
+    /// Whether camera rays, tracking and direct light run on the CPU: asked for, or traced
+    /// bounces (the GPU sample asks the network at the first vertex).
+    pub fn shades_on_cpu(&self) -> bool {
+        self.cpu_shading || self.traced_bounces > 0
+    }
+
     /// How the WGSL network is built.
     pub fn net(&self) -> nimbus_rpnn::gpu_mlp::NetOptions {
         nimbus_rpnn::gpu_mlp::NetOptions {
@@ -341,8 +347,7 @@ pub fn prepare<'g>(
                 }
                 None
             };
-            // Traced bounces are shaded on the CPU (the GPU sample asks at the first vertex).
-            let cpu_shading = r.cpu_shading || r.traced_bounces > 0;
+            let cpu_shading = r.shades_on_cpu();
             let (runner, device, note) = engine::rpnn::runner(
                 r.backend,
                 cpu_shading,

@@ -216,6 +216,10 @@ pub fn majorants(scene: &Scene) -> MajorantGrid {
     MajorantGrid::with_block(&scene.volume, nimbus_trace::integrator::MAJORANT_BLOCK)
 }
 
+/// The most bounces [`RpnnOptions::traced_bounces`] may ask for (the CLI's `--traced-bounces`
+/// range): beyond, a path in a dense cloud of albedo 1 would hardly end.
+pub const MAX_TRACED_BOUNCES: u32 = 16;
+
 /// Adds `opts.spp` samples per pixel to `sums` (progressive rendering): sample s is sample
 /// `sums.samples + s` of each pixel's stream, so steps give the image one call gives.
 /// `majorants` is [`majorants`] of the scene's volume.
@@ -229,6 +233,12 @@ pub fn accumulate(
 ) -> Result<StageTimes, RenderError> {
     if opts.spp == 0 {
         return Err(RenderError::Setting("spp must be at least 1".into()));
+    }
+    if opts.traced_bounces > MAX_TRACED_BOUNCES {
+        return Err(RenderError::Setting(format!(
+            "traced bounces must lie in 0..={MAX_TRACED_BOUNCES}, got {}",
+            opts.traced_bounces
+        )));
     }
     let t_all = Instant::now();
     let (w, h) = (scene.camera.width, scene.camera.height);

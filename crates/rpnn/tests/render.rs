@@ -246,6 +246,18 @@ fn traced_bounces_match_the_path_tracer_of_as_many_events() {
     let last = model.head.last_mut().unwrap();
     last.w.iter_mut().for_each(|v| *v = 0.0);
     last.b.iter_mut().for_each(|v| *v = 0.0);
+    // More bounces than the renderer takes: refused by name, before anything is rendered.
+    {
+        let s = scene(false, 4, 3, 7);
+        let pyr = Pyramid::new(&s.volume).unwrap();
+        let mut g = Backend::Wgpu(Box::new(GpuRpnn::new(&gpu, &pyr, &model, 64).unwrap()));
+        let opts = RpnnOptions {
+            traced_bounces: nimbus_rpnn::render::MAX_TRACED_BOUNCES + 1,
+            ..RpnnOptions::new(1, 1, 1)
+        };
+        let e = render(&s, &pyr, &mut g, &opts).err().expect("refused");
+        assert!(e.to_string().contains("traced bounces"), "{e}");
+    }
     for sky in [false, true] {
         let mut s = scene(sky, 12, 8, 7);
         // An albedo well below 1: a vertex's albedo counted once too often or too few times

@@ -146,7 +146,7 @@ impl<'g> RpnnEngine<'g> {
             runner: net.runner,
             adapter: net.adapter,
             choice: settings.backend,
-            cpu_shading: settings.cpu_shading || settings.traced_bounces > 0,
+            cpu_shading: settings.shades_on_cpu(),
             net: settings.net(),
             sky_degree: settings.sky_degree,
             majorants: nimbus_rpnn::render::majorants(scene),
