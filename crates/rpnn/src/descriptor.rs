@@ -82,11 +82,13 @@ pub fn descriptor_scaled(
             "stencil scale {s}: pyramid level {level} is not stored (Pyramid::with_every_level)"
         );
         let scale = (1u32 << (k - 1)) as f32 * mfp * s;
-        let sampler = pyr.sampler(level);
-        for (p, o) in out[(k - 1) * POINTS..k * POINTS].iter_mut().enumerate() {
-            let s = stencil_point(p);
-            *o = sampler.at(x + (ex * s.x + ey * s.y + ez * s.z) * scale);
-        }
+        // Point p at x + (ex·sx + ey·sy + ez·sz) · scale, (sx, sy, sz) = stencil_point(p).
+        pyr.sampler(level).stencil_into(
+            x,
+            [ex, ey, ez],
+            scale,
+            &mut out[(k - 1) * POINTS..k * POINTS],
+        );
     }
     // γ = angle between ω and ω_l, as atan2(|ω × ω_l|, ω · ω_l): accurate near 0 and π, where
     // acos loses digits (and GPU acos approximations differ).

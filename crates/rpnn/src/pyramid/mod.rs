@@ -20,6 +20,7 @@
 //! costs what its cloud costs at any level a stencil reads.
 //! [`Pyramid::with_every_level`] keeps them all (for analysis and tests).
 
+mod lattice;
 mod stream;
 
 use glam::DVec3;
