@@ -14,6 +14,10 @@ pub(crate) enum NetBackend {
     Wgpu,
     /// Descriptors on the CPU, network in ONNX Runtime (PyPI onnxruntime, found at run time).
     Ort,
+    /// ONNX Runtime with the model's int8 copy `<model>.int8.onnx` (made by
+    /// `training/quantize.py`; beyond the paper: weights int8, activations u8 per batch, the
+    /// heads f32; about half the network's time on a CPU with AVX-512 VNNI).
+    OrtInt8,
 }
 
 impl From<NetBackend> for nimbus_render::NetBackend {
@@ -22,6 +26,7 @@ impl From<NetBackend> for nimbus_render::NetBackend {
             NetBackend::Auto => Self::Auto,
             NetBackend::Wgpu => Self::Wgpu,
             NetBackend::Ort => Self::Ort,
+            NetBackend::OrtInt8 => Self::OrtInt8,
         }
     }
 }

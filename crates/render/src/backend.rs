@@ -18,6 +18,11 @@ pub enum NetBackend {
     Wgpu,
     /// Descriptors on the CPU, network in ONNX Runtime (PyPI onnxruntime, found at run time).
     Ort,
+    /// As [`NetBackend::Ort`], with the model's int8 copy (`<model>.int8.onnx`, made by
+    /// `training/quantize.py`; [`nimbus_rpnn::ort_backend::OrtModel::load_int8`]): beyond the
+    /// paper, about half the network's time on a CPU with AVX-512 VNNI (BENCHMARKS.md, "The
+    /// int8 network").
+    OrtInt8,
 }
 
 impl NetBackend {
@@ -26,7 +31,7 @@ impl NetBackend {
     pub fn uses_wgpu(self, adapter_is_software: Option<bool>) -> bool {
         match self {
             NetBackend::Wgpu => true,
-            NetBackend::Ort => false,
+            NetBackend::Ort | NetBackend::OrtInt8 => false,
             NetBackend::Auto => adapter_is_software == Some(false),
         }
     }

@@ -330,7 +330,7 @@ pub fn prepare<'g>(
             let pyramid = Pyramid::for_rendering(&scene.volume)
                 .map_err(|e| anyhow::anyhow!("{label}: {e}"))?;
             let adapter = match r.backend {
-                NetBackend::Ort => None,
+                NetBackend::Ort | NetBackend::OrtInt8 => None,
                 NetBackend::Wgpu => Some(gpu.get()?),
                 NetBackend::Auto => gpu.try_get(),
             };
@@ -434,6 +434,10 @@ pub fn rpnn_backend<'g>(
             }
             Err(e) => return Err(e.into()),
         }
+    }
+    if choice == NetBackend::OrtInt8 {
+        let b = nimbus_rpnn::ort_backend::OrtModel::load_int8(model_path, 0)?;
+        return Ok((Backend::Ort(b), "ort int8 (cpu)".to_string()));
     }
     let b = nimbus_rpnn::ort_backend::OrtModel::load(model_path, 0)?;
     Ok((Backend::Ort(b), "ort (cpu)".to_string()))

@@ -152,3 +152,29 @@ fn a_still_photon_map_renews_its_ring_when_asked() {
         assert_eq!(est.samples(), 8, "ring_refresh {refresh}");
     }
 }
+
+/// `--backend ort-int8` through the estimator: the shipped sky model's int8 copy is found
+/// beside it and named where the render runs; a model without a copy is refused before any
+/// sample, naming the missing file and the command that makes it.
+#[test]
+fn int8_backend_loads_the_copy_beside_the_model() {
+    let s = scene();
+    let gpu = GpuSlot::new();
+    let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models");
+    let mut o = options();
+    o.rpnn.backend = NetBackend::OrtInt8;
+    o.rpnn.model = Some(models.join("rpnn-hg-sky.onnx"));
+    let mut est = prepare(&s, Method::Rpnn, &o, &gpu).unwrap();
+    assert_eq!(est.device, "ort int8 (cpu)");
+    let r = est.render(2, 3).unwrap();
+    assert!(r.image.pixels.iter().flatten().all(|v| v.is_finite()));
+    o.rpnn.model = options().rpnn.model;
+    let e = match prepare(&s, Method::Rpnn, &o, &gpu) {
+        Ok(_) => panic!("a model without an int8 copy was accepted"),
+        Err(e) => format!("{e:#}"),
+    };
+    assert!(
+        e.contains("rpnn-tiny.int8.onnx") && e.contains("training/quantize.py"),
+        "{e}"
+    );
+}

@@ -117,6 +117,15 @@ fn environment() -> Result<&'static (ort::environment::Environment, PathBuf), Or
     }
 }
 
+/// The metadata key of an int8 copy that holds the sha256 of the f32 model it was made from.
+pub const INT8_OF: &str = "nimbus.rpnn.int8_of";
+
+/// Where the int8 copy of the model `path` sits: `x.onnx` → `x.int8.onnx` beside it.
+pub fn int8_path_for(path: &Path) -> PathBuf {
+    let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("model");
+    path.with_file_name(format!("{stem}.int8.onnx"))
+}
+
 /// An ONNX model in an ONNX Runtime session.
 pub struct OrtModel {
     session: ort::session::Session,
@@ -169,6 +178,54 @@ impl OrtModel {
             output,
             library,
         })
+    }
+
+    /// Loads the int8 copy of the f32 model `f32_path` ([`int8_path_for`], made by
+    /// `training/quantize.py`: weights int8 per output channel, the blocks' input activations
+    /// u8 with one scale per batch, the heads f32; beyond the paper, see BENCHMARKS.md "The
+    /// int8 network"). A missing copy, or a copy of another model (its metadata
+    /// `nimbus.rpnn.int8_of` is not the sha256 of `f32_path`), is an error naming the file and
+    /// the command that makes it.
+    pub fn load_int8(f32_path: &Path, threads: usize) -> Result<Self, OrtError> {
+        let path = int8_path_for(f32_path);
+        let remake = format!(
+            "make it with `training/.venv/bin/python training/quantize.py {}`",
+            f32_path.display()
+        );
+        let err = |msg: String| OrtError::Model {
+            file: path.display().to_string(),
+            msg,
+        };
+        if !path.is_file() {
+            return Err(err(format!(
+                "no int8 copy of {} (--backend ort-int8): {remake}",
+                f32_path.display()
+            )));
+        }
+        let model = Self::load(&path, threads)?;
+        let want = {
+            use sha2::Digest;
+            let bytes = std::fs::read(f32_path).map_err(|e| OrtError::Model {
+                file: f32_path.display().to_string(),
+                msg: e.to_string(),
+            })?;
+            format!("{:x}", sha2::Sha256::digest(bytes))
+        };
+        let got = model
+            .session
+            .metadata()
+            .ok()
+            .and_then(|m| m.custom(INT8_OF));
+        match got {
+            Some(g) if g == want => Ok(model),
+            Some(g) => Err(err(format!(
+                "made from another model (metadata {INT8_OF} = sha256 {g:.12}…), not from {} (sha256 {want:.12}…): {remake}",
+                f32_path.display()
+            ))),
+            None => Err(err(format!(
+                "no metadata {INT8_OF}: not an int8 copy made by training/quantize.py; {remake}"
+            ))),
+        }
     }
 
     /// Runs `n` rows of `x` (row-major, `x.len() / n` columns); returns the outputs row-major.
