@@ -347,20 +347,15 @@ pub fn accumulate(
     Ok(times)
 }
 
-/// Σ t_lm c_lm for the transfer `t` the sky head predicted in `cfg`'s frame: the transfer taken
-/// to the world (the frame's inverse rotation) and contracted with the sky's own coefficients,
-/// up to `s.degree`.
+/// Σ t_lm c_lm for the transfer `t` the sky head predicted in `cfg`'s frame, up to
+/// `s.degree`: the sky's world coefficients rotated into that frame and contracted with `t`
+/// ([`crate::sky::product_in_frame`], the whole-sample GPU renderer's contraction; equal to
+/// taking `t` to the world and contracting there, without forming a rotation matrix or
+/// allocating per query).
 fn sky_product(s: &SkySh, cfg: &Config, t: &[f32]) -> DVec3 {
-    let n = crate::sky::coeffs(s.degree);
     let (ex, ey, ez) = crate::descriptor::frame(cfg.view, cfg.to_light);
     let frame = (ex.as_dvec3(), ey.as_dvec3(), ez.as_dvec3());
-    let local: Vec<f64> = t[..n].iter().map(|&v| v as f64).collect();
-    let world = crate::sky::Rotation::new(crate::sky::transposed(frame)).apply(&local);
-    let mut out = DVec3::ZERO;
-    for (w, c) in world.iter().zip(&s.world) {
-        out += DVec3::from_array(*c) * *w;
-    }
-    out
+    crate::sky::product_in_frame(t, &s.world, frame, s.degree)
 }
 
 /// Sky radiance seen along `d` (no sun).
