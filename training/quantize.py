@@ -5,8 +5,8 @@
 writes ``models/rpnn-hg-sky.int8.onnx`` next to the model: ONNX Runtime's dynamic quantization
 (``onnxruntime.quantization.quantize_dynamic``) of every fully connected layer of the residual
 blocks — weights int8 per output channel, each layer's input activations u8 with one scale per
-batch, computed at run time — while the output heads stay f32 (quantizing them too tripled the
-difference to the f32 model: BENCHMARKS.md, "The int8 network"). ``nimbus render --backend
+batch, computed at run time — while the output heads stay f32 (quantizing them too doubled the
+difference to the f32 model: models/int8.md). ``nimbus render --backend
 ort-int8`` runs it; the file records the sha256 of the model it was made from
 (``nimbus.rpnn.int8_of``), and the renderer refuses a copy of another model.
 
@@ -35,7 +35,7 @@ HOW = "dynamic: int8 weights per output channel, u8 activations per batch; heads
 
 
 def int8_path(model: Path) -> Path:
-    """``x.onnx`` -> ``x.int8.onnx`` (``nimbus_rpnn::model::int8_path_for``)."""
+    """``x.onnx`` -> ``x.int8.onnx`` (``nimbus_rpnn::ort_backend::int8_path_for``)."""
     return model.with_name(model.stem + ".int8.onnx")
 
 
@@ -105,16 +105,21 @@ def predict(sess, x: np.ndarray, batch: int) -> np.ndarray:
 
 
 def compare(src: Path, dst: Path, records: Path, n: int, batch: int) -> dict:
-    """Both models on the first `n` records of a set's first split found (test, else val)."""
+    """Both models on the first `n` records of the set's test split, else its validation split
+    (never training records), `batch` rows per run."""
     sys.path.insert(0, str(Path(__file__).parent))
     from rpnn import data as rdata
 
-    for split in ("test", "val", "train"):
-        shards = rdata.load_shards(records, split, check=False)
-        if shards:
-            break
-    else:
-        raise SystemExit(f"{records}: no records")
+    try:
+        for split in ("test", "val"):
+            shards = rdata.load_shards(records, split, check=False)
+            if shards and sum(len(s.y) for s in shards) > 0:
+                break
+        else:
+            raise SystemExit(f"{records}: no test or validation records to compare on")
+        identity = rdata.set_identity(records)
+    except rdata.DataError as e:
+        raise SystemExit(str(e))
     recs = rdata.Records(shards)
     x, y = recs.gather(np.arange(min(n, len(recs))))
     x = np.asarray(x, dtype=np.float32)
@@ -125,6 +130,8 @@ def compare(src: Path, dst: Path, records: Path, n: int, batch: int) -> dict:
     def diff(col: int) -> dict:
         r = np.abs(b[:, col] / np.where(a[:, col] == 0, np.nan, a[:, col]) - 1)
         r = r[np.isfinite(r)]
+        if r.size == 0:
+            raise SystemExit(f"{src}: output column {col} is 0 on every record compared")
         return {
             "median": float(np.median(r)),
             "p95": float(np.percentile(r, 95)),
@@ -136,6 +143,7 @@ def compare(src: Path, dst: Path, records: Path, n: int, batch: int) -> dict:
     err = lambda p: float(np.median(np.abs(p[keep, 0] / t[keep] - 1)))  # noqa: E731
     out = {
         "records": str(records),
+        "set_identity": identity,
         "split": split,
         "rows": int(len(x)),
         "batch": min(batch, len(x)),
@@ -157,12 +165,16 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if not a.model.is_file():
         raise SystemExit(f"{a.model}: no such model")
+    if a.rows < 1 or a.batch < 1:
+        raise SystemExit(f"--rows {a.rows} and --batch {a.batch} must be at least 1")
     dst = quantize(a.model, a.out)
     print(f"wrote {dst} ({dst.stat().st_size} bytes, from sha256 {sha256(a.model)[:8]}…)")
     if a.records:
         report = {"model": a.model.name, "int8": dst.name, "how": HOW}
+        # The requested batch, and all compared records in one batch (a large render's).
         for batch in sorted({min(a.batch, a.rows), a.rows}):
-            report[f"batch_{batch}"] = compare(a.model, dst, a.records, a.rows, batch)
+            c = compare(a.model, dst, a.records, a.rows, batch)
+            report[f"batch_{c['batch']}"] = c
         js = dst.with_suffix(".json")
         js.write_text(json.dumps(report, indent=2) + "\n")
         print(json.dumps(report, indent=2))

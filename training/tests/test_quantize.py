@@ -74,3 +74,33 @@ def test_bad_inputs_are_refused_by_name(tmp_path):
         quantize.quantize(other)
     with pytest.raises(SystemExit, match="missing.onnx: no such model"):
         quantize.main([str(tmp_path / "missing.onnx")])
+
+
+def test_comparison_on_a_record_set(tmp_path, record_set):
+    """`--records`: the copy against the model on the set's test records (never training
+    records), in the requested batch and in one batch of all rows, written beside the copy with
+    the set's identity; the per-record errors against the labels are reported for both."""
+    import json
+
+    from rpnn import data as rdata
+
+    src = tmp_path / "m.onnx"
+    shutil.copy(MODELS / "rpnn-hg.onnx", src)
+    assert quantize.main([str(src), "--records", str(record_set), "--rows", "150",
+                          "--batch", "64"]) == 0
+    report = json.loads((tmp_path / "m.int8.json").read_text())
+    assert set(k for k in report if k.startswith("batch_")) == {"batch_64", "batch_150"}
+    for key in ("batch_64", "batch_150"):
+        r = report[key]
+        assert r["split"] == "test" and r["rows"] == 150
+        assert r["set_identity"] == rdata.set_identity(record_set)
+        assert 0 < r["sun"]["median"] < 0.05 and abs(r["sun"]["mean_ratio"] - 1) < 0.02
+        assert set(r["error_against_labels"]) == {"f32", "int8"}
+    with pytest.raises(SystemExit, match="--batch 0 must be at least 1"):
+        quantize.main([str(src), "--records", str(record_set), "--batch", "0"])
+    # A set without test or validation records is not compared on its training records.
+    from rpnn.synthetic import write_set
+
+    only_train = write_set(tmp_path / "train_only", 100, 0)
+    with pytest.raises(SystemExit, match="no test or validation records"):
+        quantize.main([str(src), "--records", str(only_train)])

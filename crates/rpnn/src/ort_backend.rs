@@ -122,8 +122,17 @@ pub const INT8_OF: &str = "nimbus.rpnn.int8_of";
 
 /// Where the int8 copy of the model `path` sits: `x.onnx` → `x.int8.onnx` beside it.
 pub fn int8_path_for(path: &Path) -> PathBuf {
-    let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("model");
-    path.with_file_name(format!("{stem}.int8.onnx"))
+    let mut name = path.file_stem().unwrap_or_default().to_os_string();
+    name.push(".int8.onnx");
+    path.with_file_name(name)
+}
+
+/// The metadata value `key` of an ONNX Runtime session (None when absent).
+fn metadata(session: &ort::session::Session, key: &str) -> Result<Option<String>, String> {
+    session
+        .metadata()
+        .map(|m| m.custom(key))
+        .map_err(|e| format!("its metadata cannot be read: {e}"))
 }
 
 /// An ONNX model in an ONNX Runtime session.
@@ -133,6 +142,8 @@ pub struct OrtModel {
     output: String,
     /// Where the runtime library came from.
     pub library: PathBuf,
+    /// Whether this is a model's int8 copy ([`OrtModel::load_int8`]).
+    pub int8: bool,
 }
 
 impl OrtModel {
@@ -177,6 +188,7 @@ impl OrtModel {
             input,
             output,
             library,
+            int8: false,
         })
     }
 
@@ -196,13 +208,24 @@ impl OrtModel {
             file: path.display().to_string(),
             msg,
         };
+        // `--model X.int8.onnx`: the copy given as the model (Rpnn::load refuses it by its
+        // metadata first in a render).
+        if f32_path.to_string_lossy().ends_with(".int8.onnx") {
+            return Err(OrtError::Model {
+                file: f32_path.display().to_string(),
+                msg: "an int8 copy already: pass the f32 model it was made from \
+                      (--backend ort-int8 runs the copy beside it)"
+                    .into(),
+            });
+        }
         if !path.is_file() {
             return Err(err(format!(
                 "no int8 copy of {} (--backend ort-int8): {remake}",
                 f32_path.display()
             )));
         }
-        let model = Self::load(&path, threads)?;
+        let mut model = Self::load(&path, threads)?;
+        model.int8 = true;
         let want = {
             use sha2::Digest;
             let bytes = std::fs::read(f32_path).map_err(|e| OrtError::Model {
@@ -211,11 +234,7 @@ impl OrtModel {
             })?;
             format!("{:x}", sha2::Sha256::digest(bytes))
         };
-        let got = model
-            .session
-            .metadata()
-            .ok()
-            .and_then(|m| m.custom(INT8_OF));
+        let got = metadata(&model.session, INT8_OF).map_err(err)?;
         match got {
             Some(g) if g == want => Ok(model),
             Some(g) => Err(err(format!(

@@ -50,6 +50,7 @@ pub enum Backend<'g> {
 impl Backend<'_> {
     pub fn name(&self) -> &'static str {
         match self {
+            Backend::Ort(m) if m.int8 => "ort int8",
             Backend::Ort(_) => "ort",
             Backend::Wgpu(_) => "wgpu",
         }

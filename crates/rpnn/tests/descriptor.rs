@@ -459,4 +459,48 @@ fn stencil_levels_agree_with_point_lookups() {
     }
     // Most cases sample the cloud: the comparison is not one of zeros.
     assert!(nonzero > 100_000, "{nonzero} non-zero lookups");
+    // Fixed cases random points miss: axis-aligned stencils whose points fall exactly on the
+    // box's faces (x one spacing inside the low corner: its first points are at lo; one
+    // spacing inside the high corner: some are at hi), and positions or spacings that are not
+    // finite (every point 0 on both paths).
+    let axes = [Vec3::X, Vec3::Y, Vec3::Z];
+    let h = 1.0 / 16.0;
+    let cases = [
+        (lo + Vec3::splat(h), h),
+        (hi - Vec3::splat(h), h),
+        (hi - Vec3::new(h, h, 3.0 * h), h),
+        (Vec3::splat(f32::NAN), h),
+        (Vec3::ZERO, f32::INFINITY),
+        (Vec3::ZERO, f32::NAN),
+    ];
+    let mut on_face = 0;
+    for i in 0..pyr.levels.len() {
+        let s = pyr.sampler(i);
+        for (n, &(x, scale)) in cases.iter().enumerate() {
+            s.stencil_into(x, axes, scale, &mut fast);
+            for (p, got) in fast.iter().enumerate() {
+                let q = stencil_point(p);
+                let pt = x + (axes[0] * q.x + axes[1] * q.y + axes[2] * q.z) * scale;
+                on_face += ((pt.cmpeq(lo) | pt.cmpeq(hi)).any()
+                    && pt.cmpge(lo).all()
+                    && pt.cmple(hi).all()) as usize;
+                let want = s.at(pt);
+                assert_eq!(
+                    got.to_bits(),
+                    want.to_bits(),
+                    "level {i}, fixed case {n}, point {p} at {pt:?}: stencil {got} against at() {want}"
+                );
+            }
+        }
+    }
+    assert!(on_face > 100, "{on_face} points on the box's faces");
+    #[cfg(target_arch = "x86_64")]
+    eprintln!(
+        "stencil levels: AVX-512 {}",
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            "used (the vector code was compared)"
+        } else {
+            "absent (scalar against scalar)"
+        }
+    );
 }

@@ -576,5 +576,21 @@ fn int8_copies_agree_with_their_models_and_refuse_others() {
     std::fs::copy(data("rpnn-micro.onnx"), int8_path_for(&tiny)).unwrap();
     let e = err(&tiny);
     assert!(e.contains("not an int8 copy"), "{e}");
+    // The copy given as the model: refused by the ONNX Runtime loader and by the model reader
+    // (which every render reads first), naming the file.
+    let copy = models.join("rpnn-hg.int8.onnx");
+    let e = err(&copy);
+    assert!(
+        e.contains("rpnn-hg.int8.onnx") && e.contains("an int8 copy already"),
+        "{e}"
+    );
+    let e = Rpnn::load(&copy)
+        .map(|_| ())
+        .expect_err("an int8 copy is no RPNN graph")
+        .to_string();
+    assert!(
+        e.contains("rpnn-hg.int8.onnx") && e.contains("pass the f32 model"),
+        "{e}"
+    );
     std::fs::remove_dir_all(&dir).ok();
 }

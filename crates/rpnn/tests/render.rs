@@ -183,6 +183,11 @@ fn int8_network_renders_the_f32_image() {
     };
     let mut f = Backend::Ort(OrtModel::load(&model, 0).unwrap());
     let mut q = Backend::Ort(OrtModel::load_int8(&model, 0).unwrap());
+    assert_eq!(
+        (f.name(), q.name()),
+        ("ort", "ort int8"),
+        "the summary tells them apart"
+    );
     let a = render(&s, &pyr, &mut f, &opts).unwrap();
     let b = render(&s, &pyr, &mut q, &opts).unwrap();
     assert_eq!(a.times.queries, b.times.queries, "the same paths");

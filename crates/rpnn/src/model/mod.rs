@@ -258,6 +258,13 @@ impl Rpnn {
             .iter()
             .map(|p| (p.key.as_str(), p.value.as_str()))
             .collect();
+        if meta.contains_key(crate::ort_backend::INT8_OF) {
+            return Err(
+                "an int8 copy (training/quantize.py), which only ONNX Runtime runs: pass \
+                        the f32 model it was made from, with --backend ort-int8 to run this copy"
+                    .into(),
+            );
+        }
         let graph = model.graph.as_ref().ok_or("the model has no graph")?;
         let mut tensors: HashMap<&str, &TensorProto> = graph
             .initializer

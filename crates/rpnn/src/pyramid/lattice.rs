@@ -33,6 +33,16 @@ const fn stencil_axis(axis: usize) -> [f32; PADDED] {
 
 static STENCIL: [[f32; PADDED]; 3] = [stencil_axis(0), stencil_axis(1), stencil_axis(2)];
 
+/// Whether the vector kernel may read a dense level of `res` holding `len` cells: the cells are
+/// exactly res[0]·res[1]·res[2] (the level's fields are public), their indices fit an i32, and
+/// every axis is below 2²⁴, so that its last index is exact in f32 and a clamped index stays
+/// inside. Anything else takes the scalar path, whose indexing is bounds-checked.
+fn vector_safe(res: [usize; 3], len: usize) -> bool {
+    res.iter().all(|&r| r <= 1 << 24)
+        && res.iter().try_fold(1usize, |n, &r| n.checked_mul(r)) == Some(len)
+        && len <= i32::MAX as usize
+}
+
 impl LevelSampler<'_> {
     /// ρ at the 225 points `x + (ex·sx + ey·sy + ez·sz) · scale` of one stencil level (point
     /// p = ix + 5 iy + 25 iz, local coordinates (sx, sy, sz) = (−1 + ix/2, −1 + iy/2, −1 + iz/2)),
@@ -41,10 +51,12 @@ impl LevelSampler<'_> {
         assert_eq!(out.len(), POINTS, "one stencil level is {POINTS} points");
         #[cfg(target_arch = "x86_64")]
         if let Cells::Dense(d) = &self.level.cells
+            && vector_safe(self.level.res, d.len())
             && std::arch::is_x86_feature_detected!("avx512f")
         {
-            // SAFETY: the CPU has AVX-512F (checked just above); `d` is the level's dense
-            // cells of res[0]·res[1]·res[2] values, which the kernel indexes within.
+            // SAFETY: the CPU has AVX-512F (checked just above); `d` holds exactly the
+            // res[0]·res[1]·res[2] cells the kernel's clamped indices address, fewer than 2³¹,
+            // and every axis is exact in f32 (`vector_safe`).
             unsafe { avx512::stencil(self, d, x, axes, scale, out) };
             return;
         }
