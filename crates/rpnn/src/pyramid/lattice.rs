@@ -1,7 +1,7 @@
 //! One stencil level of the descriptor at a time (Kallweit 2017 §4.2): the 5 × 5 × 9 points of
 //! a level lie on one rotated lattice, and all of them read the same pyramid level, so they are
-//! looked up together — 16 at a time with AVX-512 gathers where the CPU has them, else one at a
-//! time with [`LevelSampler::at`]. Both give the same f32 values to the bit: the vector code
+//! looked up together — 16 at a time with AVX-512 gathers where the CPU has them (a point's two
+//! cells along x as one 64-bit load), else one at a time with [`LevelSampler::at`]. Both give the same f32 values to the bit: the vector code
 //! performs the scalar code's IEEE operations (no fused multiply-add) in the same order, lane
 //! by lane (test: `descriptor::stencil_levels_agree_with_point_lookups`).
 
@@ -110,6 +110,9 @@ mod avx512 {
         );
         let (zero, one, half) = (_mm512_setzero_ps(), set(1.0), set(0.5));
         let scale = set(scale);
+        // Lane i of the 32 floats of two 8-pair gathers: cell x0 at 2i, x0 + 1 at 2i + 1.
+        let evens = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
+        let odds = _mm512_setr_epi32(1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31);
         let mix = |a: __m512, b: __m512, t: __m512| {
             _mm512_add_ps(_mm512_mul_ps(a, _mm512_sub_ps(one, t)), _mm512_mul_ps(b, t))
         };
@@ -163,14 +166,45 @@ mod avx512 {
                 row(i0[1], i1[2]),
                 row(i1[1], i1[2]),
             ];
-            // SAFETY: only lanes inside the box are gathered; their indices are clamped to the
-            // level's cells, so every read is within `d`.
-            let corner = |r: __m512i, xi: __m512i| unsafe {
-                _mm512_mask_i32gather_ps::<4>(zero, inside, _mm512_add_epi32(r, xi), d.as_ptr())
-            };
-            let c: [__m512; 8] = std::array::from_fn(|n| {
-                corner(rows[n >> 1], if n & 1 == 0 { i0[0] } else { i1[0] })
-            });
+            // A lane whose two x cells differ reads them as one 64-bit pair: its x1 is x0 + 1 in
+            // the same row (b in 0 … last − 1; otherwise both indices clamp to one cell), so
+            // half as many loads. The few lanes clamped at an x face read their one cell alone.
+            let pair = inside & _mm512_cmpneq_epi32_mask(i0[0], i1[0]);
+            let single = inside & !pair;
+            let mut c = [zero; 8];
+            for (r, row) in rows.iter().enumerate() {
+                let idx = _mm512_add_epi32(*row, i0[0]);
+                // SAFETY: pair lanes read d[idx] and d[idx + 1], both cells of the level (x0 + 1
+                // = x1 ≤ last); single lanes read d[idx]; lanes outside the box read nothing.
+                let (lo, hi) = unsafe {
+                    (
+                        _mm512_mask_i32gather_epi64::<4>(
+                            _mm512_setzero_si512(),
+                            pair as u8,
+                            _mm512_castsi512_si256(idx),
+                            d.as_ptr().cast(),
+                        ),
+                        _mm512_mask_i32gather_epi64::<4>(
+                            _mm512_setzero_si512(),
+                            (pair >> 8) as u8,
+                            _mm512_extracti64x4_epi64::<1>(idx),
+                            d.as_ptr().cast(),
+                        ),
+                    )
+                };
+                let (lo, hi) = (_mm512_castsi512_ps(lo), _mm512_castsi512_ps(hi));
+                let mut even = _mm512_permutex2var_ps(lo, evens, hi);
+                let mut odd = _mm512_permutex2var_ps(lo, odds, hi);
+                if single != 0 {
+                    // SAFETY: as above, one cell per lane.
+                    let one =
+                        unsafe { _mm512_mask_i32gather_ps::<4>(zero, single, idx, d.as_ptr()) };
+                    even = _mm512_mask_mov_ps(even, single, one);
+                    odd = _mm512_mask_mov_ps(odd, single, one);
+                }
+                c[2 * r] = even;
+                c[2 * r + 1] = odd;
+            }
             let c00 = mix(c[0], c[1], f[0]);
             let c10 = mix(c[2], c[3], f[0]);
             let c01 = mix(c[4], c[5], f[0]);
