@@ -376,14 +376,29 @@ fn bench_suite_writes_the_table() {
     let scene_dir = d.join("results/scenes/cumulus_004_back_sunsky");
     assert!(scene_dir.join("report.csv").is_file());
     assert!(d.join("results/error_vs_time.png").is_file());
-    // The paper's RPNN says nothing of traced bounces; with them the table says how many
-    // (the references are cached; pm, which `small_suite` gives a budget, runs again).
-    assert!(!md.contains("traced-bounces"), "{md}");
-    let o = small_suite(&d, &["--methods", "pm,rpnn", "--traced-bounces", "1"]);
+    // The paper's RPNN says nothing of traced bounces or an int8 network; with them the table
+    // says so (the references are cached; pm, which `small_suite` gives a budget, runs again).
+    assert!(
+        !md.contains("traced-bounces") && !md.contains("int8"),
+        "{md}"
+    );
+    let o = small_suite(
+        &d,
+        &[
+            "--methods",
+            "pm,rpnn",
+            "--traced-bounces",
+            "1",
+            "--backend",
+            "ort-int8",
+        ],
+    );
     assert!(o.status.success(), "{}", text(&o));
     let md = std::fs::read_to_string(d.join("results.md")).unwrap();
     assert!(
-        md.contains("RPNN traces 1 bounce(s)") && md.contains("| rpnn | sun+sky |"),
+        md.contains("RPNN traces 1 bounce(s)")
+            && md.contains("int8 copy in ONNX Runtime (`--backend ort-int8`")
+            && md.contains("| rpnn | sun+sky |"),
         "{md}"
     );
     let o = nimbus(&["bench-suite", "--clouds", "9", "--out", d.to_str().unwrap()]);

@@ -398,6 +398,12 @@ fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> St
             c.run.traced_bounces
         );
     }
+    if c.run.rpnn_backend == nimbus_render::NetBackend::OrtInt8
+        && methods.iter().any(|m| m.name().starts_with("rpnn"))
+    {
+        s += "RPNN's network is the model's int8 copy in ONNX Runtime (`--backend ort-int8`; \
+              beyond the paper, whose network is f32).\n\n";
+    }
     // Summary: converged runs per method and condition.
     s += "## Summary (largest budget of each method, all clouds and sun placements)\n\n";
     s += "| method | condition | mean ratio median [min, max] | bias median [min, max] | bias floor median | within the floor | speed-up, time to equal error: median [min, max] | speed-up, TTUV (variance only): median |\n|---|---|---|---|---|---|---|---|\n";
