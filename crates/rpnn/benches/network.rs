@@ -1,5 +1,5 @@
 //! Network throughput: queries per second of the shipped sun model (`models/rpnn-hg.onnx`) in
-//! ONNX Runtime and in WGSL (`shaders/rpnn_mlp.wgsl`, f32 and f16 storage, both kernels: `--net-tiles`), on one batch of
+//! ONNX Runtime (f32, and its int8 copy: `--backend ort-int8`) and in WGSL (`shaders/rpnn_mlp.wgsl`, f32 and f16 storage, both kernels: `--net-tiles`), on one batch of
 //! 4 096 real descriptors (random points inside the demo cumulus of
 //! `scenes/bench/rpnn_720p.toml`, random views, its sun). Each WGSL iteration uploads the batch
 //! and reads the predictions back, as `GpuMlp::predict` does.
@@ -32,6 +32,8 @@ fn bench(c: &mut Criterion) {
     g.sample_size(10);
     let mut ort = OrtModel::load(&model_path, 0).expect("ONNX Runtime and the shipped model");
     g.bench_function("ort", |b| b.iter(|| ort.predict(&x, N).unwrap()));
+    let mut int8 = OrtModel::load_int8(&model_path, 0).expect("the shipped model's int8 copy");
+    g.bench_function("ort_int8", |b| b.iter(|| int8.predict(&x, N).unwrap()));
     match nimbus_gpu::Gpu::new() {
         Ok(gpu) => {
             let model = Rpnn::load(&model_path).expect("the shipped model");
