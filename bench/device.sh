@@ -129,7 +129,8 @@ fi # step 1
 if want 2; then
 # 2. RPNN ms per sample under sun and under sun + sky (the sky head): the whole sample on the
 # GPU (wgpu; its network in f32 and in f16, each with the default 64×128 tiles and with 64×64),
-# the network on the GPU with CPU shading (wgpu --cpu-shading) and ONNX Runtime (ort), each
+# the network on the GPU with CPU shading (wgpu --cpu-shading), ONNX Runtime (ort) and its int8
+# copy (ort-int8, beyond the paper: the machine's CPU cores and integer units), each
 # split into its stages (`--timings`): whole sample: shade, descriptor, inference, resolve (GPU
 # timestamps) and the rest of the wall time; CPU shading: descriptor, inference (transfers
 # included) and the rest on the CPU (camera rays, delta tracking, shadow rays).
@@ -140,7 +141,7 @@ for name in rpnn_720p rpnn_720p_sky; do
   path=$([ "$name" = rpnn_720p ] && echo "$scene" || echo "$sky_scene")
   set -- "$name" "$path"
   for b in "wgpu" "wgpu --net-precision f16" "wgpu --net-tiles 64x64" \
-    "wgpu --net-precision f16 --net-tiles 64x64" "wgpu --cpu-shading" "ort"; do
+    "wgpu --net-precision f16 --net-tiles 64x64" "wgpu --cpu-shading" "ort" "ort-int8"; do
     tag=$(echo "$b" | tr -d ' -' | sed 's/cpushading/_cpu_shading/')
     # shellcheck disable=SC2086
     "$nimbus" render "$2" --method rpnn --backend $b --spp "$RSPP" --timings -q \

@@ -526,7 +526,7 @@ fn device_benchmark_script_small() {
         assert!(v.is_finite() && v > 0.0, "{line}");
         *measures.entry(f[0].to_string()).or_insert(0) += 1;
     }
-    // 3 scenes × 6 photon-mapping figures, 6 RPNN runners × 2 skies (total and split), 2 path tracers, 1 datagen, 1 training
+    // 3 scenes × 6 photon-mapping figures, 7 RPNN runners × 2 skies (total and split), 2 path tracers, 1 datagen, 1 training
     // throughput, wall time and peak RSS of the generator and 4 estimators at scale (every value
     // finite and > 0: the memory was measured).
     assert_eq!(measures.get("pm_frame_ms"), Some(&3), "{csv}");
@@ -534,12 +534,12 @@ fn device_benchmark_script_small() {
     assert_eq!(measures.get("pm_sun_transmittance_ms"), Some(&3), "{csv}");
     assert_eq!(measures.get("pm_upsample_ms"), Some(&3), "{csv}");
     // RPNN under sun and sun + sky, each as the whole sample on the GPU (f32 and f16 network,
-    // each with 64×128 and 64×64 tiles), with CPU shading and with ONNX Runtime; shading and
-    // resolve passes only in the first four.
-    assert_eq!(measures.get("rpnn_ms_per_spp"), Some(&12), "{csv}");
+    // each with 64×128 and 64×64 tiles), with CPU shading and with ONNX Runtime in f32 and in
+    // int8; shading and resolve passes only in the first four.
+    assert_eq!(measures.get("rpnn_ms_per_spp"), Some(&14), "{csv}");
     assert_eq!(
         measures.get("rpnn_inference_ms_per_spp"),
-        Some(&12),
+        Some(&14),
         "{csv}"
     );
     assert_eq!(measures.get("rpnn_shade_ms_per_spp"), Some(&8), "{csv}");
