@@ -226,14 +226,16 @@ impl OrtModel {
         }
         let mut model = Self::load(&path, threads)?;
         model.int8 = true;
-        let want = {
-            use sha2::Digest;
-            let bytes = std::fs::read(f32_path).map_err(|e| OrtError::Model {
+        // Streamed (the data sets' checksum): the model is never held whole for this.
+        let want = crate::data::sha256_file(f32_path).map_err(|e| match e {
+            crate::data::datagen::DatagenError::Set { what, msg } => {
+                OrtError::Model { file: what, msg }
+            }
+            other => OrtError::Model {
                 file: f32_path.display().to_string(),
-                msg: e.to_string(),
-            })?;
-            format!("{:x}", sha2::Sha256::digest(bytes))
-        };
+                msg: other.to_string(),
+            },
+        })?;
         let got = metadata(&model.session, INT8_OF).map_err(err)?;
         match got {
             Some(g) if g == want => Ok(model),

@@ -16,4 +16,5 @@ pub mod datagen;
 pub mod dataset;
 pub mod manifest;
 mod shard_files;
+pub(crate) use shard_files::sha256_file;
 pub mod shards;
