@@ -13,6 +13,7 @@ use glam::DVec3;
 use nimbus_gpu::Gpu;
 use nimbus_photon::PmSettings;
 use nimbus_photon::impostor::{ImpostorCriteria, Refresh};
+use nimbus_rpnn::ort_backend::{Cores, OrtModel};
 use nimbus_rpnn::render::Backend;
 use nimbus_rpnn::{Pyramid, model::Rpnn};
 use nimbus_scene::volume::Volume;
@@ -429,17 +430,17 @@ pub fn rpnn_backend<'g>(
             Err(e @ (nimbus_gpu::GpuError::TooLarge { .. } | nimbus_gpu::GpuError::Memory(_)))
                 if choice == NetBackend::Auto =>
             {
-                let b = nimbus_rpnn::ort_backend::OrtModel::load(model_path, 0)?;
+                let b = OrtModel::load(model_path, Cores::Workers(0))?;
                 return Ok((Backend::Ort(b), format!("ort (cpu; not the GPU: {e})")));
             }
             Err(e) => return Err(e.into()),
         }
     }
     if choice == NetBackend::OrtInt8 {
-        let b = nimbus_rpnn::ort_backend::OrtModel::load_int8(model_path, 0)?;
+        let b = OrtModel::load_int8(model_path, Cores::Workers(0))?;
         return Ok((Backend::Ort(b), "ort int8 (cpu)".to_string()));
     }
-    let b = nimbus_rpnn::ort_backend::OrtModel::load(model_path, 0)?;
+    let b = OrtModel::load(model_path, Cores::Workers(0))?;
     Ok((Backend::Ort(b), "ort (cpu)".to_string()))
 }
 

@@ -1,5 +1,6 @@
 //! Network throughput: queries per second of the shipped sun model (`models/rpnn-hg.onnx`) in
-//! ONNX Runtime (f32, and its int8 copy: `--backend ort-int8`) and in WGSL (`shaders/rpnn_mlp.wgsl`, f32 and f16 storage, both kernels: `--net-tiles`), on one batch of
+//! ONNX Runtime (f32, and its int8 copy: `--backend ort-int8`; one session with its own
+//! threads, and one single-threaded session per core as a render runs them: `_workers`) and in WGSL (`shaders/rpnn_mlp.wgsl`, f32 and f16 storage, both kernels: `--net-tiles`), on one batch of
 //! 4 096 real descriptors (random points inside the demo cumulus of
 //! `scenes/bench/rpnn_720p.toml`, random views, its sun). Each WGSL iteration uploads the batch
 //! and reads the predictions back, as `GpuMlp::predict` does.
@@ -12,7 +13,7 @@ use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use nimbus_rpnn::descriptor::{DESCRIPTOR_LEN, descriptors};
 use nimbus_rpnn::gpu_mlp::{GpuMlp, NetOptions, Precision, Tiles};
 use nimbus_rpnn::model::Rpnn;
-use nimbus_rpnn::ort_backend::OrtModel;
+use nimbus_rpnn::ort_backend::{Cores, OrtModel};
 
 const N: usize = 4096;
 
@@ -34,6 +35,20 @@ fn bench(c: &mut Criterion) {
     g.bench_function("ort", |b| b.iter(|| ort.predict(&x, N).unwrap()));
     let mut int8 = OrtModel::load_int8(&model_path, 0).expect("the shipped model's int8 copy");
     g.bench_function("ort_int8", |b| b.iter(|| int8.predict(&x, N).unwrap()));
+    // As a render runs it: one single-threaded session per core, each on its share of the
+    // batch in pieces of `ROWS_PER_RUN` (the rows copied from the same descriptors).
+    let copy = |i: usize, row: &mut [f32]| {
+        row.copy_from_slice(&x[i * DESCRIPTOR_LEN..(i + 1) * DESCRIPTOR_LEN])
+    };
+    let mut workers = OrtModel::load(&model_path, Cores::Workers(0)).expect("ONNX Runtime");
+    g.bench_function("ort_workers", |b| {
+        b.iter(|| workers.predict_rows(N, DESCRIPTOR_LEN, copy).unwrap())
+    });
+    let mut int8_workers =
+        OrtModel::load_int8(&model_path, Cores::Workers(0)).expect("the int8 copy");
+    g.bench_function("ort_int8_workers", |b| {
+        b.iter(|| int8_workers.predict_rows(N, DESCRIPTOR_LEN, copy).unwrap())
+    });
     match nimbus_gpu::Gpu::new() {
         Ok(gpu) => {
             let model = Rpnn::load(&model_path).expect("the shipped model");

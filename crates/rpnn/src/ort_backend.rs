@@ -9,6 +9,9 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
+use std::time::Instant;
+
+use rayon::prelude::*;
 
 /// Errors of the ONNX Runtime backend.
 #[derive(Debug, thiserror::Error)]
@@ -135,20 +138,88 @@ fn metadata(session: &ort::session::Session, key: &str) -> Result<Option<String>
         .map_err(|e| format!("its metadata cannot be read: {e}"))
 }
 
-/// An ONNX model in an ONNX Runtime session.
+/// How an [`OrtModel`] uses the CPU's cores.
+///
+/// A renderer's batches are small (≈ 1 300 queries per sample at the bench suite's 128×72) and
+/// alternate with descriptors: one session whose intra-op threads meet at every one of the 70
+/// operators spends a fifth of its time waiting there. `Workers` runs one single-threaded session
+/// per core, each on its own share of the batch, descriptors included, with nothing shared
+/// until the outputs are joined: 11 against 14 µs per query for descriptor and network on 2
+/// cores (BENCHMARKS.md, "The CPU sample, third round").
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Cores {
+    /// One session whose intra-op pool has this many threads (0: ONNX Runtime's default).
+    Pool(usize),
+    /// This many single-threaded sessions, run side by side on rayon's threads (0: as many as
+    /// rayon has).
+    Workers(usize),
+}
+
+/// The most sessions [`Cores::Workers`] may ask for.
+pub const MAX_WORKERS: usize = 1024;
+
+impl From<usize> for Cores {
+    fn from(threads: usize) -> Self {
+        Cores::Pool(threads)
+    }
+}
+
+/// Queries per call of a session in [`OrtModel::predict_rows`]: the rows of a batch are made and
+/// run this many at a time. One call over a whole 1280×720 frame (≈ 195 000 queries, 1.75 GB of
+/// descriptors) ran 14 µs per query against 9–10 µs in pieces of 1 024 – 8 192, whose
+/// descriptors and activations stay in the caches; the descriptors, written once into a buffer
+/// that is kept, no longer fault in fresh pages (7.2 → 3.4 µs per query).
+pub const ROWS_PER_RUN: usize = 1024;
+
+/// Milliseconds of one [`OrtModel::predict_rows`] call: making the rows and running the
+/// network. With [`Cores::Workers`] the call's wall time is split between the two in the
+/// proportion of the workers' summed times, so the two add up to the call's time (a worker
+/// that waits for the other is counted in both, not left to a renderer's "rest").
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct RowTimes {
+    pub rows_ms: f64,
+    pub network_ms: f64,
+}
+
+/// An ONNX model in ONNX Runtime sessions (one, or one per worker: [`Cores`]).
 pub struct OrtModel {
-    session: ort::session::Session,
+    sessions: Vec<ort::session::Session>,
+    /// Each session's rows, kept across calls.
+    buffers: Vec<Vec<f32>>,
     input: String,
     output: String,
     /// Where the runtime library came from.
     pub library: PathBuf,
     /// Whether this is a model's int8 copy ([`OrtModel::load_int8`]).
     pub int8: bool,
+    /// Queries per run of a session in [`OrtModel::predict_rows`] ([`ROWS_PER_RUN`]; at least 1).
+    pub rows_per_run: usize,
+}
+
+fn session(
+    env: &ort::environment::Environment,
+    path: &Path,
+    intra: usize,
+) -> Result<ort::session::Session, String> {
+    let mut b = ort::session::Session::builder(env).map_err(|e| e.to_string())?;
+    // Intra-op threads spin within a run and stop at its end: a renderer alternates the
+    // network with descriptors and shading on the same cores, and threads spinning after
+    // the run take them from rayon's. On 2 cores a 32-spp render at 128×72 took 29 ms per
+    // spp so, 37 ms with spinning left on and 38 ms with it off (the network ≈ 40 % slower
+    // then): BENCHMARKS.md, "The CPU sample".
+    b = b
+        .with_config_entry("session.force_spinning_stop", "1")
+        .map_err(|e| e.to_string())?;
+    if intra > 0 {
+        b = b.with_intra_threads(intra).map_err(|e| e.to_string())?;
+    }
+    b.commit_from_file(path).map_err(|e| e.to_string())
 }
 
 impl OrtModel {
-    /// Loads `path` with `threads` intra-op threads (0: ONNX Runtime's default).
-    pub fn load(path: &Path, threads: usize) -> Result<Self, OrtError> {
+    /// Loads `path` to run on `cores`: a number is one session with that many intra-op
+    /// threads (0: ONNX Runtime's default), [`Cores::Workers`] one session per worker.
+    pub fn load(path: &Path, cores: impl Into<Cores>) -> Result<Self, OrtError> {
         let (env, library) = environment()?;
         let library = library.clone();
         let err = |e: String| OrtError::Model {
@@ -158,38 +229,45 @@ impl OrtModel {
         if !path.is_file() {
             return Err(err("model not found".into()));
         }
-        let mut b = ort::session::Session::builder(env).map_err(|e| err(e.to_string()))?;
-        // Intra-op threads spin within a run and stop at its end: a renderer alternates the
-        // network with descriptors and shading on the same cores, and threads spinning after
-        // the run take them from rayon's. On 2 cores a 32-spp render at 128×72 took 29 ms per
-        // spp so, 37 ms with spinning left on and 38 ms with it off (the network ≈ 40 % slower
-        // then): BENCHMARKS.md, "The CPU sample".
-        b = b
-            .with_config_entry("session.force_spinning_stop", "1")
-            .map_err(|e| err(e.to_string()))?;
-        if threads > 0 {
-            b = b
-                .with_intra_threads(threads)
-                .map_err(|e| err(e.to_string()))?;
-        }
-        let session = b.commit_from_file(path).map_err(|e| err(e.to_string()))?;
-        let input = session
+        let (count, intra) = match cores.into() {
+            Cores::Pool(t) => (1, t),
+            Cores::Workers(0) => (rayon::current_num_threads().max(1), 1),
+            Cores::Workers(w) if w <= MAX_WORKERS => (w, 1),
+            Cores::Workers(w) => {
+                return Err(err(format!(
+                    "{w} worker sessions asked for, at most {MAX_WORKERS} (each holds the weights)"
+                )));
+            }
+        };
+        let sessions = (0..count)
+            .into_par_iter()
+            .map(|_| session(env, path, intra))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(err)?;
+        let input = sessions[0]
             .inputs()
             .first()
             .map(|i| i.name().to_string())
             .ok_or_else(|| err("the model has no input".into()))?;
-        let output = session
+        let output = sessions[0]
             .outputs()
             .first()
             .map(|o| o.name().to_string())
             .ok_or_else(|| err("the model has no output".into()))?;
         Ok(Self {
-            session,
+            buffers: vec![Vec::new(); sessions.len()],
+            sessions,
             input,
             output,
             library,
             int8: false,
+            rows_per_run: ROWS_PER_RUN,
         })
+    }
+
+    /// The sessions that run side by side: 1, or the workers of [`Cores::Workers`].
+    pub fn workers(&self) -> usize {
+        self.sessions.len()
     }
 
     /// Loads the int8 copy of the f32 model `f32_path` ([`int8_path_for`], made by
@@ -198,7 +276,7 @@ impl OrtModel {
     /// int8 network"). A missing copy, or a copy of another model (its metadata
     /// `nimbus.rpnn.int8_of` is not the sha256 of `f32_path`), is an error naming the file and
     /// the command that makes it.
-    pub fn load_int8(f32_path: &Path, threads: usize) -> Result<Self, OrtError> {
+    pub fn load_int8(f32_path: &Path, cores: impl Into<Cores>) -> Result<Self, OrtError> {
         let path = int8_path_for(f32_path);
         let remake = format!(
             "make it with `training/.venv/bin/python training/quantize.py {}`",
@@ -224,7 +302,7 @@ impl OrtModel {
                 f32_path.display()
             )));
         }
-        let mut model = Self::load(&path, threads)?;
+        let mut model = Self::load(&path, cores)?;
         model.int8 = true;
         // Streamed (the data sets' checksum): the model is never held whole for this.
         let want = crate::data::sha256_file(f32_path).map_err(|e| match e {
@@ -236,7 +314,7 @@ impl OrtModel {
                 msg: other.to_string(),
             },
         })?;
-        let got = metadata(&model.session, INT8_OF).map_err(err)?;
+        let got = metadata(&model.sessions[0], INT8_OF).map_err(err)?;
         match got {
             Some(g) if g == want => Ok(model),
             Some(g) => Err(err(format!(
@@ -249,21 +327,151 @@ impl OrtModel {
         }
     }
 
-    /// Runs `n` rows of `x` (row-major, `x.len() / n` columns); returns the outputs row-major.
+    /// Runs `n` rows of `x` (row-major, `x.len() / n` columns) through the first session;
+    /// returns the outputs row-major.
     pub fn predict(&mut self, x: &[f32], n: usize) -> Result<Vec<f32>, OrtError> {
         if n == 0 {
             return Ok(Vec::new());
         }
-        let cols = x.len() / n;
-        let t = ort::value::TensorRef::from_array_view(([n, cols], x))
-            .map_err(|e| OrtError::Run(e.to_string()))?;
-        let outputs = self
-            .session
-            .run(ort::inputs![self.input.as_str() => t])
-            .map_err(|e| OrtError::Run(e.to_string()))?;
-        let (_, y) = outputs[self.output.as_str()]
-            .try_extract_tensor::<f32>()
-            .map_err(|e| OrtError::Run(e.to_string()))?;
-        Ok(y.to_vec())
+        run(&mut self.sessions[0], &self.input, &self.output, x, n)
     }
+
+    /// Runs `n` queries of `cols` inputs each whose rows `fill(i, row)` writes (`row` has
+    /// `cols` values, all to be written), [`OrtModel::rows_per_run`] at a time: with one session the rows
+    /// of a piece are written in parallel on rayon's threads and the session's own threads run
+    /// it; with workers ([`Cores::Workers`]) worker w takes the w-th contiguous share of the
+    /// queries and writes and runs them alone. Returns the outputs row-major (query order) and
+    /// the time of each part. Equal inputs give equal outputs either way.
+    pub fn predict_rows<F>(
+        &mut self,
+        n: usize,
+        cols: usize,
+        fill: F,
+    ) -> Result<(Vec<f32>, RowTimes), OrtError>
+    where
+        F: Fn(usize, &mut [f32]) + Sync,
+    {
+        if n == 0 {
+            return Ok((Vec::new(), RowTimes::default()));
+        }
+        let (input, output) = (self.input.as_str(), self.output.as_str());
+        let piece = self.rows_per_run.max(1);
+        if self.sessions.len() == 1 {
+            let (session, buf) = (&mut self.sessions[0], &mut self.buffers[0]);
+            let share = Share {
+                input,
+                output,
+                piece,
+                cols,
+                parallel: true,
+            };
+            return share.run(session, buf, 0..n, |i, row| fill(i, row));
+        }
+        let k = self.sessions.len();
+        let clock = Instant::now();
+        let shares: Vec<_> = self
+            .sessions
+            .par_iter_mut()
+            .zip(self.buffers.par_iter_mut())
+            .enumerate()
+            .map(|(w, (session, buf))| {
+                let share = Share {
+                    input,
+                    output,
+                    piece,
+                    cols,
+                    parallel: false,
+                };
+                share.run(session, buf, n * w / k..n * (w + 1) / k, &fill)
+            })
+            .collect::<Result<_, _>>()?;
+        let wall = clock.elapsed().as_secs_f64() * 1e3;
+        let mut y = Vec::with_capacity(shares.iter().map(|(p, _)| p.len()).sum());
+        let (mut rows, mut network) = (0.0, 0.0);
+        for (part, pt) in shares {
+            y.extend_from_slice(&part);
+            rows += pt.rows_ms;
+            network += pt.network_ms;
+        }
+        let rows_share = if rows + network > 0.0 {
+            rows / (rows + network)
+        } else {
+            0.0
+        };
+        let t = RowTimes {
+            rows_ms: wall * rows_share,
+            network_ms: wall * (1.0 - rows_share),
+        };
+        Ok((y, t))
+    }
+}
+
+/// How one session runs its part of [`OrtModel::predict_rows`].
+struct Share<'a> {
+    input: &'a str,
+    output: &'a str,
+    /// Queries per run.
+    piece: usize,
+    cols: usize,
+    /// Rows written by rayon's threads, or by the calling one.
+    parallel: bool,
+}
+
+impl Share<'_> {
+    /// The queries `range`, `piece` at a time, through `session` (rows in `buf`).
+    fn run<F>(
+        &self,
+        session: &mut ort::session::Session,
+        buf: &mut Vec<f32>,
+        range: std::ops::Range<usize>,
+        fill: F,
+    ) -> Result<(Vec<f32>, RowTimes), OrtError>
+    where
+        F: Fn(usize, &mut [f32]) + Sync,
+    {
+        let cols = self.cols;
+        let mut y = Vec::new();
+        let mut t = RowTimes::default();
+        let mut start = range.start;
+        while start < range.end {
+            let m = self.piece.min(range.end - start);
+            let clock = Instant::now();
+            buf.resize(m * cols, 0.0);
+            if self.parallel {
+                buf.par_chunks_mut(cols)
+                    .enumerate()
+                    .for_each(|(j, row)| fill(start + j, row));
+            } else {
+                for (j, row) in buf.chunks_mut(cols).enumerate() {
+                    fill(start + j, row);
+                }
+            }
+            t.rows_ms += clock.elapsed().as_secs_f64() * 1e3;
+            let clock = Instant::now();
+            y.extend_from_slice(&run(session, self.input, self.output, &buf[..m * cols], m)?);
+            t.network_ms += clock.elapsed().as_secs_f64() * 1e3;
+            start += m;
+        }
+        Ok((y, t))
+    }
+}
+
+/// One run of `session` on `n` rows of `x`.
+fn run(
+    session: &mut ort::session::Session,
+    input: &str,
+    output: &str,
+    x: &[f32],
+    n: usize,
+) -> Result<Vec<f32>, OrtError> {
+    let cols = x.len() / n;
+    let t = ort::value::TensorRef::from_array_view(([n, cols], x))
+        .map_err(|e| OrtError::Run(e.to_string()))?;
+    let outputs = session
+        .run(ort::inputs![input => t])
+        .map_err(|e| OrtError::Run(e.to_string()))?;
+    let (_, y) = outputs[output]
+        .try_extract_tensor::<f32>()
+        .map_err(|e| OrtError::Run(e.to_string()))?;
+    Ok(y.to_vec())
 }

@@ -34,7 +34,7 @@ use nimbus_trace::Pcg32;
 use nimbus_trace::tracking::Tracker;
 use rayon::prelude::*;
 
-use crate::descriptor::{Config, descriptors_into};
+use crate::descriptor::{Config, DESCRIPTOR_LEN, descriptor};
 use crate::gpu_mlp::GpuRpnn;
 use crate::ort_backend::OrtModel;
 use crate::pyramid::Pyramid;
@@ -254,8 +254,6 @@ pub fn accumulate(
     let sum = &mut sums.sum;
     let sum_l2 = &mut sums.sum_l2;
     let mut times = StageTimes::default();
-    // The descriptors of one sample pass, reused by the next.
-    let mut rows: Vec<f32> = Vec::new();
     for s in 0..opts.spp {
         let shades: Vec<Shade> = (0..w * h)
             .into_par_iter()
@@ -271,12 +269,12 @@ pub fn accumulate(
         times.queries += configs.len() as u64;
         let y = match backend {
             Backend::Ort(m) => {
-                let t = Instant::now();
-                descriptors_into(pyr, &configs, &mut rows);
-                times.descriptor_ms += t.elapsed().as_secs_f64() * 1e3;
-                let t = Instant::now();
-                let y = m.predict(&rows, configs.len())?;
-                times.inference_ms += t.elapsed().as_secs_f64() * 1e3;
+                let (y, t) = m.predict_rows(configs.len(), DESCRIPTOR_LEN, |i, row| {
+                    let c = &configs[i];
+                    descriptor(pyr, c.x, c.view, c.to_light, row)
+                })?;
+                times.descriptor_ms += t.rows_ms;
+                times.inference_ms += t.network_ms;
                 y
             }
             Backend::Wgpu(g) => {

@@ -594,3 +594,60 @@ fn int8_copies_agree_with_their_models_and_refuse_others() {
     );
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn ort_workers_and_pieces_reproduce_one_run() {
+    use nimbus_rpnn::ort_backend::{Cores, OrtModel, ROWS_PER_RUN};
+    // The paper-sized shipped model: its products go through the same kernels as a render's.
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rpnn-hg.onnx");
+    let (xs, _) = fixture_io();
+    let cols = xs[0].len();
+    // Real descriptors, scaled per query so that neighbouring rows differ.
+    let row = |i: usize, out: &mut [f32]| {
+        let s = 1.0 + (i % 7) as f32 * 0.15;
+        for (o, x) in out.iter_mut().zip(&xs[i % xs.len()]) {
+            *o = x * s;
+        }
+    };
+    // Two whole pieces and a part of one, split unevenly among 2 and 3 workers.
+    let n = 2 * ROWS_PER_RUN + 37;
+    let mut flat = vec![0.0; n * cols];
+    for (i, r) in flat.chunks_mut(cols).enumerate() {
+        row(i, r);
+    }
+    let mut one = OrtModel::load(&model, 1).unwrap_or_else(|e| panic!("{e}"));
+    let want = one.predict(&flat, n).unwrap();
+    let outs = want.len() / n;
+    assert!(outs >= 1 && want.len() == n * outs);
+    let scale = want.iter().map(|v| v.abs()).fold(0.0f32, f32::max);
+    for cores in [Cores::Pool(0), Cores::Workers(2), Cores::Workers(3)] {
+        let mut m = OrtModel::load(&model, cores).unwrap();
+        let (got, t) = m.predict_rows(n, cols, row).unwrap();
+        assert_eq!(got.len(), want.len(), "{cores:?}");
+        let worst = got
+            .iter()
+            .zip(&want)
+            .map(|(g, w)| (g - w).abs())
+            .fold(0.0f32, f32::max);
+        eprintln!("{cores:?}: largest difference {worst:e} of {scale:e}");
+        assert!(worst <= 0.0 * scale, "{cores:?}: {worst} of {scale}");
+        assert!(t.rows_ms > 0.0 && t.network_ms > 0.0, "{t:?}");
+        // Fewer queries than workers, and none.
+        let (few, _) = m.predict_rows(2, cols, row).unwrap();
+        assert_eq!(few.len(), 2 * outs);
+        let (none, t) = m.predict_rows(0, cols, row).unwrap();
+        assert!(none.is_empty() && t.network_ms == 0.0);
+    }
+    // An absurd number of workers is refused, naming the model, before any session is made.
+    let e = OrtModel::load(
+        &model,
+        Cores::Workers(nimbus_rpnn::ort_backend::MAX_WORKERS + 1),
+    )
+    .err()
+    .expect("refused")
+    .to_string();
+    assert!(
+        e.contains("rpnn-hg.onnx") && e.contains("worker sessions"),
+        "{e}"
+    );
+}
