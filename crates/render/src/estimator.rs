@@ -161,7 +161,7 @@ pub struct Estimator<'g> {
     scene: Scene,
     /// Seconds [`prepare`] took.
     pub prepare_s: f64,
-    /// Where it runs (`cpu (2 threads)`, the adapter, `ort (cpu)`, …).
+    /// Where it runs (`cpu (2 threads)`, the adapter, `ort (cpu: 2 sessions)`, …).
     pub device: String,
     /// Warnings for the user (an RPNN model trained for another medium).
     pub warnings: Vec<String>,
@@ -431,17 +431,29 @@ pub fn rpnn_backend<'g>(
                 if choice == NetBackend::Auto =>
             {
                 let b = OrtModel::load(model_path, Cores::Workers(0))?;
-                return Ok((Backend::Ort(b), format!("ort (cpu; not the GPU: {e})")));
+                let cpu = ort_cpu(&b);
+                return Ok((Backend::Ort(b), format!("ort ({cpu}; not the GPU: {e})")));
             }
             Err(e) => return Err(e.into()),
         }
     }
     if choice == NetBackend::OrtInt8 {
         let b = OrtModel::load_int8(model_path, Cores::Workers(0))?;
-        return Ok((Backend::Ort(b), "ort int8 (cpu)".to_string()));
+        let cpu = ort_cpu(&b);
+        return Ok((Backend::Ort(b), format!("ort int8 ({cpu})")));
     }
     let b = OrtModel::load(model_path, Cores::Workers(0))?;
-    Ok((Backend::Ort(b), "ort (cpu)".to_string()))
+    let cpu = ort_cpu(&b);
+    Ok((Backend::Ort(b), format!("ort ({cpu})")))
+}
+
+/// How ONNX Runtime runs, for the device line: `cpu: 2 sessions` (one single-threaded session
+/// per core, [`Cores::Workers`]). No comma: the line is a field of `report.csv`.
+fn ort_cpu(b: &OrtModel) -> String {
+    match b.workers() {
+        1 => "cpu: 1 session".to_string(),
+        n => format!("cpu: {n} sessions"),
+    }
 }
 
 impl<'g> Estimator<'g> {

@@ -140,12 +140,13 @@ fn metadata(session: &ort::session::Session, key: &str) -> Result<Option<String>
 
 /// How an [`OrtModel`] uses the CPU's cores.
 ///
-/// A renderer's batches are small (≈ 1 300 queries per sample at the bench suite's 128×72) and
-/// alternate with descriptors: one session whose intra-op threads meet at every one of the 70
-/// operators spends a fifth of its time waiting there. `Workers` runs one single-threaded session
-/// per core, each on its own share of the batch, descriptors included, with nothing shared
-/// until the outputs are joined: 11 against 14 µs per query for descriptor and network on 2
-/// cores (BENCHMARKS.md, "The CPU sample, third round").
+/// A renderer's batches alternate with the descriptors that fill them. `Workers` runs one
+/// single-threaded session per core, each on its own contiguous share of the batch, its
+/// descriptors included, with nothing shared until the outputs are joined; `Pool` runs one
+/// session whose intra-op threads meet at each operator, with the descriptors written by rayon's
+/// threads. On 2 cores, pieces of 1 024 queries: 10.7–11.1 against 13.8–14.3 µs per query for
+/// descriptors and network (`cargo run --release -p nimbus-rpnn --example ort_cores`;
+/// BENCHMARKS.md, "The CPU sample, third round"). The outputs are equal to the bit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Cores {
     /// One session whose intra-op pool has this many threads (0: ONNX Runtime's default).
@@ -164,11 +165,13 @@ impl From<usize> for Cores {
     }
 }
 
-/// Queries per call of a session in [`OrtModel::predict_rows`]: the rows of a batch are made and
-/// run this many at a time. One call over a whole 1280×720 frame (≈ 195 000 queries, 1.75 GB of
-/// descriptors) ran 14 µs per query against 9–10 µs in pieces of 1 024 – 8 192, whose
-/// descriptors and activations stay in the caches; the descriptors, written once into a buffer
-/// that is kept, no longer fault in fresh pages (7.2 → 3.4 µs per query).
+/// Queries per run of a session in [`OrtModel::predict_rows`]: the rows of a batch are made and
+/// run this many at a time, so that a piece's descriptors (9 KB a query) and activations stay
+/// in the caches and the kept buffer is never larger than a piece. A whole 1280×720 frame in
+/// one run (≈ 195 000 queries, 1.75 GB of descriptors) took 6.6 µs per query for the
+/// descriptors and 15–27 for the network; in pieces of 1 024 on two workers, 3.5 and 7.2–7.6
+/// (BENCHMARKS.md, "The CPU sample, third round"). Between 128 and 2 048 the time hardly
+/// changes.
 pub const ROWS_PER_RUN: usize = 1024;
 
 /// Milliseconds of one [`OrtModel::predict_rows`] call: making the rows and running the
