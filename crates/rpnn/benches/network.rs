@@ -1,7 +1,8 @@
 //! Network throughput: queries per second of the shipped sun model (`models/rpnn-hg.onnx`) in
 //! ONNX Runtime (f32, and its int8 copy: `--backend ort-int8`; one session with its own
-//! threads, and one single-threaded session per core as a render runs them: `_workers`) and in WGSL (`shaders/rpnn_mlp.wgsl`, f32 and f16 storage, both kernels: `--net-tiles`), on one batch of
-//! 4 096 real descriptors (random points inside the demo cumulus of
+//! threads, and one single-threaded session per core as a render runs them: `_workers`) and in
+//! WGSL (`shaders/rpnn_mlp.wgsl`, f32 and f16 storage, both kernels: `--net-tiles`), on one
+//! batch of 4 096 real descriptors (random points inside the demo cumulus of
 //! `scenes/bench/rpnn_720p.toml`, random views, its sun). Each WGSL iteration uploads the batch
 //! and reads the predictions back, as `GpuMlp::predict` does.
 //!

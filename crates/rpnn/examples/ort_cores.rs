@@ -1,8 +1,8 @@
 //! Descriptors and ONNX Runtime per query against the piece size and the use of the cores
 //! (BENCHMARKS.md, "The CPU sample, third round"): 65 536 configurations of the demo cumulus
 //! (`scenes/bench/rpnn_720p.toml`, as `cargo bench -p nimbus-rpnn --bench network`), run
-//! through `OrtModel::predict_rows` in pieces of 65 536 (a whole 320×180 frame at a time)
-//! down to 128 queries, once with one session on ONNX Runtime's threads (`Cores::Pool`) and
+//! through `OrtModel::predict_rows` in pieces of 65 536 (a third of a 1280×720 sample at a
+//! time) down to 128 queries, once with one session on ONNX Runtime's threads (`Cores::Pool`) and
 //! once with one single-threaded session per core (`Cores::Workers`, what a render uses).
 //! Each setting runs three times; the table gives the fastest and slowest time per query.
 //!

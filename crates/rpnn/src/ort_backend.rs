@@ -146,7 +146,16 @@ fn metadata(session: &ort::session::Session, key: &str) -> Result<Option<String>
 /// session whose intra-op threads meet at each operator, with the descriptors written by rayon's
 /// threads. On 2 cores, pieces of 1 024 queries: 10.7–11.1 against 13.8–14.3 µs per query for
 /// descriptors and network (`cargo run --release -p nimbus-rpnn --example ort_cores`;
-/// BENCHMARKS.md, "The CPU sample, third round"). The outputs are equal to the bit.
+/// BENCHMARKS.md, "The CPU sample, third round").
+///
+/// With an f32 model the outputs do not depend on the split: equal to the bit with one session
+/// or any number of workers and pieces (tested). An int8 copy ([`OrtModel::load_int8`]) scales
+/// each layer's input per run, so its outputs depend on the split — the number of workers and
+/// [`OrtModel::rows_per_run`] — by far less than its own difference from f32 (see
+/// `models/int8.md`); with the same cores and seed an image is still the same.
+///
+/// Each session holds the weights (5.2 MB for the paper's network) and a kept buffer of up to
+/// `rows_per_run` rows (9 MB at 1 024), so memory grows with the number of workers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Cores {
     /// One session whose intra-op pool has this many threads (0: ONNX Runtime's default).
@@ -167,7 +176,7 @@ impl From<usize> for Cores {
 
 /// Queries per run of a session in [`OrtModel::predict_rows`]: the rows of a batch are made and
 /// run this many at a time, so that a piece's descriptors (9 KB a query) and activations stay
-/// in the caches and the kept buffer is never larger than a piece. A whole 1280×720 frame in
+/// in the caches and the kept buffers stay small. A whole 1280×720 frame in
 /// one run (≈ 195 000 queries, 1.75 GB of descriptors) took 6.6 µs per query for the
 /// descriptors and 15–27 for the network; in pieces of 1 024 on two workers, 3.5 and 7.2–7.6
 /// (BENCHMARKS.md, "The CPU sample, third round"). Between 128 and 2 048 the time hardly
@@ -195,7 +204,8 @@ pub struct OrtModel {
     pub library: PathBuf,
     /// Whether this is a model's int8 copy ([`OrtModel::load_int8`]).
     pub int8: bool,
-    /// Queries per run of a session in [`OrtModel::predict_rows`] ([`ROWS_PER_RUN`]; at least 1).
+    /// Queries per run of a session in [`OrtModel::predict_rows`] ([`ROWS_PER_RUN`]; 0 counts
+    /// as 1).
     pub rows_per_run: usize,
 }
 
@@ -205,7 +215,8 @@ fn session(
     intra: usize,
 ) -> Result<ort::session::Session, String> {
     let mut b = ort::session::Session::builder(env).map_err(|e| e.to_string())?;
-    // Intra-op threads spin within a run and stop at its end: a renderer alternates the
+    // With more than one intra-op thread ([`Cores::Pool`]; a worker's session has none to
+    // spin): intra-op threads spin within a run and stop at its end. A renderer alternates the
     // network with descriptors and shading on the same cores, and threads spinning after
     // the run take them from rayon's. On 2 cores a 32-spp render at 128×72 took 29 ms per
     // spp so, 37 ms with spinning left on and 38 ms with it off (the network ≈ 40 % slower
@@ -223,6 +234,15 @@ impl OrtModel {
     /// Loads `path` to run on `cores`: a number is one session with that many intra-op
     /// threads (0: ONNX Runtime's default), [`Cores::Workers`] one session per worker.
     pub fn load(path: &Path, cores: impl Into<Cores>) -> Result<Self, OrtError> {
+        Self::load_checked(path, cores.into(), |_| Ok(()))
+    }
+
+    /// [`OrtModel::load`], with `check` run on the first session before the others are made.
+    fn load_checked(
+        path: &Path,
+        cores: Cores,
+        check: impl FnOnce(&ort::session::Session) -> Result<(), OrtError>,
+    ) -> Result<Self, OrtError> {
         let (env, library) = environment()?;
         let library = library.clone();
         let err = |e: String| OrtError::Model {
@@ -232,7 +252,7 @@ impl OrtModel {
         if !path.is_file() {
             return Err(err("model not found".into()));
         }
-        let (count, intra) = match cores.into() {
+        let (count, intra) = match cores {
             Cores::Pool(t) => (1, t),
             Cores::Workers(0) => (rayon::current_num_threads().max(1), 1),
             Cores::Workers(w) if w <= MAX_WORKERS => (w, 1),
@@ -242,11 +262,15 @@ impl OrtModel {
                 )));
             }
         };
-        let sessions = (0..count)
+        let first = session(env, path, intra).map_err(err)?;
+        check(&first)?;
+        let rest = (1..count)
             .into_par_iter()
             .map(|_| session(env, path, intra))
             .collect::<Result<Vec<_>, _>>()
             .map_err(err)?;
+        let mut sessions = vec![first];
+        sessions.extend(rest);
         let input = sessions[0]
             .inputs()
             .first()
@@ -275,8 +299,9 @@ impl OrtModel {
 
     /// Loads the int8 copy of the f32 model `f32_path` ([`int8_path_for`], made by
     /// `training/quantize.py`: weights int8 per output channel, the blocks' input activations
-    /// u8 with one scale per batch, the heads f32; beyond the paper, see BENCHMARKS.md "The
-    /// int8 network"). A missing copy, or a copy of another model (its metadata
+    /// u8 with one scale per run of a session (at most [`OrtModel::rows_per_run`] queries: the
+    /// outputs depend on the split, see [`Cores`]), the heads f32; beyond the paper, see
+    /// BENCHMARKS.md "The int8 network"). A missing copy, or a copy of another model (its metadata
     /// `nimbus.rpnn.int8_of` is not the sha256 of `f32_path`), is an error naming the file and
     /// the command that makes it.
     pub fn load_int8(f32_path: &Path, cores: impl Into<Cores>) -> Result<Self, OrtError> {
@@ -305,8 +330,6 @@ impl OrtModel {
                 f32_path.display()
             )));
         }
-        let mut model = Self::load(&path, cores)?;
-        model.int8 = true;
         // Streamed (the data sets' checksum): the model is never held whole for this.
         let want = crate::data::sha256_file(f32_path).map_err(|e| match e {
             crate::data::datagen::DatagenError::Set { what, msg } => {
@@ -317,9 +340,9 @@ impl OrtModel {
                 msg: other.to_string(),
             },
         })?;
-        let got = metadata(&model.sessions[0], INT8_OF).map_err(err)?;
-        match got {
-            Some(g) if g == want => Ok(model),
+        // Checked on the first session, before the workers' sessions are made.
+        let check = |first: &ort::session::Session| match metadata(first, INT8_OF).map_err(err)? {
+            Some(g) if g == want => Ok(()),
             Some(g) => Err(err(format!(
                 "made from another model (metadata {INT8_OF} = sha256 {g:.12}…), not from {} (sha256 {want:.12}…): {remake}",
                 f32_path.display()
@@ -327,7 +350,10 @@ impl OrtModel {
             None => Err(err(format!(
                 "no metadata {INT8_OF}: not an int8 copy made by training/quantize.py; {remake}"
             ))),
-        }
+        };
+        let mut model = Self::load_checked(&path, cores.into(), check)?;
+        model.int8 = true;
+        Ok(model)
     }
 
     /// Runs `n` rows of `x` (row-major, `x.len() / n` columns) through the first session;
@@ -340,11 +366,12 @@ impl OrtModel {
     }
 
     /// Runs `n` queries of `cols` inputs each whose rows `fill(i, row)` writes (`row` has
-    /// `cols` values, all to be written), [`OrtModel::rows_per_run`] at a time: with one session the rows
-    /// of a piece are written in parallel on rayon's threads and the session's own threads run
-    /// it; with workers ([`Cores::Workers`]) worker w takes the w-th contiguous share of the
-    /// queries and writes and runs them alone. Returns the outputs row-major (query order) and
-    /// the time of each part. Equal inputs give equal outputs either way.
+    /// `cols` values, all to be written), [`OrtModel::rows_per_run`] at a time: with one
+    /// session the rows of a piece are written in parallel on rayon's threads and the
+    /// session's own threads run it; with workers ([`Cores::Workers`]) worker w takes the w-th
+    /// contiguous share of the queries and writes and runs them alone. Returns the outputs
+    /// row-major (query order) and the time of each part. An f32 model gives equal outputs
+    /// either way; an int8 copy's depend on the split ([`Cores`]).
     pub fn predict_rows<F>(
         &mut self,
         n: usize,
@@ -356,6 +383,9 @@ impl OrtModel {
     {
         if n == 0 {
             return Ok((Vec::new(), RowTimes::default()));
+        }
+        if cols == 0 {
+            return Err(OrtError::Run(format!("{n} queries of no inputs")));
         }
         let (input, output) = (self.input.as_str(), self.output.as_str());
         let piece = self.rows_per_run.max(1);
@@ -439,13 +469,17 @@ impl Share<'_> {
         while start < range.end {
             let m = self.piece.min(range.end - start);
             let clock = Instant::now();
-            buf.resize(m * cols, 0.0);
+            // The buffer only grows: a short last piece uses its front (no zeroing again).
+            if buf.len() < m * cols {
+                buf.resize(m * cols, 0.0);
+            }
+            let rows = &mut buf[..m * cols];
             if self.parallel {
-                buf.par_chunks_mut(cols)
+                rows.par_chunks_mut(cols)
                     .enumerate()
                     .for_each(|(j, row)| fill(start + j, row));
             } else {
-                for (j, row) in buf.chunks_mut(cols).enumerate() {
+                for (j, row) in rows.chunks_mut(cols).enumerate() {
                     fill(start + j, row);
                 }
             }

@@ -22,7 +22,9 @@
 //!
 //! Rays that leave the volume see the sky and the sun disc. All queries of one sample pass are
 //! batched: descriptors and network on the GPU ([`Backend::Wgpu`], only predictions come
-//! back) or descriptors on the CPU and ONNX Runtime ([`Backend::Ort`]).
+//! back) or descriptors on the CPU and ONNX Runtime ([`Backend::Ort`]: one single-threaded
+//! session per core makes and runs its share of the batch in pieces,
+//! [`OrtModel::predict_rows`]).
 
 use std::time::Instant;
 
