@@ -88,6 +88,37 @@ fn wgpu_and_ort_backends_render_the_same_image() {
     assert_eq!(a.times.queries % 4, 0);
 }
 
+/// The render's queries through one session and through workers in small pieces: the same
+/// image to the bit (an f32 model's outputs do not depend on the split), so each query's
+/// descriptor reaches its own row and its answer its own pixel.
+#[test]
+fn ort_workers_render_the_one_session_image() {
+    use nimbus_rpnn::ort_backend::Cores;
+    let s = scene(true, 20, 14, 7);
+    let pyr = Pyramid::new(&s.volume).unwrap();
+    let path = data("rpnn-tiny-sky.onnx");
+    let opts = RpnnOptions::new(2, 1, 3);
+    let mut one = Backend::Ort(OrtModel::load(&path, 1).unwrap());
+    let a = render(&s, &pyr, &mut one, &opts).unwrap();
+    let mut workers = OrtModel::load(&path, Cores::Workers(3)).unwrap();
+    // Pieces of 7 queries: many runs per worker, and a short last one.
+    workers.rows_per_run = 7;
+    let b = render(&s, &pyr, &mut Backend::Ort(workers), &opts).unwrap();
+    assert!(a.times.queries > 3 * 7, "{} queries", a.times.queries);
+    assert_eq!(a.times.queries, b.times.queries);
+    let bits = |i: &nimbus_scene::Image| {
+        i.pixels
+            .iter()
+            .flatten()
+            .map(|v| v.to_bits())
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(bits(&a.image), bits(&b.image));
+    // The image is not a constant (a lost query would show).
+    let first = a.image.pixels[0];
+    assert!(a.image.pixels.iter().any(|p| *p != first));
+}
+
 #[test]
 fn no_sky_means_no_sky_queries() {
     let s = scene(false, 16, 12, 5);
