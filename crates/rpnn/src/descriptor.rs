@@ -103,9 +103,10 @@ pub fn descriptors(pyr: &Pyramid, configs: &[Config]) -> Vec<f32> {
     out
 }
 
-/// [`descriptors`] into `out` (resized to fit; every value overwritten). A renderer keeps
-/// one buffer across samples: a fresh one of megabytes is fresh pages for the kernel to
-/// zero on every sample.
+/// [`descriptors`] into `out` (resized to fit; every value overwritten), for a caller that
+/// keeps one buffer across batches: a fresh one of megabytes is fresh pages for the kernel to
+/// zero every time. (The ONNX Runtime renderer writes rows piece by piece into buffers of its
+/// own: `ort_backend::OrtModel::predict_rows`.)
 pub fn descriptors_into(pyr: &Pyramid, configs: &[Config], out: &mut Vec<f32>) {
     use rayon::prelude::*;
     out.resize(configs.len() * DESCRIPTOR_LEN, 0.0);

@@ -388,17 +388,16 @@ impl OrtModel {
             return Err(OrtError::Run(format!("{n} queries of no inputs")));
         }
         let (input, output) = (self.input.as_str(), self.output.as_str());
-        let piece = self.rows_per_run.max(1);
-        if self.sessions.len() == 1 {
-            let (session, buf) = (&mut self.sessions[0], &mut self.buffers[0]);
-            let share = Share {
-                input,
-                output,
-                piece,
-                cols,
-                parallel: true,
-            };
-            return share.run(session, buf, 0..n, |i, row| fill(i, row));
+        let share = Share {
+            input,
+            output,
+            piece: self.rows_per_run.max(1),
+            cols,
+            // One session: rayon's threads write its rows; workers write their own.
+            parallel: self.sessions.len() == 1,
+        };
+        if share.parallel {
+            return share.run(&mut self.sessions[0], &mut self.buffers[0], 0..n, &fill);
         }
         let k = self.sessions.len();
         let clock = Instant::now();
@@ -407,16 +406,7 @@ impl OrtModel {
             .par_iter_mut()
             .zip(self.buffers.par_iter_mut())
             .enumerate()
-            .map(|(w, (session, buf))| {
-                let share = Share {
-                    input,
-                    output,
-                    piece,
-                    cols,
-                    parallel: false,
-                };
-                share.run(session, buf, n * w / k..n * (w + 1) / k, &fill)
-            })
+            .map(|(w, (session, buf))| share.run(session, buf, n * w / k..n * (w + 1) / k, &fill))
             .collect::<Result<_, _>>()?;
         let wall = clock.elapsed().as_secs_f64() * 1e3;
         let mut y = Vec::with_capacity(shares.iter().map(|(p, _)| p.len()).sum());

@@ -320,7 +320,7 @@ fn pyramid_stores_only_what_stencils_read() {
     }
 }
 
-/// A renderer's reused buffer: `descriptors_into` gives, row by row and bit for bit, what
+/// A reused buffer: `descriptors_into` gives, row by row and bit for bit, what
 /// `descriptor` gives for each configuration alone, whatever the buffer held before (NaN, or
 /// the rows of other configurations) and however long it was (longer: cut; shorter: grown).
 #[test]
