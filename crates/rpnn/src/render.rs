@@ -106,11 +106,15 @@ pub struct SkySh {
 }
 
 impl SkySh {
-    /// The scene's sky projected with `n` Gauss–Legendre nodes (none without a sky).
+    /// The scene's sky projected (none without a sky): a constant sky with `n` Gauss–Legendre
+    /// nodes (exact), an environment map texel by texel ([`crate::sky::project_env`]).
     pub fn of(scene: &Scene, degree: usize, n: usize) -> Option<Self> {
-        scene.sky.as_ref()?;
+        let world = match scene.sky.as_ref()? {
+            Sky::Env(env) => crate::sky::project_env(env),
+            Sky::Constant(_) => crate::sky::project(|d| sky_radiance(scene, d), n),
+        };
         Some(Self {
-            world: crate::sky::project(|d| sky_radiance(scene, d), n),
+            world,
             degree: degree.min(crate::sky::SH_DEGREE),
         })
     }
