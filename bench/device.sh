@@ -22,21 +22,24 @@
 #      the first budget whose 4×4 relative error is ≤ 5 % and the speed-up at equal error of
 #      its largest budget (report in DIR/compare/);
 #   9. the same on the held-out clouds: `bench-suite --device gpu` (pt-gpu, pm, rpnn with the
-#      whole sample on the GPU), median speed-up and cases within the floor per sky condition
-#      (DIR/suite/results.md).
+#      whole sample on the GPU, and the papers' pm-elek2012 and rpnn-dirs) under sun and under
+#      sun + sky, median speed-up and cases within the floor per sky condition
+#      (DIR/suite/results.md);
+#  10. the same under sun + environment map (pt-gpu, rpnn, rpnn-dirs: photon mapping takes no
+#      environment map; DIR/suite_env/results.md).
 #
 #   bash bench/device.sh [--small] [--steps LIST] [--out DIR]
 #
-# `--steps 2,9` runs only those steps (default: all), so a lent GPU's time can go first to what
-# is unmeasured, or a run can be split over two calls of a device's per-command time limit
-# (each with its own --out).
+# `--steps 2,9` runs only those steps (default: all), so a machine's time can go first to what
+# is unmeasured, or a run can be split into parts under a time limit (each with its own --out).
 #
-# On an H200 the full run took 134 s (2026-12-04), before steps 7–9 (step 9 renders 18 scenes
-# with references capped at 30 s each: allow several minutes more). `--small` runs the same steps at reduced
+# On an H200 the full run took 134 s (2026-12-04), before steps 7–10. Steps 9 and 10 render 18
+# and 9 scenes with references capped at 30 s each: allow 10 and 5 minutes more. `--small` runs the same steps at reduced
 # sizes (1/8 of the pixels or fewer, fewer frames, beams and records) so lavapipe finishes in
 # about a minute; the tests run it that way. The binary is ./target/release/nimbus (or $NIMBUS:
 # the release profile keeps line tables of Nimbus' own code for profiling, ≈ 46 MB; `strip -o`
-# makes a 15 MB copy to carry to another machine). Needs the shared references' cumulus.vol
+# makes a 15 MB copy to take to another machine; where that machine has the GPU's driver but
+# no Vulkan loader, unpack Debian's `libvulkan1` there with `dpkg -x`). Needs the shared references' cumulus.vol
 # where scenes/refs/cumulus_side.toml points (step 3) and a python with torch ($PYTHON, else
 # training/.venv, else python3; step 5).
 # Writes DIR/device.csv, DIR/device.md and the scale renders' output DIR/scale.log (default
@@ -44,27 +47,27 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 small=0
-steps=1,2,3,4,5,6,7,8,9
+steps=1,2,3,4,5,6,7,8,9,10
 out=out/device
 while [ $# -gt 0 ]; do
   case "$1" in
     --small) small=1 ;;
     --out) out="$2"; shift ;;
     --steps) steps="$2"; shift ;;
-    -h|--help) sed -n '2,43p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,/^set -euo/p' "$0" | sed '$d'; exit 0 ;;
     *) echo "bench/device.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
   shift
 done
 case ",$steps," in
-  *[!0-9,]*|*,,,*) echo "bench/device.sh: --steps '$steps': expected step numbers 1-9, e.g. 2,9" >&2; exit 2 ;;
+  *[!0-9,]*|*,,,*) echo "bench/device.sh: --steps '$steps': expected step numbers 1-10, e.g. 2,9" >&2; exit 2 ;;
 esac
 [ -n "${steps//,/}" ] || { echo "bench/device.sh: --steps is empty" >&2; exit 2; }
 asked=
 for n in ${steps//,/ }; do
   n=$((10#$n))
-  [ "$n" -ge 1 ] && [ "$n" -le 9 ] ||
-    { echo "bench/device.sh: --steps '$steps': there is no step $n (1-9)" >&2; exit 2; }
+  [ "$n" -ge 1 ] && [ "$n" -le 10 ] ||
+    { echo "bench/device.sh: --steps '$steps': there is no step $n (1-10)" >&2; exit 2; }
   asked="$asked,$n"
 done
 steps=${asked#,}
@@ -85,7 +88,7 @@ if [ "$small" = 1 ]; then
   CMP_BUDGETS="--budgets pt-gpu=4,16,64 --budgets pm=1,4,16 --budgets pm-march=4,16 --budgets rpnn=1,4"
   CMP_REF="--ref-spp 64 --ref-time-cap 60"
   SUITE_SIZE=32x18
-  SUITE="--clouds 1 --lights back --skies sun,sun+sky --size $SUITE_SIZE --budgets pt-gpu=4,16 --budgets pm=4 --budgets rpnn=2 --beams 1024 --ref-spp 128 --ref-noise 0"
+  SUITE="--clouds 1 --lights back --size $SUITE_SIZE --methods pt-gpu,pm,pm-elek2012,rpnn,rpnn-dirs --budgets pt-gpu=4,16 --budgets pm=4 --budgets pm-elek2012=4 --budgets rpnn=2 --budgets rpnn-dirs=2 --beams 1024 --ref-spp 128 --ref-noise 0"
 else
   W=1920; H=1200; FRAMES=12; BEAMS=8192; RW=1280; RH=720; RSPP=2; PW=1280; PH=720; PTSPP=4; GPTSPP=64
   DG_RECORDS=2000; DG_SAMPLES=1024; VOLRES=1200; TR_RECORDS=200000; TR_EPOCHS=3
@@ -291,17 +294,15 @@ for m in dict.fromkeys(r["method"] for r in rows):
 PY
 fi # step 8
 
-if want 9; then
-# 9. The users' table on held-out clouds: `bench-suite --device gpu` (pt-gpu the baseline, pm,
-# rpnn with the whole sample on the GPU, and the papers' variants: pm-elek2012, rpnn-dirs, whose
-# sky directions the GPU sample takes under the suite's constant sky) — per method and sky
-# condition the median speed-up at equal error and how many cases lie within twice their floor
-# (full table in DIR/suite/results.md).
-# shellcheck disable=SC2086
-"$nimbus" bench-suite --device gpu $SUITE --out "$out/suite" --work "$out/suite_work" \
-  --cache "$out/suite_cache" > "$out/suite.log" 2>&1 ||
-  { echo "bench/device.sh: bench-suite failed; the end of $out/suite.log:" >&2; tail -30 "$out/suite.log" >&2; exit 1; }
-"$py" - "$out/suite/results.md" "$SUITE_SIZE" >> "$csv" <<'PY'
+# Steps 9 and 10: `bench-suite --device gpu` on the held-out clouds under SKIES into DIR/NAME,
+# and its summary rows (median speed-up at equal error where finite, cases within twice the
+# floor, zero included) into the CSV.
+suite() { # NAME SKIES
+  # shellcheck disable=SC2086
+  "$nimbus" bench-suite --device gpu $SUITE --skies "$2" --out "$out/$1" --work "$out/$1_work" \
+    --cache "$out/suite_cache" > "$out/$1.log" 2>&1 ||
+    { echo "bench/device.sh: bench-suite failed; the end of $out/$1.log:" >&2; tail -30 "$out/$1.log" >&2; exit 1; }
+  "$py" - "$out/$1/results.md" "$SUITE_SIZE" >> "$csv" <<'PY'
 import math, re, sys
 for line in open(sys.argv[1]):
     f = [c.strip() for c in line.strip().strip("|").split("|")]
@@ -311,16 +312,30 @@ for line in open(sys.argv[1]):
     if m and math.isfinite(float(m.group(1))) and float(m.group(1)) > 0:
         print(f"suite_speedup_median,held-out clouds {f[1]},{sys.argv[2]} {f[0]},{m.group(1)},x")
     w = re.match(r"(\d+) of (\d+)", f[5])
-    if w and int(w.group(1)) > 0:
+    if w:
         print(f"suite_within_floor,held-out clouds {f[1]},{sys.argv[2]} {f[0]} of {w.group(2)},{w.group(1)},cases")
 PY
+}
+
+if want 9; then
+# 9. The users' table on held-out clouds: `bench-suite --device gpu` (pt-gpu the baseline, pm,
+# rpnn with the whole sample on the GPU, and the papers' variants: pm-elek2012, rpnn-dirs, whose
+# sky directions the GPU sample takes under the suite's constant sky) — per method and sky
+# condition the median speed-up at equal error and how many cases lie within twice their floor
+# (full table in DIR/suite/results.md).
+suite suite sun,sun+sky
 fi # step 9
+
+if want 10; then
+# 10. The same under the sun and an environment map (the methods that take one).
+suite suite_env sun+env
+fi # step 10
 
 # The Markdown table.
 {
   echo "# Device benchmark ($(date -u +%Y-%m-%d), $adapter$([ "$small" = 1 ] && echo ', --small'))"
   echo
-  echo "Command: \`bash bench/device.sh$([ "$small" = 1 ] && echo ' --small')$([ "$steps" != 1,2,3,4,5,6,7,8,9 ] && echo " --steps $steps")\`"
+  echo "Command: \`bash bench/device.sh$([ "$small" = 1 ] && echo ' --small')$([ "$steps" != 1,2,3,4,5,6,7,8,9,10 ] && echo " --steps $steps")\`"
   echo
   echo "| measure | scene | setting | value | unit |"
   echo "|---|---|---|---:|---|"
