@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Result, bail};
 use clap::ValueEnum;
 use nimbus_eval::{CompareOptions, GpuSlot, RefDevice, ReferenceSettings, RunSettings};
+use nimbus_render::Method;
 
 use crate::rpnn::RpnnArgs;
 
@@ -20,13 +21,16 @@ pub(crate) enum RefDeviceArg {
 /// Settings of the method runs and the reference, shared by `compare` and `bench-suite`.
 #[derive(clap::Args)]
 pub(crate) struct EvalArgs {
-    /// Methods to compare: pt, pt-gpu, pm, pm-elek2012 (the paper's photon mapping), rpnn
-    /// (comma-separated; default pt,pm,rpnn, with `bench-suite --device gpu` pt-gpu,pm,rpnn).
+    /// Methods to compare: pt, pt-gpu, pm, pm-march, pm-elek2012 (the paper's photon mapping),
+    /// rpnn, rpnn-dirs (the paper's sky directions) (comma-separated; default pt,pm,rpnn, with
+    /// `bench-suite --device gpu` pt-gpu,pm,rpnn).
     #[arg(long)]
     methods: Option<String>,
-    /// Budget sweep of one method, METHOD=B1,B2,… (spp for pt/pt-gpu/rpnn, ring frames for pm);
-    /// repeat for several methods. Defaults: pt=2,8,32,128 pt-gpu=4,16,64,256 pm=4,16,100
-    /// rpnn=2,8,32 (a Monte Carlo budget is rendered as two halves for its noise estimate).
+    /// Budget sweep of one method, METHOD=B1,B2,… (spp for pt, pt-gpu, pm, rpnn and rpnn-dirs;
+    /// ring frames for pm-march and pm-elek2012); repeat for several methods. Defaults:
+    /// pt=2,8,32,128 pt-gpu=4,16,64,256 pm=2,8,32 pm-march=4,16,100 pm-elek2012=4,16,100
+    /// rpnn=2,8,32 rpnn-dirs=2,8,32 (a Monte Carlo budget is rendered as two halves for its
+    /// noise estimate).
     #[arg(long)]
     budgets: Vec<String>,
     /// Reference samples per pixel per half and round (rounds repeat until --ref-noise or
@@ -159,7 +163,14 @@ fn log(line: String) {
 /// What a comparison writes and reads at its end, checked before its first render (a reference
 /// and the runs can take an hour): the output and cache folders can be written, and RPNN's model
 /// (`model`: the one the runs would load) reads.
-fn preflight(opts: &CompareOptions, out: &Path, model: impl FnOnce() -> PathBuf) -> Result<()> {
+/// Before any rendering: `--out` (and `--cache`) writable, and every RPNN model the runs will
+/// load (`models(method)`: the paths for `rpnn` or `rpnn-dirs`) readable, so a missing or
+/// malformed model is named at once, not after the references.
+fn preflight(
+    opts: &CompareOptions,
+    out: &Path,
+    models: impl Fn(Method) -> Result<Vec<PathBuf>>,
+) -> Result<()> {
     use anyhow::Context;
     nimbus_scene::io::check_writable(out.join("report.md")).context("--out")?;
     if let Some(cache) = &opts.reference.cache_dir
@@ -174,9 +185,16 @@ fn preflight(opts: &CompareOptions, out: &Path, model: impl FnOnce() -> PathBuf)
             cache.display()
         );
     }
-    if opts.methods.iter().any(|m| m.is_rpnn()) {
-        let path = opts.run.model.clone().unwrap_or_else(model);
-        nimbus_rpnn::model::Rpnn::load(&path)?;
+    let mut paths: Vec<PathBuf> = Vec::new();
+    for &m in opts.methods.iter().filter(|m| m.is_rpnn()) {
+        for p in models(m)? {
+            if !paths.contains(&p) {
+                paths.push(p);
+            }
+        }
+    }
+    for p in &paths {
+        nimbus_rpnn::model::Rpnn::load(p)?;
     }
     Ok(())
 }
@@ -190,8 +208,13 @@ pub(crate) fn compare_scene(scene: &Path, args: &EvalArgs, out: &Path) -> Result
         .unwrap_or_default()
         .to_string_lossy()
         .into_owned();
-    preflight(&opts, out, || {
-        nimbus_rpnn::model::model_path_for(&s.phase_desc)
+    preflight(&opts, out, |m| {
+        Ok(vec![nimbus_render::rpnn_model_path(
+            opts.run.model.as_deref(),
+            m,
+            &s.phase_desc,
+            s.sky.is_some(),
+        )])
     })?;
     let mut gpu = GpuSlot::default();
     let c = nimbus_eval::compare_scene(&s, &name, &opts, out, &mut gpu, &mut log)?;
@@ -285,11 +308,28 @@ pub(crate) fn bench_suite(args: &SuiteArgs) -> Result<()> {
         compare: args.eval.options_on(1, args.device)?,
         work_dir: args.work.clone(),
     };
-    preflight(
-        &opts.compare,
-        &args.out,
-        nimbus_rpnn::model::default_model_path,
-    )?;
+    // The suite's clouds scatter with the shipped HG phase function. `rpnn` under a sky
+    // reads the sky head's model: without it the runs would fall back to the paper's sky
+    // directions and the table's `rpnn` rows would be `rpnn-dirs` under another name.
+    let explicit = opts.compare.run.model.as_deref();
+    preflight(&opts.compare, &args.out, |m| {
+        let mut v = Vec::new();
+        for &sky in &opts.skies {
+            let has_sky = sky != SkyCondition::Sun;
+            if m == Method::Rpnn
+                && has_sky
+                && explicit.is_none()
+                && nimbus_rpnn::model::sky_model_path_for("hg").is_none()
+            {
+                bail!(
+                    "--skies {}: `rpnn` under a sky needs the shipped sky-head model models/rpnn-hg-sky.onnx, which is not beside the working directory or the executable (`--methods rpnn-dirs` runs the paper's sky directions without it)",
+                    sky.name()
+                );
+            }
+            v.push(nimbus_render::rpnn_model_path(explicit, m, "hg", has_sky));
+        }
+        Ok(v)
+    })?;
     let rows = run(&opts, &args.out, &mut log)?;
     say!("{} runs", rows.len());
     Ok(())
@@ -298,7 +338,8 @@ pub(crate) fn bench_suite(args: &SuiteArgs) -> Result<()> {
 /// `nimbus stress`.
 #[derive(clap::Args)]
 pub(crate) struct StressArgs {
-    /// Methods: pt, pt-gpu, pm, pm-elek2012 (the paper's photon mapping), rpnn (comma-separated).
+    /// Methods: pt, pt-gpu, pm, pm-march, pm-elek2012 (the paper's photon mapping), rpnn,
+    /// rpnn-dirs (comma-separated).
     #[arg(long, default_value = "pt,pt-gpu,pm,rpnn")]
     methods: String,
     /// `all`, `subset` (the one stiffest case per axis that the tests run), or case ids.

@@ -69,9 +69,11 @@ enum Command {
     Render {
         scene: PathBuf,
         /// pt (reference path tracer, CPU), pt-gpu (the path tracer in WGSL: f32, HG/isotropic,
-        /// any sun, constant sky or environment map), pm (photon mapping, Elek 2012, converged ring), pm-elek2012
-        /// (the paper's photon mapping as published), rpnn (Kallweit 2017: MC direct light,
-        /// network indirect light).
+        /// any sun, constant sky or environment map), pm (photon mapping, Elek 2012, with final
+        /// gathering), pm-march (its ray-marched image), pm-elek2012 (the paper's photon mapping
+        /// as published), rpnn (Kallweit 2017: MC direct light, network indirect light; a sky
+        /// through the model's sky head where it has one), rpnn-dirs (the paper's sky: network
+        /// queries in `--sky-dirs` sampled sky directions).
         #[arg(long, default_value = "pt", value_parser = method_name)]
         method: Method,
         /// `--device gpu` with `--method pt` is `--method pt-gpu`.
@@ -149,7 +151,7 @@ enum Command {
     Datagen(DatagenArgs),
     /// Generate a procedural cloud and write it as .vol or .npy.
     Generate {
-        /// cumulus, stratus or cirrus
+        /// cumulus, congestus, stratus or cirrus
         kind: String,
         #[arg(long, default_value_t = 0)]
         seed: u64,

@@ -27,7 +27,7 @@ pub(crate) struct ViewArgs {
     /// Image size WIDTHxHEIGHT (default: the scene camera's).
     #[arg(long)]
     size: Option<String>,
-    /// Estimator at start: pm, pt or rpnn.
+    /// Estimator at start: pm, pm-march, pt or rpnn.
     #[arg(long, default_value = "pm")]
     method: String,
     /// RPNN model for RPNN mode (default: the shipped model for the scene: models/rpnn-hg.onnx,

@@ -204,6 +204,25 @@ impl<'g> GpuSource<'g> for &'g Gpu {
 const F32_SCALE: [f64; 2] = [1e-30, 1e30];
 const F32_SIGMA: [f64; 2] = [1e-32, 1e32];
 
+/// The model `--method rpnn` / `rpnn-dirs` loads: `explicit` (`--model`) when given; under a
+/// sky with `rpnn` the shipped sky-head model for the phase function where it is there
+/// ([`nimbus_rpnn::model::sky_model_path_for`]); else the shipped model for the phase function
+/// ([`nimbus_rpnn::model::model_path_for`]). Without a sky never the sky head.
+pub fn rpnn_model_path(
+    explicit: Option<&std::path::Path>,
+    method: Method,
+    phase_desc: &str,
+    has_sky: bool,
+) -> PathBuf {
+    if let Some(p) = explicit {
+        return p.to_path_buf();
+    }
+    let sky = (method == Method::Rpnn && has_sky)
+        .then(|| nimbus_rpnn::model::sky_model_path_for(phase_desc))
+        .flatten();
+    sky.unwrap_or_else(|| nimbus_rpnn::model::model_path_for(phase_desc))
+}
+
 /// Refuses a scene modelled at a scale the f32 estimators cannot represent (it would render
 /// black or without its cloud, without a word); `pt` (f64) renders it.
 pub fn check_f32_scale(scene: &Scene, method: Method) -> Result<()> {
@@ -301,17 +320,13 @@ pub fn prepare<'g>(
                     r.sky_dirs
                 );
             }
-            // Under a sky the sky head's model (when shipped and not the paper's directions
-            // asked for), else the sun model; without a sky never the sky head.
             let want_sky = method == Method::Rpnn && scene.sky.is_some();
-            let model_path = r.model.clone().unwrap_or_else(|| {
-                let sun = nimbus_rpnn::model::model_path_for(&scene.phase_desc);
-                let sky = nimbus_rpnn::model::sky_model_path_for(&scene.phase_desc);
-                match sky {
-                    Some(p) if want_sky => p,
-                    _ => sun,
-                }
-            });
+            let model_path = rpnn_model_path(
+                r.model.as_deref(),
+                method,
+                &scene.phase_desc,
+                scene.sky.is_some(),
+            );
             let model = Rpnn::load(&model_path)?;
             let mismatches = [
                 nimbus_rpnn::render::phase_mismatch(scene, &model.phase),

@@ -18,6 +18,6 @@ pub mod method;
 pub use backend::{GpuSlot, NetBackend};
 pub use estimator::{
     Change, Estimator, GpuSource, Options, Rendered, RpnnSettings, Step, check_f32_scale, prepare,
-    rpnn_backend,
+    rpnn_backend, rpnn_model_path,
 };
 pub use method::Method;
