@@ -2,8 +2,9 @@
 # A fine-tuning stage of models/rpnn-hg.onnx made on a GPU machine in one time-boxed run: the
 # GPU path tracer labels a large record set from new clouds, CUDA trains from the shipped
 # weights, and the result is exported at several blends (`train.py --blend-init`) and scored on
-# an independent precise test set made in the same run. Run it after the prefix of
-# `../shared/gpu/README.md` (Vulkan loader), with the binary and, for the card's test figures,
+# an independent precise test set made in the same run. Run it where a Vulkan loader is
+# installed (on a machine with the GPU driver only, unpack Debian's `libvulkan1` with
+# `dpkg -x`), with the binary and, for the card's test figures,
 # the seed-0 precise test set (`training/reproduce.sh`'s `$DATA-test-precise`) in the checkout:
 #
 #   bash training/device_stage.sh [--small] OUTDIR
