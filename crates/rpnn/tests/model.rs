@@ -495,6 +495,108 @@ fn f16_network_agrees_with_onnx_runtime_within_its_tolerance() {
     }
 }
 
+/// The f16 network against ONNX Runtime on held-out training records (`tests/data/heldout64`:
+/// 64 records of the sky head's test set, 15 clouds no shipped model saw), as the issue of the
+/// f16 path asks: the shipped sky model's sun output and its sky transfer contracted with a
+/// clear sky in each record's frame. On all 3 000 records of that set (`examples/f16_records`)
+/// the per-record difference was 2.9e-4 median and 1.9e-3 at most for the sun, 1.3e-4 and
+/// 1.8e-3 for the sky, mean ratio 1.00026, and the error against the labels moved from 6.71 %
+/// to 6.69 % median. Bounds: 1e-3 median and 5e-3 largest difference, mean ratio within 1e-3,
+/// the median error against the labels within 0.2 points of ONNX Runtime's.
+#[test]
+fn f16_network_on_held_out_records() {
+    use nimbus_rpnn::gpu_mlp::{GpuMlp, Precision};
+    use nimbus_rpnn::ort_backend::OrtModel;
+    let Some(gpu) = nimbus_gpu::testing::gpu("model::f16_network_on_held_out_records") else {
+        return;
+    };
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/heldout64");
+    let read = |name: &str| -> Vec<f32> {
+        let f = std::fs::File::open(dir.join(name)).unwrap();
+        let npy = npyz::NpyFile::new(std::io::BufReader::new(f)).unwrap();
+        if name == "x.npy" {
+            let v: Vec<half::f16> = npy.into_vec().unwrap();
+            v.iter().map(|h| h.to_f32()).collect()
+        } else {
+            npy.into_vec().unwrap()
+        }
+    };
+    let (x, y, frames) = (read("x.npy"), read("y.npy"), read("frame.npy"));
+    let n = y.len();
+    assert_eq!((n, x.len(), frames.len()), (64, 64 * 2251, 64 * 6));
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rpnn-hg-sky.onnx");
+    let model = Rpnn::load(&path).unwrap();
+    let per = model.outputs_per_query();
+    let f16 = GpuMlp::with_precision(&gpu, &model, 64, Precision::F16)
+        .unwrap()
+        .predict(&x, n)
+        .unwrap();
+    let want = OrtModel::load(&path, 1).unwrap().predict(&x, n).unwrap();
+    let sky = nimbus_rpnn::sky::SkyModel {
+        sun_elevation_deg: 30.0,
+        sun_azimuth_deg: 40.0,
+        turbidity: 3.0,
+        zenith: glam::DVec3::new(0.08, 0.16, 0.36),
+        ground: glam::DVec3::new(0.06, 0.055, 0.05),
+    };
+    let c = nimbus_rpnn::sky::project(|d| sky.radiance(d), 32);
+    // What a render uses of each record: the sun's value and the contracted sky.
+    let used = |p: &[f32]| -> (Vec<f32>, Vec<f32>) {
+        (0..n)
+            .map(|i| {
+                let r = &frames[i * 6..i * 6 + 6];
+                let view = glam::Vec3::new(r[0], r[1], r[2]);
+                let light = glam::Vec3::new(r[3], r[4], r[5]);
+                let (ex, ey, ez) = nimbus_rpnn::descriptor::frame(view, light);
+                let frame = (ex.as_dvec3(), ey.as_dvec3(), ez.as_dvec3());
+                let t = &p[i * per + model.outputs..(i + 1) * per];
+                let l = nimbus_rpnn::sky::product_in_frame(t, &c, frame, 4);
+                (p[i * per], l.y as f32)
+            })
+            .unzip()
+    };
+    let ((sun16, sky16), (sun32, sky32)) = (used(&f16), used(&want));
+    let diffs = |a: &[f32], b: &[f32]| -> Vec<f64> {
+        let scale = b.iter().map(|v| v.abs() as f64).sum::<f64>() / b.len() as f64;
+        let mut d: Vec<f64> = a
+            .iter()
+            .zip(b)
+            .map(|(p, q)| (p - q).abs() as f64 / (q.abs() as f64).max(scale))
+            .collect();
+        d.sort_by(f64::total_cmp);
+        d
+    };
+    let mean = |v: &[f32]| v.iter().map(|x| *x as f64).sum::<f64>() / v.len() as f64;
+    for (name, a, b) in [("sun", &sun16, &sun32), ("sky", &sky16, &sky32)] {
+        let d = diffs(a, b);
+        let (median, largest) = (d[d.len() / 2], d[d.len() - 1]);
+        let ratio = mean(a) / mean(b);
+        eprintln!(
+            "{name}: f16 against ONNX Runtime median {median:.2e}, largest {largest:.2e}, mean ratio {ratio:.6}"
+        );
+        assert!(median <= 1e-3, "{name}: median {median}");
+        assert!(largest <= 5e-3, "{name}: largest {largest}");
+        assert!((ratio - 1.0).abs() <= 1e-3, "{name}: mean ratio {ratio}");
+        assert!(largest > 0.0, "{name}: f16 rounds");
+    }
+    let label_error = |p: &[f32]| -> f64 {
+        let mut e: Vec<f64> = p
+            .iter()
+            .zip(&y)
+            .filter(|(_, t)| **t > 0.0)
+            .map(|(v, t)| ((v - t) / t).abs() as f64)
+            .collect();
+        e.sort_by(f64::total_cmp);
+        e[e.len() / 2]
+    };
+    let (e16, e32) = (label_error(&sun16), label_error(&sun32));
+    eprintln!("against the labels: median error f16 {e16:.4}, ONNX Runtime {e32:.4}");
+    assert!((e16 - e32).abs() <= 0.002, "{e16} against {e32}");
+    // The network is the trained one: on held-out clouds its error is the card's (6.7 % median
+    // over 3 000 records), far from an untrained or mismatched model's.
+    assert!(e32 < 0.15, "{e32}");
+}
+
 /// The int8 copies of the shipped models (`training/quantize.py`, `--backend ort-int8`, beyond
 /// the paper) against the f32 models they were made from, both in ONNX Runtime, on 210
 /// descriptors of a generated cumulus, in one batch and split as a render splits them (two
