@@ -4,7 +4,8 @@
 #      every frame traces, updates, upsamples and ray marches; mean over frames 2..N);
 #   2. RPNN milliseconds per sample at 1280×720 under sun and sun + sky: the whole sample on
 #      the GPU (network in f32 and f16, each with both kernels' tiles), the GPU network with CPU
-#      shading, and ONNX Runtime, split into stages (`--timings`);
+#      shading, and ONNX Runtime, split into stages (`--timings`); under sun + sky also the
+#      paper's sky directions (rpnn-dirs) on the GPU and in ONNX Runtime;
 #   3. GPU path tracer camera paths/s against the CPU path tracer on scenes/refs/cumulus_side
 #      at 1280×720;
 #   4. `datagen --device gpu` records per hour (fixed-count labels, --samples 1024);
@@ -140,22 +141,33 @@ if want 2; then
 scene=$(sized scenes/bench/rpnn_720p.toml "$RW" "$RH")
 sky_scene="${scene%.toml}_sky.toml"
 { cat "$scene"; printf '\n[sky]\nradiance = [0.12, 0.2, 0.38]\n'; } > "$sky_scene"
+rpnn_run() { # NAME SCENE METHOD BACKEND…: one render's ms per spp and its stages
+  local name=$1 path=$2 method=$3; shift 3
+  local b="$*" tag setting
+  tag=$(echo "$([ "$method" = rpnn ] || echo "$method ")$b" | tr -d ' -' | sed 's/cpushading/_cpu_shading/')
+  setting="${RW}x${RH} backend=$b$([ "$method" = rpnn ] || echo " method=$method")"
+  # shellcheck disable=SC2086
+  "$nimbus" render "$path" --method "$method" --backend $b --spp "$RSPP" --timings -q \
+    -o "$out/${name}_$tag.exr" > "$out/${name}_$tag.txt"
+  ms=$(grep -m1 "ms per spp" "$out/${name}_$tag.txt" | sed -E 's/.* ([0-9.]+) ms per spp.*/\1/')
+  row rpnn_ms_per_spp "$name" "$setting" "$ms" ms
+  for stage in shade descriptor inference resolve rest; do
+    ms=$(grep -m1 "^ *$stage " "$out/${name}_$tag.txt" | awk '{ print $2 }' || true)
+    if [ -n "$ms" ]; then row "rpnn_${stage}_ms_per_spp" "$name" "$setting" "$ms" ms; fi
+  done
+}
 for name in rpnn_720p rpnn_720p_sky; do
   path=$([ "$name" = rpnn_720p ] && echo "$scene" || echo "$sky_scene")
-  set -- "$name" "$path"
   for b in "wgpu" "wgpu --net-precision f16" "wgpu --net-tiles 64x64" \
     "wgpu --net-precision f16 --net-tiles 64x64" "wgpu --cpu-shading" "ort" "ort-int8"; do
-    tag=$(echo "$b" | tr -d ' -' | sed 's/cpushading/_cpu_shading/')
     # shellcheck disable=SC2086
-    "$nimbus" render "$2" --method rpnn --backend $b --spp "$RSPP" --timings -q \
-      -o "$out/$1_$tag.exr" > "$out/$1_$tag.txt"
-    ms=$(grep -m1 "ms per spp" "$out/$1_$tag.txt" | sed -E 's/.* ([0-9.]+) ms per spp.*/\1/')
-    row rpnn_ms_per_spp "$1" "${RW}x${RH} backend=$b" "$ms" ms
-    for stage in shade descriptor inference resolve rest; do
-      ms=$(grep -m1 "^ *$stage " "$out/$1_$tag.txt" | awk '{ print $2 }' || true)
-      if [ -n "$ms" ]; then row "rpnn_${stage}_ms_per_spp" "$1" "${RW}x${RH} backend=$b" "$ms" ms; fi
-    done
+    rpnn_run "$name" "$path" rpnn $b
   done
+done
+# The paper's sky (`rpnn-dirs`: 4 sky directions, 5 queries per shading point) under the same
+# sky, on the GPU and in ONNX Runtime: what the sky head saves.
+for b in wgpu ort; do
+  rpnn_run rpnn_720p_sky "$sky_scene" rpnn-dirs "$b"
 done
 fi # step 2
 
