@@ -27,7 +27,7 @@ pub(crate) struct ViewArgs {
     /// Image size WIDTHxHEIGHT (default: the scene camera's).
     #[arg(long)]
     size: Option<String>,
-    /// Estimator at start: pm, pm-march, pt or rpnn.
+    /// Estimator at start: pm, pm-march, pt, rpnn or rpnn-dirs.
     #[arg(long, default_value = "pm")]
     method: String,
     /// RPNN model for RPNN mode (default: the shipped model for the scene: models/rpnn-hg.onnx,
@@ -170,15 +170,16 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
     };
     // Asked for on the command line, RPNN without a usable model is an error here (the key's
     // switch in a running viewer only leaves a note and keeps the method).
-    if method == ViewMode::Rpnn {
-        // The model the estimator will load: the sky head's under a sky, when it is shipped.
-        let path = opts.rpnn_model.clone().unwrap_or_else(|| {
-            s.sky
-                .as_ref()
-                .and_then(|_| nimbus_rpnn::model::sky_model_path_for(&s.phase_desc))
-                .unwrap_or_else(|| nimbus_rpnn::model::model_path_for(&s.phase_desc))
-        });
-        nimbus_rpnn::model::Rpnn::load(&path).map_err(|e| anyhow::anyhow!("--method rpnn: {e}"))?;
+    if method.method().is_rpnn() {
+        // The model the estimator will load.
+        let path = nimbus_render::rpnn_model_path(
+            opts.rpnn_model.as_deref(),
+            method.method(),
+            &s.phase_desc,
+            s.sky.is_some(),
+        );
+        nimbus_rpnn::model::Rpnn::load(&path)
+            .map_err(|e| anyhow::anyhow!("--method {}: {e}", method.method().name()))?;
     }
     if headless {
         let frames = frames.unwrap_or(match method {

@@ -14,7 +14,7 @@
 //! 5        sun-move      10 0       # add to azimuth, elevation
 //! 6        play-sun                 # toggle the sun's motion
 //! 6        play-density             # toggle the density animation
-//! 7        method        pt         # pm | pm-march | pt | rpnn
+//! 7        method        pt         # pm | pm-march | pt | rpnn | rpnn-dirs
 //! 8        resize        640 400
 //! 9        screenshot    out/a.png
 //! 9        save-scene    out/a.toml
@@ -35,8 +35,11 @@ pub enum ViewMode {
     PmMarch,
     /// Progressive path tracing: one sample per pixel per frame, restarted on any change.
     Pt,
-    /// RPNN (Kallweit 2017), progressive; needs a trained model.
+    /// RPNN (Kallweit 2017), progressive; needs a trained model. A sky through the model's
+    /// sky head where it has one.
     Rpnn,
+    /// RPNN with the paper's sky: network queries in sampled sky directions.
+    RpnnDirs,
 }
 
 impl ViewMode {
@@ -53,10 +56,12 @@ impl ViewMode {
             // CPU one).
             ViewMode::Pt => nimbus_render::Method::PtGpu,
             ViewMode::Rpnn => nimbus_render::Method::Rpnn,
+            ViewMode::RpnnDirs => nimbus_render::Method::RpnnDirs,
         }
     }
 
-    /// The mode of a method name (`pm`, `pm-march`, `pt`, `rpnn`); an error for the others.
+    /// The mode of a method name (`pm`, `pm-march`, `pt`, `rpnn`, `rpnn-dirs`); an error for
+    /// the others.
     pub fn parse(s: &str) -> Result<Self, String> {
         let m: nimbus_render::Method = s.parse()?;
         match m {
@@ -64,8 +69,9 @@ impl ViewMode {
             nimbus_render::Method::PmMarch => Ok(ViewMode::PmMarch),
             nimbus_render::Method::Pt => Ok(ViewMode::Pt),
             nimbus_render::Method::Rpnn => Ok(ViewMode::Rpnn),
+            nimbus_render::Method::RpnnDirs => Ok(ViewMode::RpnnDirs),
             other => Err(format!(
-                "the viewer shows pm, pm-march, pt or rpnn, not `{other}`"
+                "the viewer shows pm, pm-march, pt, rpnn or rpnn-dirs, not `{other}`"
             )),
         }
     }
@@ -319,7 +325,7 @@ mod tests {
             ),
             (
                 "0 method pt-gpu\n",
-                "t:1: the viewer shows pm, pm-march, pt or rpnn, not `pt-gpu`",
+                "t:1: the viewer shows pm, pm-march, pt, rpnn or rpnn-dirs, not `pt-gpu`",
             ),
             ("0 fly\n", "t:1: unknown action `fly`"),
             ("0 sun NaN 3\n", "t:1: `sun`: `NaN` is not finite"),

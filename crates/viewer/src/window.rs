@@ -45,7 +45,8 @@ pub struct WindowOptions {
 pub const HELP: &str = "\
 nimbus view — left drag: orbit | right drag / Shift+drag: pan | wheel: zoom
   Ctrl+drag or arrows: sun azimuth/elevation | Space: play/pause sun | D: play/pause density
-  1/2/3/4: photon mapping (gathered) / path tracing / RPNN / photon mapping (ray marched)
+  1/2/3/4/5: photon mapping (gathered) / path tracing / RPNN / photon mapping (ray marched) /
+  RPNN with the paper's sky directions
   +/-: exposure | P: screenshot | S: save scene
   H: this help | Esc/Q: quit";
 
@@ -449,6 +450,7 @@ impl App {
                 "2" => Some(Action::Method(ViewMode::Pt)),
                 "3" => Some(Action::Method(ViewMode::Rpnn)),
                 "4" => Some(Action::Method(ViewMode::PmMarch)),
+                "5" => Some(Action::Method(ViewMode::RpnnDirs)),
                 "+" | "=" => {
                     r.viewer.scale_exposure(2f64.sqrt());
                     None

@@ -267,6 +267,17 @@ fn rpnn_mode_runs_the_whole_sample_on_the_gpu() {
     assert_eq!(v.stats().spp, 1);
     assert!(v.image().pixels.iter().flatten().all(|c| c.is_finite()));
     assert!(v.image().pixels.iter().flatten().any(|c| *c > 0.0));
+    // The paper's sky (key 5): the same model without its sky head, sky directions queried,
+    // the whole sample still on the GPU; the switch starts the sums over.
+    v.apply(&Action::Method(ViewMode::RpnnDirs)).unwrap();
+    frames(&mut v, 2);
+    assert_eq!(v.method(), ViewMode::RpnnDirs);
+    assert_eq!(v.stats().spp, 2);
+    let line = v.status_line();
+    assert!(line.starts_with(ViewMode::RpnnDirs.name()), "{line}");
+    assert!(line.contains("shade") && line.contains("resolve"), "{line}");
+    assert!(v.image().pixels.iter().flatten().all(|c| c.is_finite()));
+    assert!(v.image().pixels.iter().flatten().any(|c| *c > 0.0));
 }
 
 #[test]
