@@ -27,7 +27,8 @@
 #      sun + sky, median speed-up and cases within the floor per sky condition
 #      (DIR/suite/results.md);
 #  10. the same under sun + environment map (pt-gpu, rpnn, rpnn-dirs: photon mapping takes no
-#      environment map; DIR/suite_env/results.md).
+#      environment map, and bench-suite leaves the methods that cannot out of that condition;
+#      DIR/suite_env/results.md).
 #
 #   bash bench/device.sh [--small] [--steps LIST] [--out DIR]
 #
@@ -35,14 +36,14 @@
 # is unmeasured, or a run can be split into parts under a time limit (each with its own --out).
 #
 # On an H200 the full run took 134 s (2026-12-04), before steps 7–10. Steps 9 and 10 render 18
-# and 9 scenes with references capped at 30 s each: allow 10 and 5 minutes more. `--small` runs the same steps at reduced
-# sizes (1/8 of the pixels or fewer, fewer frames, beams and records) so lavapipe finishes in
-# about a minute; the tests run it that way. The binary is ./target/release/nimbus (or $NIMBUS:
-# the release profile keeps line tables of Nimbus' own code for profiling, ≈ 46 MB; `strip -o`
-# makes a 15 MB copy to take to another machine; where that machine has the GPU's driver but
-# no Vulkan loader, unpack Debian's `libvulkan1` there with `dpkg -x`). Needs the shared references' cumulus.vol
-# where scenes/refs/cumulus_side.toml points (step 3) and a python with torch ($PYTHON, else
-# training/.venv, else python3; step 5).
+# and 9 scenes with references capped at 30 s each: allow 10 and 5 minutes more. `--small`
+# runs the same steps at reduced sizes (1/8 of the pixels or fewer, fewer frames, beams and
+# records) so lavapipe finishes in about a minute; the tests run it that way. The binary is
+# ./target/release/nimbus (or $NIMBUS: the release profile keeps line tables of Nimbus' own
+# code for profiling, ≈ 46 MB; `strip -o` makes a 15 MB copy to take to another machine; where
+# that machine has the GPU's driver but no Vulkan loader, unpack Debian's `libvulkan1` there
+# with `dpkg -x`). Needs the shared references' cumulus.vol where scenes/refs/cumulus_side.toml
+# points (step 3) and a python with torch ($PYTHON, else training/.venv, else python3; step 5).
 # Writes DIR/device.csv, DIR/device.md and the scale renders' output DIR/scale.log (default
 # DIR: out/device).
 set -euo pipefail

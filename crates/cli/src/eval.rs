@@ -161,11 +161,9 @@ fn log(line: String) {
 }
 
 /// What a comparison writes and reads at its end, checked before its first render (a reference
-/// and the runs can take an hour): the output and cache folders can be written, and RPNN's model
-/// (`model`: the one the runs would load) reads.
-/// Before any rendering: `--out` (and `--cache`) writable, and every RPNN model the runs will
-/// load (`models(method)`: the paths for `rpnn` or `rpnn-dirs`) readable, so a missing or
-/// malformed model is named at once, not after the references.
+/// and the runs can take an hour): `--out` (and `--cache`) can be written, and every RPNN model
+/// the runs will load (`models(method)`: the paths for `rpnn` or `rpnn-dirs`) reads, so a
+/// missing or malformed model is named at once, not after the references.
 fn preflight(
     opts: &CompareOptions,
     out: &Path,

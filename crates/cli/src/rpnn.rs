@@ -34,8 +34,9 @@ impl From<NetBackend> for nimbus_render::NetBackend {
 /// RPNN settings of `render --method rpnn`.
 #[derive(clap::Args)]
 pub(crate) struct RpnnArgs {
-    /// RPNN: the ONNX model (default: the shipped model for the scene: models/rpnn-hg.onnx,
-    /// with a sky models/rpnn-hg-sky.onnx, with a Lorenz–Mie phase function models/rpnn-mie.onnx).
+    /// RPNN: the ONNX model (default: the shipped model for the scene: models/rpnn-hg.onnx; with
+    /// a sky and `--method rpnn` models/rpnn-hg-sky.onnx; with a Lorenz–Mie phase function
+    /// models/rpnn-mie.onnx).
     #[arg(long)]
     pub(crate) model: Option<PathBuf>,
     /// RPNN: where the network runs.

@@ -502,7 +502,8 @@ fn gpu_script_setup(test: &str) -> Option<(PathBuf, PathBuf)> {
 }
 
 /// `bench/device.sh --small`: the GPU benchmark script runs end to end on this machine's
-/// adapter (lavapipe in CI) and writes every measure with a positive, finite value.
+/// adapter (lavapipe in CI) and writes every measure with a positive, finite value (a count of
+/// cases within the floor: a whole number, zero included).
 #[test]
 fn device_benchmark_script_small() {
     // Step 5 trains with torch.

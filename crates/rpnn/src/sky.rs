@@ -330,9 +330,9 @@ pub fn project(radiance: impl Fn(DVec3) -> DVec3, n: usize) -> [[f64; 3]; SH_COE
     c
 }
 
-/// Texels (or parts of texels) per axis below which [`project_env`] splits each texel: a
-/// spherical harmonic of degree ≤ 4 varies by under 10⁻³ of its range across a part
-/// 1/256 of the way round (the products at the part's centre then integrate it to that).
+/// Texels (or parts of texels) per axis below which [`project_env`] splits each texel. The
+/// midpoint rule over a part 1/256 of the way round (1.4°) integrates a spherical harmonic of
+/// degree ≤ 4 across it with a relative error of about (4 Δ)²/24 ≈ 4·10⁻⁴.
 const ENV_PARTS: [usize; 2] = [256, 128];
 
 /// The coefficients (per RGB channel) of a lat-long environment map, as the renderers read it:
@@ -642,6 +642,53 @@ mod tests {
             point[0][0],
             c[0][0]
         );
+    }
+
+    /// A coarse map (32×16: texels 11.25° wide) is split into 8 × 8 parts per texel: one lit
+    /// texel's coefficients equal ∫ Y dω over it, here by a 256 × 256 midpoint rule with
+    /// exact solid angles, to 2e-3 of its solid angle (the parts' midpoint error, about 4e-4
+    /// of Y's range). Y at the texel's centre times its solid angle misses by more than that
+    /// for some coefficient: without the split the test fails.
+    #[test]
+    fn project_env_splits_coarse_texels() {
+        let (w, h, tx, ty) = (32, 16, 10, 4);
+        let mut img = nimbus_scene::Image::new(w, h);
+        img.pixels[ty * w + tx] = [1.0, 1.0, 1.0];
+        let env = nimbus_scene::EnvMap::new(img, 1.0).unwrap();
+        let c = project_env(&env);
+        let pi = std::f64::consts::PI;
+        let k = 256;
+        let mut want = [0.0; SH_COEFFS];
+        for j in 0..k {
+            let v0 = (ty as f64 + j as f64 / k as f64) / h as f64;
+            let v1 = (ty as f64 + (j + 1) as f64 / k as f64) / h as f64;
+            let omega =
+                std::f64::consts::TAU / (w * k) as f64 * ((v0 * pi).cos() - (v1 * pi).cos());
+            for i in 0..k {
+                let u = (tx as f64 + (i as f64 + 0.5) / k as f64) / w as f64;
+                let y = eval(nimbus_scene::EnvMap::dir_of(u, (v0 + v1) / 2.0));
+                for (wj, yj) in want.iter_mut().zip(y) {
+                    *wj += omega * yj;
+                }
+            }
+        }
+        let omega: f64 = std::f64::consts::TAU / w as f64
+            * ((ty as f64 / h as f64 * pi).cos() - ((ty + 1) as f64 / h as f64 * pi).cos());
+        let centre = eval(nimbus_scene::EnvMap::dir_of(
+            (tx as f64 + 0.5) / w as f64,
+            (ty as f64 + 0.5) / h as f64,
+        ));
+        let mut centre_miss = 0.0f64;
+        for j in 0..SH_COEFFS {
+            assert!(
+                (c[j][0] - want[j]).abs() < 2e-3 * omega,
+                "c[{j}] {} against {}",
+                c[j][0],
+                want[j]
+            );
+            centre_miss = centre_miss.max((centre[j] * omega - want[j]).abs() / omega);
+        }
+        assert!(centre_miss > 1e-2, "{centre_miss}");
     }
 
     /// A smooth sky as a 256×128 map (`SkyModel::latlong`) projects onto what the function

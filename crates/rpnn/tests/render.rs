@@ -211,9 +211,11 @@ fn shipped_sky_head_against_the_path_tracer() {
     let dir = std::env::temp_dir().join(format!("nimbus-rpnn-sky-head-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let map = dir.join("sky.exr");
+    // The map's glow where the scene's sun is ([0.5, 0.7, 0.5]).
+    let sun = glam::DVec3::new(0.5, 0.7, 0.5).normalize();
     nimbus_rpnn::sky::SkyModel {
-        sun_elevation_deg: 44.4,
-        sun_azimuth_deg: 45.0,
+        sun_elevation_deg: sun.y.asin().to_degrees(),
+        sun_azimuth_deg: sun.x.atan2(sun.z).to_degrees(),
         turbidity: 3.0,
         zenith: glam::DVec3::new(0.08, 0.16, 0.36),
         ground: glam::DVec3::new(0.06, 0.055, 0.05),
@@ -229,6 +231,15 @@ fn shipped_sky_head_against_the_path_tracer() {
     );
     let pyr = Pyramid::new(&constant.volume).unwrap();
     let mut o = Backend::Ort(OrtModel::load(&model, 0).unwrap());
+    // Without the sky (the same scene under its sun alone), to show the sky's share.
+    let dark = nimbus_trace::render(
+        &scene(false, 48, 32, 901),
+        &nimbus_trace::RenderOptions {
+            spp: 128,
+            seed: 2,
+            progress: false,
+        },
+    );
     for (name, s) in [("constant sky", &constant), ("environment map", &env)] {
         let opts = RpnnOptions {
             sky_sh: nimbus_rpnn::render::SkySh::of(s, 4, 64),
@@ -239,16 +250,6 @@ fn shipped_sky_head_against_the_path_tracer() {
             s,
             &nimbus_trace::RenderOptions {
                 spp: 512,
-                seed: 2,
-                progress: false,
-            },
-        );
-        // Without the sky (the same scene under its sun alone), to show the sky's share.
-        let sun_only = scene(false, 48, 32, 901);
-        let dark = nimbus_trace::render(
-            &sun_only,
-            &nimbus_trace::RenderOptions {
-                spp: 128,
                 seed: 2,
                 progress: false,
             },

@@ -282,8 +282,13 @@ impl Engine for RpnnEngine<'_> {
                 self.majorants = nimbus_rpnn::render::majorants(scene);
                 self.rebuild(scene)?;
             }
-            // A sky whose colours follow the sun (`[sun] atmosphere`): new coefficients.
-            Change::SunDir(_) if self.sky_sh.is_some() => {
+            // A constant sky whose colour follows the sun (`[sun] atmosphere`): new
+            // coefficients. An environment map does not move with the sun: its projection
+            // (every texel) is kept.
+            Change::SunDir(_)
+                if self.sky_sh.is_some()
+                    && matches!(scene.sky, Some(nimbus_scene::Sky::Constant(_))) =>
+            {
                 self.sky_sh = SkySh::of(scene, self.sky_degree, 64);
                 if let (Runner::Gpu(g), Some(s)) = (&mut self.runner, &self.sky_sh) {
                     g.set_sky(s);
