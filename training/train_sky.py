@@ -49,11 +49,14 @@ LOSS_EPS = 0.05
 
 
 class SkyHead(nn.Module):
-    """ReLU(W x + b) layers, then a linear output (SH coefficients are signed)."""
+    """ReLU(W x + b) layers, then a linear output (SH coefficients are signed). The first
+    layer reads the trunk's ``width`` features; the hidden layers are ``hidden`` wide (default:
+    ``width``)."""
 
-    def __init__(self, width: int, layers: int = 3, outputs: int = SH_COEFFS):
+    def __init__(self, width: int, layers: int = 3, outputs: int = SH_COEFFS,
+                 hidden: int | None = None):
         super().__init__()
-        dims = [width] * layers + [outputs]
+        dims = [width] + [hidden or width] * (layers - 1) + [outputs]
         self.layers = nn.ModuleList(nn.Linear(dims[i], dims[i + 1]) for i in range(layers))
 
     def forward(self, o: torch.Tensor) -> torch.Tensor:
@@ -77,6 +80,7 @@ class SkyRPNN(nn.Module):
         c = dict(self.sun.config())
         c["sky_sh_coeffs"] = SH_COEFFS
         c["sky_head_layers"] = len(self.head.layers)
+        c["sky_head_width"] = self.head.layers[0].out_features
         return c
 
     def trunk(self, x: torch.Tensor) -> torch.Tensor:
@@ -170,6 +174,8 @@ def main(argv=None) -> dict:
     p.add_argument("--batch", type=int, default=1000)
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--head-layers", type=int, default=3)
+    p.add_argument("--head-width", type=int, default=0,
+                   help="hidden width of the sky head (default 0: the trunk's width)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--loss-eps", type=float, default=LOSS_EPS,
                    help="floor under the predicted t_00 in the loss's denominator")
@@ -188,7 +194,10 @@ def main(argv=None) -> dict:
         raise SystemExit(str(e)) from None
     for q in sun.parameters():
         q.requires_grad_(False)
-    head = SkyHead(sun.width, args.head_layers)
+    if args.head_layers < 1 or args.head_width < 0:
+        raise SystemExit(f"--head-layers {args.head_layers} / --head-width {args.head_width}: "
+                         f"need at least one layer and a width >= 0")
+    head = SkyHead(sun.width, args.head_layers, hidden=args.head_width or None)
     model = SkyRPNN(sun, head).eval()
     x, t = load_set(args.data, "train")
     xv, tv = load_set(args.data, "val")

@@ -90,3 +90,28 @@ def test_missing_files_are_named(tmp_path, record_set):
         train_sky.main(["--init", str(tmp_path / "nope.onnx"), "--data", str(record_set),
                         "--run", str(tmp_path / "run")])
     assert "nope.onnx" in str(e.value)
+
+
+def test_head_width_and_depth_are_exported(tmp_path, sun_model):
+    """`--head-width` / `--head-layers` shape the head's hidden layers (the first reads the
+    trunk's 16 features); the export holds them and its card says so; a head of no layers or a
+    negative width is refused."""
+    sun = RPNN(width=16)
+    export.import_onnx(sun, sun_model)
+    data = sky_set(tmp_path / "data", train_sky.SkyRPNN(sun, train_sky.SkyHead(16)))
+    out = tmp_path / "sky.onnx"
+    train_sky.main(["--init", str(sun_model), "--data", str(data), "--run", str(tmp_path / "run"),
+                    "--epochs", "2", "--batch", "100", "--head-width", "24", "--head-layers", "4",
+                    "--export", str(out)])
+    card = json.loads(out.with_suffix(".json").read_text())
+    assert card["config"]["sky_head_width"] == 24 and card["config"]["sky_head_layers"] == 4
+    import onnx
+    shapes = {tuple(i.dims) for i in onnx.load(str(out)).graph.initializer if len(i.dims) == 2}
+    # The head: 16 → 24, 24 → 24 twice, 24 → 25 (weights stored either way round).
+    for d in ((16, 24), (24, 24), (24, 25)):
+        assert d in shapes or d[::-1] in shapes, (d, shapes)
+    for bad in (["--head-layers", "0"], ["--head-width", "-1"]):
+        with pytest.raises(SystemExit) as e:
+            train_sky.main(["--init", str(sun_model), "--data", str(data), "--run",
+                            str(tmp_path / "run2"), *bad])
+        assert "--head-layers" in str(e.value)
