@@ -337,8 +337,9 @@ const ENV_PARTS: [usize; 2] = [256, 128];
 
 /// The coefficients (per RGB channel) of a lat-long environment map, as the renderers read it:
 /// constant over each texel (`EnvMap::radiance` is a nearest-texel lookup). Every texel counts
-/// with its solid angle Δφ (cos θ₀ − cos θ₁), split into parts at least [`ENV_PARTS`] per axis
-/// over the sphere, so a bright texel the size of the sun's disc weighs what it holds:
+/// with its solid angle Δφ (cos θ₀ − cos θ₁), split so that there are at least 256 × 128
+/// parts over the sphere (`ENV_PARTS`), so a bright texel the size of the sun's disc weighs
+/// what it holds:
 /// c₀₀ is Y₀₀ ∫ L dω to rounding, whatever the map. A point quadrature ([`project`]) would
 /// miss such a texel or count it many times over.
 pub fn project_env(env: &nimbus_scene::EnvMap) -> [[f64; 3]; SH_COEFFS] {
