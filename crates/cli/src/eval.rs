@@ -23,7 +23,7 @@ pub(crate) enum RefDeviceArg {
 pub(crate) struct EvalArgs {
     /// Methods to compare: pt, pt-gpu, pm, pm-march, pm-elek2012 (the paper's photon mapping),
     /// rpnn, rpnn-dirs (the paper's sky directions) (comma-separated; default pt,pm,rpnn, with
-    /// `bench-suite --device gpu` pt-gpu,pm,rpnn).
+    /// `bench-suite --device gpu` pt-gpu,pm,rpnn; under a sky rpnn-dirs as well).
     #[arg(long)]
     methods: Option<String>,
     /// Budget sweep of one method, METHOD=B1,B2,… (spp for pt, pt-gpu, pm, rpnn and rpnn-dirs;
@@ -71,16 +71,21 @@ pub(crate) struct EvalArgs {
 }
 
 impl EvalArgs {
-    pub(crate) fn options(&self, scene_seed: u64) -> Result<CompareOptions> {
-        self.options_on(scene_seed, Device::Cpu)
+    /// The settings of `compare` for a scene with a sky or without (`sky`).
+    pub(crate) fn options(&self, scene_seed: u64, sky: bool) -> Result<CompareOptions> {
+        self.options_on(scene_seed, Device::Cpu, sky)
     }
 
     /// [`EvalArgs::options`] for the estimators of `device`: on the GPU the path tracer is
     /// `pt-gpu` and the network runs in WGSL unless `--methods` and `--backend` say otherwise.
-    fn options_on(&self, scene_seed: u64, device: Device) -> Result<CompareOptions> {
-        let default = match device {
-            Device::Cpu => "pt,pm,rpnn",
-            Device::Gpu => "pt-gpu,pm,rpnn",
+    /// Without `--methods`, a sky (`sky`: some run has one) adds `rpnn-dirs`, the paper's sky
+    /// directions, beside `rpnn`'s sky head; without a sky the two are one estimator.
+    fn options_on(&self, scene_seed: u64, device: Device, sky: bool) -> Result<CompareOptions> {
+        let default = match (device, sky) {
+            (Device::Cpu, false) => "pt,pm,rpnn",
+            (Device::Cpu, true) => "pt,pm,rpnn,rpnn-dirs",
+            (Device::Gpu, false) => "pt-gpu,pm,rpnn",
+            (Device::Gpu, true) => "pt-gpu,pm,rpnn,rpnn-dirs",
         };
         let methods =
             nimbus_eval::method::parse_methods(self.methods.as_deref().unwrap_or(default))?;
@@ -200,7 +205,7 @@ fn preflight(
 /// `nimbus compare scene.toml --methods … --out DIR`.
 pub(crate) fn compare_scene(scene: &Path, args: &EvalArgs, out: &Path) -> Result<()> {
     let s = nimbus_scene::Scene::load(scene)?;
-    let opts = args.options(s.render.seed)?;
+    let opts = args.options(s.render.seed, s.sky.is_some())?;
     let name = scene
         .file_stem()
         .unwrap_or_default()
@@ -297,13 +302,14 @@ pub(crate) fn bench_suite(args: &SuiteArgs) -> Result<()> {
     if twice(args.skies.split(',').map(str::trim).collect()) {
         bail!("--skies names a condition twice (each runs once)");
     }
+    let any_sky = skies.iter().any(|&c| c != SkyCondition::Sun);
     let opts = SuiteOptions {
         clouds: args.clouds,
         lightings,
         skies,
         width,
         height,
-        compare: args.eval.options_on(1, args.device)?,
+        compare: args.eval.options_on(1, args.device, any_sky)?,
         work_dir: args.work.clone(),
     };
     // The suite's clouds scatter with the shipped HG phase function. `rpnn` under a sky

@@ -58,6 +58,60 @@ fn col(name: &str) -> usize {
         .unwrap()
 }
 
+/// Without `--methods`, `compare` runs the paper's sky directions (`rpnn-dirs`) beside the sky
+/// head (`rpnn`) where the scene has a sky, and not where it has none (the two are then one
+/// estimator): the defaults keep the paper's variant in the table a user gets.
+#[test]
+fn default_methods_add_the_papers_sky_directions_under_a_sky() {
+    if !nimbus_gpu::testing::has_adapter(
+        "eval::default_methods_add_the_papers_sky_directions_under_a_sky",
+    ) {
+        return;
+    }
+    let d = tmp("compare_defaults");
+    for (name, sky, want) in [
+        ("sun", "", &["pm", "pt", "rpnn"][..]),
+        (
+            "sunsky",
+            "\n[sky]\nradiance = [0.1, 0.15, 0.3]\n",
+            &["pm", "pt", "rpnn", "rpnn-dirs"][..],
+        ),
+    ] {
+        let scene = d.join(format!("{name}.toml"));
+        std::fs::write(&scene, format!("{SCENE}{sky}")).unwrap();
+        let out = d.join(format!("report_{name}"));
+        let o = nimbus(&[
+            "compare",
+            scene.to_str().unwrap(),
+            "--budgets",
+            "pt=2",
+            "--budgets",
+            "pm=2",
+            "--budgets",
+            "rpnn=2",
+            "--beams",
+            "1024",
+            "--ref-spp",
+            "16",
+            "--ref-noise",
+            "0",
+            "--ref-device",
+            "cpu",
+            "--no-cache",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{name}: {}", text(&o));
+        let mut methods: Vec<String> = csv_rows(&out.join("report.csv"))
+            .into_iter()
+            .map(|r| r[1].clone())
+            .collect();
+        methods.sort();
+        methods.dedup();
+        assert_eq!(methods, want, "{name}");
+    }
+}
+
 #[test]
 fn compare_scene_writes_a_report_and_reuses_the_cached_reference() {
     if !nimbus_gpu::testing::has_adapter(
