@@ -495,7 +495,7 @@ fn f16_network_agrees_with_onnx_runtime_within_its_tolerance() {
     }
 }
 
-/// The f16 network against ONNX Runtime on held-out training records (`tests/data/heldout64`:
+/// The f16 network against ONNX Runtime on held-out test records (`tests/data/heldout64`:
 /// 64 records of the sky head's test set from all 30 of its clouds, none seen in training):
 /// the shipped sky model's sun output and its sky transfer contracted with a
 /// clear sky in each record's frame. On all 3 000 records of that set (`examples/f16_records`)
