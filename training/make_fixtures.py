@@ -77,4 +77,17 @@ export.export_onnx(sky, out / "rpnn-tiny-sky.onnx", {"nimbus.rpnn.phase": "hg", 
 with torch.no_grad():
     ys = sky(torch.from_numpy(x)).numpy()
 np.save(out / "rpnn-tiny-sky-io.npy", np.concatenate([x, ys], axis=1))
+
+# A sky head that reads block 4's output beside the last block's (train_sky.py --sky-blocks
+# 4,9): its first layer reads 32 values.
+torch.manual_seed(45)
+sky2 = SkyRPNN(m, SkyHead(32, 3, hidden=16), blocks=[4, 9]).eval()
+with torch.no_grad():
+    for p in sky2.head.parameters():
+        p.uniform_(-0.3, 0.3)
+export.export_onnx(sky2, out / "rpnn-tiny-sky2.onnx",
+                   {"nimbus.rpnn.phase": "hg", "nimbus.rpnn.sky": "sh4"})
+with torch.no_grad():
+    ys2 = sky2(torch.from_numpy(x)).numpy()
+np.save(out / "rpnn-tiny-sky2-io.npy", np.concatenate([x, ys2], axis=1))
 print(f"wrote fixtures to {out}")

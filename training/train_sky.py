@@ -66,11 +66,14 @@ class SkyHead(nn.Module):
 
 
 class SkyRPNN(nn.Module):
-    """The sun model and the sky head on its last block's output: (sun, t_00 .. t_44)."""
+    """The sun model and the sky head on block outputs: (sun, t_00 .. t_44). The head reads
+    the outputs of ``blocks`` (0-based, concatenated in that order; default: the last block
+    alone, as the first shipped head did)."""
 
-    def __init__(self, sun: RPNN, head: SkyHead):
+    def __init__(self, sun: RPNN, head: SkyHead, blocks: list[int] | None = None):
         super().__init__()
         self.sun, self.head = sun, head
+        self.blocks = list(blocks) if blocks else [len(sun.blocks) - 1]
 
     @property
     def input_len(self) -> int:
@@ -81,20 +84,24 @@ class SkyRPNN(nn.Module):
         c["sky_sh_coeffs"] = SH_COEFFS
         c["sky_head_layers"] = len(self.head.layers)
         c["sky_head_width"] = self.head.layers[0].out_features
+        c["sky_head_blocks"] = self.blocks
         return c
 
-    def trunk(self, x: torch.Tensor) -> torch.Tensor:
-        o = None
+    def trunk(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(the last block's output, the sky head's input)."""
+        o, keep = None, []
         for k, block in enumerate(self.sun.blocks):
             o = block(self.sun.level_input(x, k), o)
-        return o
+            keep.append(o)
+        sky = [keep[b] for b in self.blocks]
+        return o, (sky[0] if len(sky) == 1 else torch.cat(sky, dim=1))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        o = self.trunk(x)
+        o, sky_in = self.trunk(x)
         s = o
         for layer in self.sun.head:
             s = torch.relu(layer(s))
-        return torch.cat([s, self.head(o)], dim=1)
+        return torch.cat([s, self.head(sky_in)], dim=1)
 
 
 def sun_config(path: Path) -> dict:
@@ -140,7 +147,7 @@ def features(model: SkyRPNN, x: np.ndarray, batch: int = 4096) -> torch.Tensor:
     out = []
     with torch.no_grad():
         for i in range(0, len(x), batch):
-            out.append(model.trunk(torch.from_numpy(x[i:i + batch])))
+            out.append(model.trunk(torch.from_numpy(x[i:i + batch]))[1])
     return torch.cat(out)
 
 
@@ -176,6 +183,10 @@ def main(argv=None) -> dict:
     p.add_argument("--head-layers", type=int, default=3)
     p.add_argument("--head-width", type=int, default=0,
                    help="hidden width of the sky head (default 0: the trunk's width)")
+    p.add_argument("--sky-blocks", default="",
+                   help="blocks (0-based, comma-separated) whose outputs the head reads, "
+                        "concatenated (default: the last; e.g. 4,9: block 4's beside the last's, "
+                        "docs/experiments/2026-12-07-sky-head-size.md)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--loss-eps", type=float, default=LOSS_EPS,
                    help="floor under the predicted t_00 in the loss's denominator")
@@ -197,8 +208,18 @@ def main(argv=None) -> dict:
     if args.head_layers < 1 or args.head_width < 0:
         raise SystemExit(f"--head-layers {args.head_layers} / --head-width {args.head_width}: "
                          f"need at least one layer and a width >= 0")
-    head = SkyHead(sun.width, args.head_layers, hidden=args.head_width or None)
-    model = SkyRPNN(sun, head).eval()
+    try:
+        blocks = [int(b) for b in args.sky_blocks.split(",")] if args.sky_blocks else None
+    except ValueError:
+        raise SystemExit(f"--sky-blocks {args.sky_blocks!r}: expected block numbers, e.g. 4,9") \
+            from None
+    if blocks is not None and (not all(0 <= b < len(sun.blocks) for b in blocks)
+                               or len(set(blocks)) != len(blocks)):
+        raise SystemExit(f"--sky-blocks {args.sky_blocks}: the model has blocks "
+                         f"0..{len(sun.blocks) - 1}, each named once")
+    n_in = sun.width * (len(blocks) if blocks else 1)
+    head = SkyHead(n_in, args.head_layers, hidden=args.head_width or sun.width)
+    model = SkyRPNN(sun, head, blocks).eval()
     x, t = load_set(args.data, "train")
     xv, tv = load_set(args.data, "val")
     print(f"{len(x)} training and {len(xv)} validation records; trunk features ...", flush=True)

@@ -25,7 +25,7 @@ def sky_set(root, trunk, n_train=600, n_val=100, seed=0):
         x[:, -1] = rng.uniform(0, np.pi, size=n)
         meta = np.zeros((n, 40), np.float32)
         with torch.no_grad():
-            o = trunk.trunk(torch.from_numpy(x)).numpy()
+            o = trunk.trunk(torch.from_numpy(x))[0].numpy()
         meta[:, 15:40] = o @ w
         meta[:, 15] = 0.2 + np.abs(meta[:, 15])
         names = {w: f"{split}_00000_{w}.npy" for w in ("x", "y", "meta")}
@@ -115,3 +115,30 @@ def test_head_width_and_depth_are_exported(tmp_path, sun_model):
             train_sky.main(["--init", str(sun_model), "--data", str(data), "--run",
                             str(tmp_path / "run2"), *bad])
         assert "--head-layers" in str(e.value)
+
+
+def test_sky_blocks_concatenate_an_earlier_block(tmp_path, sun_model):
+    """`--sky-blocks 4,9`: the head's first layer reads block 4's output beside the last's (32
+    values for this 16-wide trunk); the export computes the same as torch, keeps the sun column,
+    and its card names the blocks; blocks out of range or named twice are refused."""
+    sun = RPNN(width=16)
+    export.import_onnx(sun, sun_model)
+    data = sky_set(tmp_path / "data", train_sky.SkyRPNN(sun, train_sky.SkyHead(16)))
+    out = tmp_path / "sky.onnx"
+    train_sky.main(["--init", str(sun_model), "--data", str(data), "--run", str(tmp_path / "run"),
+                    "--epochs", "2", "--batch", "100", "--sky-blocks", "4,9",
+                    "--export", str(out)])
+    card = json.loads(out.with_suffix(".json").read_text())
+    assert card["config"]["sky_head_blocks"] == [4, 9] and card["onnx_check"]["passed"]
+    assert card["sun_column_max_relative_change"] < 1e-5
+    import onnx
+    g = onnx.load(str(out)).graph
+    shapes = {tuple(i.dims) for i in g.initializer if len(i.dims) == 2}
+    assert (32, 16) in shapes or (16, 32) in shapes, shapes
+    # Concat nodes: the 10 blocks' (Σ^k, γ), the head's input (blocks 4 and 9), the output.
+    assert sum(n.op_type == "Concat" for n in g.node) == 12
+    for bad in ("4,10", "9,9", "x"):
+        with pytest.raises(SystemExit) as e:
+            train_sky.main(["--init", str(sun_model), "--data", str(data), "--run",
+                            str(tmp_path / "run2"), "--sky-blocks", bad])
+        assert "--sky-blocks" in str(e.value)

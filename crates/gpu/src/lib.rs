@@ -45,6 +45,9 @@ pub enum GpuError {
     /// bytes and the budget).
     #[error("{0}")]
     Memory(String),
+    /// Something this GPU code does not implement (the message says what and where instead).
+    #[error("{0}")]
+    Unsupported(String),
 }
 
 /// An open device with its queue and what it offers.

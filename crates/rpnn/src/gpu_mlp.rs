@@ -205,11 +205,28 @@ impl<'g> GpuMlp<'g> {
             (w, b)
         };
         let (p, levels) = (model.points, model.levels);
+        let last_block = model.blocks.len().saturating_sub(1);
+        // The earlier block whose output the sky head reads beside the last one's (the
+        // kernel's two inputs: at most one such block, read first).
+        let keep = match model.sky_blocks.as_slice() {
+            [] => None,
+            [b] if *b == last_block => None,
+            [e, b] if *b == last_block && *e < last_block => Some(*e),
+            other => {
+                return Err(GpuError::Unsupported(format!(
+                    "the WGSL network's sky head reads the last block's output, or one earlier block's and then the last's; this model's reads blocks {other:?} (ONNX Runtime runs it: --backend ort)"
+                )));
+            }
+        };
         let mut steps: Vec<Step> = Vec::new();
         // Activations: 0 and 1 alternate as o_k, 2 holds F1; after the blocks the sky head
         // alternates between 2 and 3 (reading the trunk first), then the sun head between 0
-        // and 1.
+        // and 1. With a kept block (`keep`) its output stays where it was written and the
+        // blocks after it alternate between the other of 0 and 1 and 3; the sky head's hidden
+        // layers then use 2 and the one buffer left.
         let mut prev: Option<usize> = None;
+        let mut pair = [0, 1];
+        let mut kept: Option<usize> = None;
         for (k, b) in model.blocks.iter().enumerate() {
             let (wv, bv) = push(&b.v);
             let w1 = b.w1.as_ref().map(&mut push);
@@ -235,9 +252,10 @@ impl<'g> GpuMlp<'g> {
                 res: None,
                 out: 2,
             });
-            let next = match prev {
-                Some(0) => 1,
-                _ => 0,
+            let next = if prev == Some(pair[0]) {
+                pair[1]
+            } else {
+                pair[0]
             };
             steps.push(Step {
                 params: LayerParams {
@@ -259,15 +277,42 @@ impl<'g> GpuMlp<'g> {
                 out: next,
             });
             prev = Some(next);
+            if keep == Some(k) {
+                kept = Some(next);
+                pair = [1 - next, 3];
+            }
         }
         let trunk = prev.expect("at least one block");
         let total = model.outputs_per_query() as u32;
         // A chain of dense layers from the trunk: hidden outputs alternate between the buffers
-        // `bufs`, the last writes its columns from `first_col` of the output rows.
-        let mut chain = |layers: &[Dense], bufs: [usize; 2], first_col: u32, relu_last: bool| {
+        // `bufs`, the last writes its columns from `first_col` of the output rows. With
+        // `first` (a kept block's buffer) the first layer reads (o_kept, o_trunk): W_a o_kept +
+        // W_b o_trunk + b, W split by its input columns (the kernel's two inputs).
+        let width = model.width;
+        let mut chain = |layers: &[Dense],
+                         bufs: [usize; 2],
+                         first_col: u32,
+                         relu_last: bool,
+                         first: Option<usize>| {
             let mut cur = trunk;
             for (i, l) in layers.iter().enumerate() {
-                let (w, b) = push(l);
+                let (mut w, b) = push(l);
+                let (mut ka, mut kb, mut wb, mut src_b) = (l.inputs as u32, 0, 0, None);
+                if let (0, Some(x)) = (i, first) {
+                    let cols = |c: std::ops::Range<usize>| Dense {
+                        inputs: c.len(),
+                        outputs: l.outputs,
+                        w: l.w
+                            .chunks_exact(l.inputs)
+                            .flat_map(|row| row[c.clone()].iter().copied())
+                            .collect(),
+                        b: Vec::new(),
+                    };
+                    w = push(&cols(0..width)).0;
+                    wb = push(&cols(width..2 * width)).0;
+                    (ka, kb, src_b) = (width as u32, width as u32, Some(trunk));
+                    cur = x;
+                }
                 let last = i + 1 == layers.len();
                 let next = if last {
                     OUT
@@ -279,10 +324,13 @@ impl<'g> GpuMlp<'g> {
                 steps.push(Step {
                     params: LayerParams {
                         outputs: l.outputs as u32,
-                        ka: l.inputs as u32,
+                        ka,
+                        kb,
                         a_stride: stride as u32,
                         a_gamma_col: NO_GAMMA,
+                        b_stride: stride as u32,
                         wa_offset: w,
+                        wb_offset: wb,
                         bias_offset: b,
                         out_stride: if last { total } else { stride as u32 },
                         out_offset: if last { first_col } else { 0 },
@@ -290,7 +338,7 @@ impl<'g> GpuMlp<'g> {
                         ..Default::default()
                     },
                     a: Src::Act(cur),
-                    b: None,
+                    b: src_b,
                     res: None,
                     out: next,
                 });
@@ -299,8 +347,20 @@ impl<'g> GpuMlp<'g> {
         };
         // The sky head first (its hidden layers in 2 and 3, so the trunk stays readable), its
         // last layer linear; then the sun head's ReLU layers in 0 and 1.
-        chain(&model.sky_head, [2, 3], model.outputs as u32, false);
-        chain(&model.head, [0, 1], 0, true);
+        // With a kept block its output is the first layer's first input, the trunk's the
+        // second; the hidden layers use 2 and the buffer neither holds.
+        let sky_bufs = match kept {
+            None => [2, 3],
+            Some(x) => [
+                2,
+                [0, 1, 3]
+                    .into_iter()
+                    .find(|&i| i != x && i != trunk)
+                    .expect("three buffers, two taken"),
+            ],
+        };
+        chain(&model.sky_head, sky_bufs, model.outputs as u32, false, kept);
+        chain(&model.head, [0, 1], 0, true, None);
         let n_sky = model.sky_head.len();
         // f16: the weights, and every activation buffer but the descriptors and the output.
         if precision == Precision::F16 {
@@ -358,7 +418,11 @@ impl<'g> GpuMlp<'g> {
             acts: [0, 1, 2, 3].map(|i| {
                 // The fourth is the sky head's second buffer (its second hidden layer's
                 // output: heads of three layers or more).
-                let bytes = if i == 3 && n_sky < 3 { 4 } else { act_bytes };
+                let bytes = if i == 3 && n_sky < 3 && kept.is_none() {
+                    4
+                } else {
+                    act_bytes
+                };
                 gpu.zeroed("rpnn activations", bytes)
             }),
             out: gpu.zeroed(

@@ -271,7 +271,8 @@ pub(super) fn structure(out: Sym, denses: Vec<Dense>) -> Result<Rpnn, String> {
             .and_then(Option::take)
             .ok_or_else(|| not_rpnn("a layer is used twice"))
     };
-    // With a sky head: Concat(sun head, sky head), both on the last block's output.
+    // With a sky head: Concat(sun head, sky head); the sun head on the last block's output,
+    // the sky head on one or more block outputs.
     let (out, sky) = match out {
         Sym::Out(mut parts) if parts.len() == 2 => {
             let sky = parts.pop().expect("two parts");
@@ -280,16 +281,25 @@ pub(super) fn structure(out: Sym, denses: Vec<Dense>) -> Result<Rpnn, String> {
         Sym::Out(_) => return Err(not_rpnn("the output concatenates other than (sun, sky)")),
         o => (o, None),
     };
-    // Sky head: a last Lin, then Relu(Lin(…)) layers down to a block output.
+    // Sky head: a last Lin, then Relu(Lin(…)) layers down to a block output, or to the
+    // concatenation of several block outputs (its first layer reads them all).
     let mut sky_head = Vec::new();
-    let mut sky_base = None;
+    let mut sky_sources: Vec<String> = Vec::new();
     if let Some(s) = sky {
         let Sym::Lin(mut src, d) = s else {
             return Err(not_rpnn("the sky head's last layer is not W x + b"));
         };
         sky_head.push(take(d)?);
-        while !is_block(&src) {
+        loop {
+            if is_block(&src) {
+                sky_sources.push(format!("{src:?}"));
+                break;
+            }
             match *src {
+                Sym::Out(parts) if parts.iter().all(is_block) => {
+                    sky_sources.extend(parts.iter().map(|p| format!("{p:?}")));
+                    break;
+                }
                 Sym::Relu(inner) => match *inner {
                     Sym::Lin(s2, d) => {
                         sky_head.push(take(d)?);
@@ -297,11 +307,10 @@ pub(super) fn structure(out: Sym, denses: Vec<Dense>) -> Result<Rpnn, String> {
                     }
                     _ => return Err(not_rpnn("a sky head layer is not ReLU(W x + b)")),
                 },
-                _ => return Err(not_rpnn("the sky head does not start at a block output")),
+                _ => return Err(not_rpnn("the sky head does not start at block outputs")),
             }
         }
         sky_head.reverse();
-        sky_base = Some(format!("{src:?}"));
     }
     // Head: Relu(Lin(…)) layers down to the last block's output.
     let mut head = Vec::new();
@@ -322,15 +331,14 @@ pub(super) fn structure(out: Sym, denses: Vec<Dense>) -> Result<Rpnn, String> {
     if head.is_empty() {
         return Err(not_rpnn("no fully connected head layers"));
     }
-    if sky_base.is_some_and(|b| b != format!("{cur:?}")) {
-        return Err(not_rpnn(
-            "the sun and sky heads read different block outputs",
-        ));
-    }
-    // Blocks, last to first.
+    // Blocks, last to first; each one's output, to find the sky head's sources.
     let mut blocks = Vec::new();
     let mut levels_seen = Vec::new();
+    let mut outputs_seen = Vec::new();
     loop {
+        if !sky_sources.is_empty() {
+            outputs_seen.push(format!("{cur:?}"));
+        }
         // o_k = Relu(Add(Lin_W2(F1), o_{k−1})) or, for k = 1, Relu(Lin_W2(F1)).
         let Sym::Relu(inner) = cur else {
             return Err(not_rpnn("a block output is not a ReLU"));
@@ -391,7 +399,18 @@ pub(super) fn structure(out: Sym, denses: Vec<Dense>) -> Result<Rpnn, String> {
     }
     blocks.reverse();
     levels_seen.reverse();
+    outputs_seen.reverse();
     let levels = blocks.len();
+    // The blocks the sky head reads, in the order its first layer concatenates them.
+    let sky_blocks = sky_sources
+        .iter()
+        .map(|s| {
+            outputs_seen
+                .iter()
+                .position(|o| o == s)
+                .ok_or_else(|| not_rpnn("the sky head reads a value that is no block output"))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
     let width = blocks[0].w2.outputs;
     let points = levels_seen[0][0].1 - levels_seen[0][0].0;
     for (k, parts) in levels_seen.iter().enumerate() {
@@ -437,7 +456,7 @@ pub(super) fn structure(out: Sym, denses: Vec<Dense>) -> Result<Rpnn, String> {
         }
         inputs = l.outputs;
     }
-    let mut sky_inputs = width;
+    let mut sky_inputs = width * sky_blocks.len();
     for (i, l) in sky_head.iter().enumerate() {
         if l.inputs != sky_inputs {
             return Err(not_rpnn(&format!(
@@ -456,6 +475,7 @@ pub(super) fn structure(out: Sym, denses: Vec<Dense>) -> Result<Rpnn, String> {
         blocks,
         head,
         sky_head,
+        sky_blocks,
         phase: String::new(),
         albedo: None,
     })

@@ -6,8 +6,9 @@
 //! of Kallweit 2017 §4.3 — for k = 1..K, z_k = Concat(Slice(x, level k), Slice(x, γ)),
 //! F1 = Relu(Gemm(z_k, V, b1) [+ MatMul(o_{k−1}, W1ᵀ)]), o_k = Relu(Gemm(F1, W2, b2) [+ o_{k−1}]),
 //! then Relu(Gemm(·)) head layers — and the weights are taken from the initializers; a model with
-//! a sky head (`training/train_sky.py`) has a second chain on the last block's output,
-//! Relu(Gemm(·)) layers and a last plain Gemm, and its output is Concat(sun head, sky head).
+//! a sky head (`training/train_sky.py`) has a second chain on the last block's output or on
+//! Concat(o_a, o_b, …) of block outputs ([`Rpnn::sky_blocks`]), Relu(Gemm(·)) layers and a last
+//! plain Gemm, and its output is Concat(sun head, sky head).
 //! Anything
 //! else (another op, another wiring, a shape mismatch) is refused with a message naming the
 //! file and the node, so a model that is not an RPNN cannot be rendered silently wrong.
@@ -118,9 +119,14 @@ pub struct Rpnn {
     pub outputs: usize,
     pub blocks: Vec<Block>,
     pub head: Vec<Dense>,
-    /// The sky head (`crate::sky`): ReLU layers and a last linear one from the last block's
-    /// output to the sky's transfer coefficients; empty for a sun-only model.
+    /// The sky head (`crate::sky`): ReLU layers and a last linear one from block outputs to
+    /// the sky's transfer coefficients; empty for a sun-only model.
     pub sky_head: Vec<Dense>,
+    /// The blocks (0-based) whose outputs the sky head's first layer reads, concatenated in
+    /// this order: the last block alone for the first sky heads, an earlier one beside it for
+    /// a head that sees more of the medium's structure
+    /// (docs/experiments/2026-12-07-sky-head-size.md); empty without a sky head.
+    pub sky_blocks: Vec<usize>,
     /// `nimbus.rpnn.phase` from the metadata (`hg`, `mie`, or `unknown`).
     pub phase: String,
     /// The single-scattering albedo of the training data: `nimbus.rpnn.albedo` from the
@@ -153,6 +159,7 @@ impl Rpnn {
     pub fn without_sky_head(&self) -> Self {
         Self {
             sky_head: Vec::new(),
+            sky_blocks: Vec::new(),
             ..self.clone()
         }
     }
@@ -180,6 +187,8 @@ impl Rpnn {
         let mut z = vec![0.0f32; p + 1];
         let mut o = vec![0.0f32; w];
         let mut f1 = vec![0.0f32; w];
+        // The sky head's input: the outputs of `sky_blocks`, concatenated in their order.
+        let mut sky_in = vec![0.0f32; w * self.sky_blocks.len()];
         for (k, b) in self.blocks.iter().enumerate() {
             z[..p].copy_from_slice(&x[k * p..(k + 1) * p]);
             z[p] = gamma;
@@ -194,15 +203,17 @@ impl Rpnn {
             b.w2.apply(&f1, &mut next);
             next.iter_mut().for_each(|v| *v = v.max(0.0));
             o = next;
+            for (slot, _) in self.sky_blocks.iter().enumerate().filter(|(_, b)| **b == k) {
+                sky_in[slot * w..(slot + 1) * w].copy_from_slice(&o);
+            }
         }
-        let trunk = o.clone();
         for l in &self.head {
             let mut next = vec![0.0; l.outputs];
             l.apply(&o, &mut next);
             next.iter_mut().for_each(|v| *v = v.max(0.0));
             o = next;
         }
-        let mut s = trunk;
+        let mut s = sky_in;
         for (i, l) in self.sky_head.iter().enumerate() {
             let mut next = vec![0.0; l.outputs];
             l.apply(&s, &mut next);
