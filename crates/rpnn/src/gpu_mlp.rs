@@ -10,7 +10,7 @@
 //! (packed pairs, `unpack2x16float`: every adapter reads them, `SHADER_F16` is not needed)
 //! and accumulates in f32: half the memory traffic of the weights and activations; the
 //! descriptors stay f32 and so do the outputs. Its agreement with ONNX Runtime is tested at a
-//! stated tolerance (`tests/model.rs`).
+//! stated tolerance (`tests/precision.rs`).
 
 use bytemuck::{Pod, Zeroable};
 use nimbus_gpu::timing::StageTimer;
@@ -296,23 +296,30 @@ impl<'g> GpuMlp<'g> {
                          first: Option<usize>| {
             let mut cur = trunk;
             for (i, l) in layers.iter().enumerate() {
-                let (mut w, b) = push(l);
-                let (mut ka, mut kb, mut wb, mut src_b) = (l.inputs as u32, 0, 0, None);
-                if let (0, Some(x)) = (i, first) {
-                    let cols = |c: std::ops::Range<usize>| Dense {
-                        inputs: c.len(),
-                        outputs: l.outputs,
-                        w: l.w
-                            .chunks_exact(l.inputs)
-                            .flat_map(|row| row[c.clone()].iter().copied())
-                            .collect(),
-                        b: Vec::new(),
-                    };
-                    w = push(&cols(0..width)).0;
-                    wb = push(&cols(width..2 * width)).0;
-                    (ka, kb, src_b) = (width as u32, width as u32, Some(trunk));
-                    cur = x;
-                }
+                let (w, b, wb, ka, kb, src_b) = match (i, first) {
+                    (0, Some(x)) => {
+                        // W's first `width` columns read o_kept (with the bias), the rest
+                        // o_trunk.
+                        let cols = |c: std::ops::Range<usize>, b: Vec<f32>| Dense {
+                            inputs: c.len(),
+                            outputs: l.outputs,
+                            w: l.w
+                                .chunks_exact(l.inputs)
+                                .flat_map(|row| row[c.clone()].iter().copied())
+                                .collect(),
+                            b,
+                        };
+                        let (wa, bias) = push(&cols(0..width, l.b.clone()));
+                        let (wb, _) = push(&cols(width..2 * width, Vec::new()));
+                        cur = x;
+                        let k = width as u32;
+                        (wa, bias, wb, k, k, Some(trunk))
+                    }
+                    _ => {
+                        let (w, b) = push(l);
+                        (w, b, 0, l.inputs as u32, 0, None)
+                    }
+                };
                 let last = i + 1 == layers.len();
                 let next = if last {
                     OUT

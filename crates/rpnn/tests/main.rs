@@ -5,5 +5,6 @@ mod datagen;
 mod descriptor;
 mod gpu_sample;
 mod model;
+mod precision;
 mod render;
 mod sky;
