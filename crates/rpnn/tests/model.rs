@@ -360,6 +360,42 @@ fn gpu_descriptor_and_network_equal_cpu_descriptor_and_onnx_runtime() {
     }
 }
 
+/// The WGSL network reads a sky head on the last block, or on one earlier block and the last
+/// (the kernel's two inputs). A head on three blocks, or on an earlier block alone, which the
+/// CPU reference (and ONNX Runtime) run, is refused there with the blocks and the backend that
+/// runs it named: never computed from the wrong activations.
+#[test]
+fn wgsl_network_refuses_sky_heads_it_cannot_read() {
+    use nimbus_rpnn::gpu_mlp::GpuMlp;
+    let Some(gpu) =
+        nimbus_gpu::testing::gpu("model::wgsl_network_refuses_sky_heads_it_cannot_read")
+    else {
+        return;
+    };
+    let base = Rpnn::load(&data("rpnn-tiny-sky2.onnx")).unwrap();
+    let x = vec![0.5f32; base.input_len()];
+    for blocks in [vec![2, 4, 9], vec![4]] {
+        let mut m = base.clone();
+        let n = blocks.len() * m.width;
+        let l0 = &mut m.sky_head[0];
+        (l0.inputs, l0.w) = (n, vec![0.01; l0.outputs * n]);
+        m.sky_blocks = blocks.clone();
+        let y = m.forward(&x);
+        assert!(
+            y.len() == 26 && y.iter().all(|v| v.is_finite()),
+            "{blocks:?}"
+        );
+        let e = GpuMlp::new(&gpu, &m, 64)
+            .err()
+            .unwrap_or_else(|| panic!("{blocks:?}: accepted"))
+            .to_string();
+        assert!(
+            e.contains(&format!("{blocks:?}")) && e.contains("--backend ort"),
+            "{e}"
+        );
+    }
+}
+
 /// The shipped model follows the scene's phase function: the Lorenz–Mie model for a Mie medium,
 /// the HG one otherwise; both load and say which phase function they were trained for.
 #[test]
