@@ -50,11 +50,10 @@ fn of_function(name: String, f: impl Fn(DVec3) -> DVec3 + Copy) -> NamedSky {
 fn of_map(name: String, env: &nimbus_scene::EnvMap) -> NamedSky {
     let img = env.image();
     let (w, h) = (img.width, img.height);
-    let pi = std::f64::consts::PI;
     let mut energy = 0.0;
     for y in 0..h {
-        let omega = std::f64::consts::TAU / w as f64
-            * ((y as f64 / h as f64 * pi).cos() - ((y + 1) as f64 / h as f64 * pi).cos());
+        let omega =
+            sky::latlong_cell_solid_angle(w, y as f64 / h as f64, (y + 1) as f64 / h as f64);
         for x in 0..w {
             let p = img.get(x, y);
             let l = DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64) * env.scale();

@@ -335,6 +335,13 @@ pub fn project(radiance: impl Fn(DVec3) -> DVec3, n: usize) -> [[f64; 3]; SH_COE
 /// degree ≤ 4 across it with a relative error of about (4 Δ)²/24 ≈ 4·10⁻⁴.
 const ENV_PARTS: [usize; 2] = [256, 128];
 
+/// The solid angle of one cell of a lat-long map `columns` wide that spans v0 … v1 in the
+/// map's v ∈ [0, 1] (θ = π v from the zenith): 2π / columns · (cos θ₀ − cos θ₁).
+pub fn latlong_cell_solid_angle(columns: usize, v0: f64, v1: f64) -> f64 {
+    let pi = std::f64::consts::PI;
+    std::f64::consts::TAU / columns as f64 * ((v0 * pi).cos() - (v1 * pi).cos())
+}
+
 /// The coefficients (per RGB channel) of a lat-long environment map, as the renderers read it:
 /// constant over each texel (`EnvMap::radiance` is a nearest-texel lookup). Every texel counts
 /// with its solid angle Δφ (cos θ₀ − cos θ₁), split so that there are at least 256 × 128
@@ -351,16 +358,13 @@ pub fn project_env(env: &nimbus_scene::EnvMap) -> [[f64; 3]; SH_COEFFS] {
         ENV_PARTS[1].div_ceil(h).max(1),
     ];
     let (nu, nv) = (w * sub[0], h * sub[1]);
-    let dphi = std::f64::consts::TAU / nu as f64;
     let scale = env.scale();
     // One row of parts at a time (θ fixed within it): the sum over its parts.
     let rows: Vec<[[f64; 3]; SH_COEFFS]> = (0..nv)
         .into_par_iter()
         .map(|j| {
             let (v0, v1) = (j as f64 / nv as f64, (j + 1) as f64 / nv as f64);
-            let cos0 = (v0 * std::f64::consts::PI).cos();
-            let cos1 = (v1 * std::f64::consts::PI).cos();
-            let omega = dphi * (cos0 - cos1);
+            let omega = latlong_cell_solid_angle(nu, v0, v1);
             let vc = (v0 + v1) / 2.0;
             let y = j / sub[1];
             let mut c = [[0.0; 3]; SH_COEFFS];
@@ -612,9 +616,7 @@ mod tests {
         img.pixels[ty * w + tx] = [5.0e4, 4.0e4, 3.0e4];
         let env = nimbus_scene::EnvMap::new(img, 2.0).unwrap();
         let c = project_env(&env);
-        let pi = std::f64::consts::PI;
-        let omega = std::f64::consts::TAU / w as f64
-            * ((ty as f64 / h as f64 * pi).cos() - ((ty + 1) as f64 / h as f64 * pi).cos());
+        let omega = latlong_cell_solid_angle(w, ty as f64 / h as f64, (ty + 1) as f64 / h as f64);
         let centre = nimbus_scene::EnvMap::dir_of(
             (tx as f64 + 0.5) / w as f64,
             (ty as f64 + 0.5) / h as f64,
@@ -657,14 +659,12 @@ mod tests {
         img.pixels[ty * w + tx] = [1.0, 1.0, 1.0];
         let env = nimbus_scene::EnvMap::new(img, 1.0).unwrap();
         let c = project_env(&env);
-        let pi = std::f64::consts::PI;
         let k = 256;
         let mut want = [0.0; SH_COEFFS];
         for j in 0..k {
             let v0 = (ty as f64 + j as f64 / k as f64) / h as f64;
             let v1 = (ty as f64 + (j + 1) as f64 / k as f64) / h as f64;
-            let omega =
-                std::f64::consts::TAU / (w * k) as f64 * ((v0 * pi).cos() - (v1 * pi).cos());
+            let omega = latlong_cell_solid_angle(w * k, v0, v1);
             for i in 0..k {
                 let u = (tx as f64 + (i as f64 + 0.5) / k as f64) / w as f64;
                 let y = eval(nimbus_scene::EnvMap::dir_of(u, (v0 + v1) / 2.0));
@@ -673,8 +673,7 @@ mod tests {
                 }
             }
         }
-        let omega: f64 = std::f64::consts::TAU / w as f64
-            * ((ty as f64 / h as f64 * pi).cos() - ((ty + 1) as f64 / h as f64 * pi).cos());
+        let omega = latlong_cell_solid_angle(w, ty as f64 / h as f64, (ty + 1) as f64 / h as f64);
         let centre = eval(nimbus_scene::EnvMap::dir_of(
             (tx as f64 + 0.5) / w as f64,
             (ty as f64 + 0.5) / h as f64,
