@@ -202,6 +202,8 @@ pub struct OrtModel {
     output: String,
     /// Where the runtime library came from.
     pub library: PathBuf,
+    /// The model file the sessions run (for errors about its answers).
+    pub model: PathBuf,
     /// Whether this is a model's int8 copy ([`OrtModel::load_int8`]).
     pub int8: bool,
     /// Queries per run of a session in [`OrtModel::predict_rows`] ([`ROWS_PER_RUN`]; 0 counts
@@ -287,6 +289,7 @@ impl OrtModel {
             input,
             output,
             library,
+            model: path.to_path_buf(),
             int8: false,
             rows_per_run: ROWS_PER_RUN,
         })

@@ -118,6 +118,63 @@ fn other_graphs_and_bad_files_are_refused() {
         e.contains("huge-weight.onnx") && e.contains(&name) && e.contains("1e30"),
         "{e}"
     );
+    // A NaN weight, and crafted shapes that once reached an allocation (2⁴⁰ columns of no
+    // data: an abort) or an index (negative dimensions: a panic), are refused, naming the
+    // file and the tensor.
+    type Mutation = fn(&mut onnx_protobuf::TensorProto);
+    let mutations: [(&str, Mutation, &str); 3] = [
+        (
+            "nan-weight",
+            |t| {
+                if t.raw_data.is_empty() {
+                    t.float_data[0] = f32::NAN;
+                } else {
+                    t.raw_data[..4].copy_from_slice(&f32::NAN.to_le_bytes());
+                }
+            },
+            "is NaN",
+        ),
+        (
+            "wide-empty",
+            |t| {
+                t.dims = vec![0, 1 << 40];
+                t.raw_data.clear();
+                t.float_data.clear();
+            },
+            "is not a weight's",
+        ),
+        (
+            "negative-dims",
+            |t| {
+                t.dims = vec![-1, -1];
+                t.raw_data.clear();
+                t.float_data = vec![1.0];
+            },
+            "is not a weight's",
+        ),
+    ];
+    for (file, mutate, says) in mutations {
+        let mut m = onnx_protobuf::ModelProto::parse_from_bytes(&bytes).unwrap();
+        // A residual block's W1: a MatMul without a bias, whose output count came from the
+        // shape alone.
+        let t = m
+            .graph
+            .as_mut()
+            .unwrap()
+            .initializer
+            .iter_mut()
+            .find(|t| t.dims.len() == 2 && t.name.starts_with("onnx::MatMul"))
+            .unwrap();
+        let name = t.name.clone();
+        mutate(t);
+        let path = dir.join(format!("{file}.onnx"));
+        std::fs::write(&path, m.write_to_bytes().unwrap()).unwrap();
+        let e = Rpnn::load(&path).unwrap_err().to_string();
+        assert!(
+            e.contains(&format!("{file}.onnx")) && e.contains(&name) && e.contains(says),
+            "{file}: {e}"
+        );
+    }
     // A folder is not read as a model.
     let e = Rpnn::load(&dir).unwrap_err().to_string();
     assert!(e.contains("a folder"), "{e}");
@@ -394,6 +451,40 @@ fn wgsl_network_refuses_sky_heads_it_cannot_read() {
             "{e}"
         );
     }
+}
+
+/// A sky head of another size than the 25 coefficients the renderers contract (degree 4) is
+/// refused at load time, naming the file: with its metadata the mismatch is named there;
+/// without, the head's size is. Once a 9-value head failed in the renderer without naming the
+/// file, and a 36-value one was cut to 25 on the GPU without a word.
+#[test]
+fn sky_heads_of_another_size_are_refused() {
+    use protobuf::Message;
+    let bytes = std::fs::read(data("rpnn-tiny-sky.onnx")).unwrap();
+    let dir = std::env::temp_dir().join(format!("nimbus-sky-size-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for (file, keep_metadata, says) in [
+        ("sky9-meta.onnx", true, "sky_sh_coeffs = 25"),
+        ("sky9.onnx", false, "predicts 9 values"),
+    ] {
+        let mut m = onnx_protobuf::ModelProto::parse_from_bytes(&bytes).unwrap();
+        if !keep_metadata {
+            m.metadata_props.clear();
+        }
+        // The head's last layer: weights [25, 16] (transB) and bias [25] → its first 9 rows.
+        for t in &mut m.graph.as_mut().unwrap().initializer {
+            if t.name == "head.layers.2.weight" || t.name == "head.layers.2.bias" {
+                let per_row = t.raw_data.len() / t.dims[0] as usize;
+                t.raw_data.truncate(9 * per_row);
+                t.dims[0] = 9;
+            }
+        }
+        let path = dir.join(file);
+        std::fs::write(&path, m.write_to_bytes().unwrap()).unwrap();
+        let e = Rpnn::load(&path).unwrap_err().to_string();
+        assert!(e.contains(file) && e.contains(says), "{file}: {e}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// The shipped model follows the scene's phase function: the Lorenz–Mie model for a Mie medium,

@@ -141,6 +141,36 @@ fn no_sky_means_no_sky_queries() {
     );
 }
 
+/// A network that answers NaN or ∞ (weights no trained network has, which ONNX Runtime runs
+/// unchecked: an int8 copy's are not checked on load) stops the render with an error naming
+/// the model file; once such samples became black pixels without a word.
+#[test]
+fn a_nan_answer_is_an_error_naming_the_model() {
+    use protobuf::Message;
+    let bytes = std::fs::read(data("rpnn-tiny.onnx")).unwrap();
+    let mut m = onnx_protobuf::ModelProto::parse_from_bytes(&bytes).unwrap();
+    for t in &mut m.graph.as_mut().unwrap().initializer {
+        // +∞ rather than NaN: the output's ReLU may turn a NaN into 0.
+        if t.name == "head.2.bias" {
+            t.raw_data[..4].copy_from_slice(&f32::INFINITY.to_le_bytes());
+        }
+    }
+    let path = std::env::temp_dir().join(format!("nimbus-nan-answer-{}.onnx", std::process::id()));
+    std::fs::write(&path, m.write_to_bytes().unwrap()).unwrap();
+    let s = scene(false, 16, 12, 5);
+    let pyr = Pyramid::new(&s.volume).unwrap();
+    let mut o = Backend::Ort(OrtModel::load(&path, 1).unwrap());
+    let e = render(&s, &pyr, &mut o, &RpnnOptions::new(1, 1, 8))
+        .err()
+        .expect("a NaN answer rendered")
+        .to_string();
+    std::fs::remove_file(&path).ok();
+    assert!(
+        e.contains("nimbus-nan-answer") && e.contains("answered inf"),
+        "{e}"
+    );
+}
+
 #[test]
 fn shipped_model_against_the_path_tracer() {
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rpnn-hg.onnx");

@@ -99,10 +99,11 @@ impl Image {
         let path = path.as_ref();
         crate::memory::regular_file(path)?;
         // The data window sizes the image: checked against the memory budget before the
-        // pixels are allocated (a 10 kB file can claim 10⁶ × 10⁶ pixels).
+        // pixels are allocated (a 10 kB file can claim 10⁶ × 10⁶ pixels). Every part counts:
+        // the reader takes the first part with RGB channels, which need not be the first.
         let meta = exr::meta::MetaData::read_from_file(path, false)
             .map_err(|e| Error::parse(path, format!("cannot read EXR header: {e}")))?;
-        for header in meta.headers.iter().take(1) {
+        for header in &meta.headers {
             let size = header.layer_size;
             crate::memory::check(
                 size.width() as u128 * size.height() as u128 * 12,

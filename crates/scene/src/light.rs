@@ -205,6 +205,44 @@ impl EnvMap {
         if !(scale.is_finite() && scale >= 0.0) {
             return Err(FieldError::new("sky.scale", "must be finite and ≥ 0"));
         }
+        if image.width == 0 || image.height == 0 || image.pixels.len() != image.width * image.height
+        {
+            return Err(FieldError::new(
+                "sky.envmap",
+                format!(
+                    "a {}×{} image of {} pixels is no map",
+                    image.width,
+                    image.height,
+                    image.pixels.len()
+                ),
+            ));
+        }
+        // Texels first (a NaN or +inf is named as the map's, not as the scale's overflow).
+        if let Some(i) = image
+            .pixels
+            .iter()
+            .position(|p| p.iter().any(|v| !v.is_finite() || *v < 0.0))
+        {
+            return Err(FieldError::new(
+                "sky.envmap",
+                format!(
+                    "pixel[{},{}] is {:?}: pixels must be finite and ≥ 0",
+                    i % image.width,
+                    i / image.width,
+                    image.pixels[i]
+                ),
+            ));
+        }
+        // The sampling tables below: per texel a weight and a CDF entry (f64 each), on top of
+        // the 12 bytes of the image the reader has checked.
+        crate::memory::check(
+            image.pixels.len() as u128 * 16,
+            "sky.envmap",
+            &format!(
+                "sampling a {}×{} environment map",
+                image.width, image.height
+            ),
+        )?;
         let max = image
             .pixels
             .iter()
@@ -217,17 +255,6 @@ impl EnvMap {
                     "scale × brightest pixel = {:e} exceeds {MAX_RADIANCE:e}",
                     max * scale
                 ),
-            ));
-        }
-        if image
-            .pixels
-            .iter()
-            .flatten()
-            .any(|v| !v.is_finite() || *v < 0.0)
-        {
-            return Err(FieldError::new(
-                "sky.envmap",
-                "pixels must be finite and ≥ 0",
             ));
         }
         let (w, h) = (image.width, image.height);

@@ -524,8 +524,16 @@ impl Scene {
                     return Err(Error::invalid(label, "sky", "needs `radiance` or `envmap`"));
                 }
                 (Some(r), None) => {
+                    // Each factor on its own: -1 × -1 is no sky radiance of 1.
+                    if !(s.scale.is_finite() && s.scale >= 0.0) {
+                        return Err(Error::invalid(
+                            label,
+                            "sky.scale",
+                            format!("must be finite and ≥ 0, got {}", s.scale),
+                        ));
+                    }
                     let c = r.vec() * s.scale * atmosphere.map_or(DVec3::ONE, |a| a.1);
-                    if !c.is_finite() || c.min_element() < 0.0 {
+                    if !r.vec().is_finite() || r.vec().min_element() < 0.0 || !c.is_finite() {
                         return Err(Error::invalid(
                             label,
                             "sky.radiance",
@@ -545,7 +553,15 @@ impl Scene {
                     }
                     Some(Sky::Constant(c))
                 }
-                (None, Some(e)) => Some(Sky::Env(EnvMap::load(&base_dir.join(e), s.scale)?)),
+                (None, Some(e)) => Some(Sky::Env(
+                    EnvMap::load(&base_dir.join(e), s.scale).map_err(|err| match err {
+                        // A file that cannot be read or parsed: name the scene's field too.
+                        Error::Io { .. } | Error::Parse { .. } => {
+                            Error::invalid(label, "sky.envmap", err.to_string())
+                        }
+                        invalid => invalid,
+                    })?,
+                )),
             },
         };
         // A black sky costs work and adds nothing: leave it out.

@@ -174,6 +174,23 @@ fn scene_errors_name_file_and_field() {
             "volume.phase.h",
         ),
         ("kind = \"hg\"", "kind = \"rayleigh\"", "volume.phase.kind"),
+        // The sky's factors are checked one by one: -1 × -1 is no radiance of 1, and a
+        // negative radiance is no black sky because its scale is 0.
+        (
+            "radiance = [0.1, 0.2, 0.3]",
+            "radiance = -1.0\nscale = -1.0",
+            "sky.scale",
+        ),
+        (
+            "radiance = [0.1, 0.2, 0.3]",
+            "radiance = -1.0\nscale = 0.0",
+            "sky.radiance",
+        ),
+        (
+            "radiance = [0.1, 0.2, 0.3]",
+            "radiance = [0.1, nan, 0.3]",
+            "sky.radiance",
+        ),
     ];
     for (from, to, field) in cases {
         assert!(GOOD.contains(from), "{from}");
@@ -188,6 +205,91 @@ fn scene_errors_name_file_and_field() {
     .unwrap_err();
     assert!(e.contains("missing.vol"), "{e}");
     assert!(parse("not [ toml").unwrap_err().contains("test.toml"));
+}
+
+/// Environment maps that cannot light a scene are refused, naming the file and the field:
+/// a missing file, NaN and negative texels, and a multi-part EXR whose RGB part claims
+/// 10⁶ × 10⁶ pixels behind a 1×1 first part. The memory budget once checked the first part
+/// only, while the reader takes the first part with RGB; this file's short chunk table still
+/// stopped the exr crate, but one with a table to match (≈ 0.5 MB) would have had 12 TB
+/// allocated. Now the budget refuses it, naming the size.
+#[test]
+fn bad_environment_maps_are_refused() {
+    let with_map = |p: &Path| {
+        GOOD.replace(
+            "radiance = [0.1, 0.2, 0.3]",
+            &format!("envmap = {:?}", p.display().to_string()),
+        )
+    };
+    let e = parse(&with_map(&tmp("no-such-map.exr"))).unwrap_err();
+    assert!(
+        e.contains("test.toml") && e.contains("sky.envmap") && e.contains("no-such-map.exr"),
+        "{e}"
+    );
+    for (name, texel, says) in [
+        ("nan-map.exr", [0.5, f32::NAN, 0.5], "pixel[2,1]"),
+        ("negative-map.exr", [0.5, -0.25, 0.5], "pixel[2,1]"),
+    ] {
+        // Written by the exr crate itself: Nimbus' own writer refuses NaN.
+        let p = tmp(name);
+        exr::prelude::write_rgb_file(&p, 8, 4, |x, y| {
+            let [r, g, b] = if (x, y) == (2, 1) { texel } else { [1.0; 3] };
+            (r, g, b)
+        })
+        .unwrap();
+        let e = parse(&with_map(&p)).unwrap_err();
+        assert!(e.contains(name) && e.contains(says), "{name}: {e}");
+    }
+    // Two parts: a 1×1 depth image, then a 4×4 RGB image whose data window is patched to
+    // 10⁶ × 10⁶ (its chunk table stays the 4×4 one's: the header is what the budget reads).
+    use exr::prelude::*;
+    let depth = Layer::new(
+        (1, 1),
+        LayerAttributes::named("depth"),
+        Encoding::UNCOMPRESSED,
+        AnyChannels::sort(vec![AnyChannel::new("Z", FlatSamples::F32(vec![1.0]))].into()),
+    );
+    let rgb = Layer::new(
+        (4, 4),
+        LayerAttributes::named("rgb"),
+        Encoding::UNCOMPRESSED,
+        AnyChannels::sort(
+            vec![
+                AnyChannel::new("B", FlatSamples::F32(vec![1.0; 16])),
+                AnyChannel::new("G", FlatSamples::F32(vec![1.0; 16])),
+                AnyChannel::new("R", FlatSamples::F32(vec![1.0; 16])),
+            ]
+            .into(),
+        ),
+    );
+    let p = tmp("two-parts.exr");
+    let layers: Layers<_> = vec![depth, rgb].into();
+    Image::from_layers(
+        ImageAttributes::new(IntegerBounds::from_dimensions((4, 4))),
+        layers,
+    )
+    .write()
+    .to_file(&p)
+    .unwrap();
+    let mut bytes = std::fs::read(&p).unwrap();
+    let key = b"dataWindow\0box2i\0";
+    let at: Vec<usize> = bytes
+        .windows(key.len())
+        .enumerate()
+        .filter(|(_, w)| *w == key)
+        .map(|(i, _)| i + key.len() + 4)
+        .collect();
+    assert_eq!(at.len(), 2, "one data window per part");
+    // box2i: x_min, y_min, x_max, y_max; the second part's maxima become 999 999.
+    for k in [2, 3] {
+        bytes[at[1] + 4 * k..at[1] + 4 * k + 4].copy_from_slice(&999_999i32.to_le_bytes());
+    }
+    std::fs::write(&p, &bytes).unwrap();
+    let e = parse(&with_map(&p)).unwrap_err();
+    assert!(
+        e.contains("two-parts.exr") && e.contains("1000000×1000000"),
+        "{e}"
+    );
 }
 
 #[test]

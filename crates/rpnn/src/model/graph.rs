@@ -39,7 +39,21 @@ fn floats(t: &TensorProto) -> Result<Vec<f32>, String> {
             t.name, t.data_type
         ));
     }
-    let n: i64 = t.dims.iter().product();
+    // Each dimension at least 1 and the whole within MAX_VALUES: a crafted shape (negative,
+    // zero or 2⁴⁰ wide with no data) must not reach an allocation or an index.
+    let mut n: i64 = 1;
+    for &d in &t.dims {
+        n = match n.checked_mul(d) {
+            Some(m) if d >= 1 && m <= MAX_VALUES => m,
+            _ => {
+                return Err(format!(
+                    "tensor `{}`: shape {:?} is not a weight's (each dimension 1 or more, at \
+                     most {MAX_VALUES} values in all)",
+                    t.name, t.dims
+                ));
+            }
+        };
+    }
     let v: Vec<f32> = if !t.raw_data.is_empty() {
         if !t.raw_data.len().is_multiple_of(4) {
             return Err(format!(
@@ -80,6 +94,10 @@ fn floats(t: &TensorProto) -> Result<Vec<f32>, String> {
 /// models': ≤ 1.16); a network of 23 layers with weights far beyond that drives its float32
 /// activations to overflow, where ONNX Runtime and the WGSL MLP give different non-answers.
 const MAX_WEIGHT: f32 = 1e3;
+
+/// The most values one weight tensor may hold: 2²⁶ (256 MB of float32), 50× the largest matrix
+/// of a shipped model (2 251 × 200 would be the widest; the blocks' are 200 × 200).
+const MAX_VALUES: i64 = 1 << 26;
 
 fn ints(t: &TensorProto) -> Result<Vec<i64>, String> {
     match t.data_type {
@@ -168,7 +186,9 @@ impl<'a> Matcher<'a> {
                 let (start, end) = (one(1)?, one(2)?);
                 let axis = if n.input.len() > 3 { one(3)? } else { 0 };
                 let step = if n.input.len() > 4 { one(4)? } else { 1 };
-                if axis != 1 && axis != -1 || step != 1 || start < 0 {
+                // `end` may be ONNX's "to the end" (i64::MAX), never before `start` or negative
+                // (counted from the end: the graph's slices are written with explicit columns).
+                if axis != 1 && axis != -1 || step != 1 || start < 0 || end <= start {
                     return Err(bad("expected a unit-step slice of columns"));
                 }
                 Sym::Cols(start as usize, end.min(1 << 40) as usize)

@@ -349,6 +349,26 @@ impl Rpnn {
                     ));
                 }
             }
+            if let Some(n) = v.get("sky_sh_coeffs")
+                && n.as_u64() != Some(rpnn.sky_coeffs() as u64)
+            {
+                return Err(format!(
+                    "metadata nimbus.rpnn.config says sky_sh_coeffs = {n}, the graph's sky head \
+                     has {}",
+                    rpnn.sky_coeffs()
+                ));
+            }
+        }
+        // The renderers contract the sky head's outputs with the sky's coefficients to degree
+        // 4 (`crate::sky`); a head of another size would be misread or cut short.
+        if !matches!(rpnn.sky_coeffs(), 0 | crate::sky::SH_COEFFS) {
+            return Err(format!(
+                "the sky head predicts {} values; Nimbus reads {} (spherical harmonics to \
+                 degree {}: train_sky.py)",
+                rpnn.sky_coeffs(),
+                crate::sky::SH_COEFFS,
+                crate::sky::SH_DEGREE
+            ));
         }
         Ok(rpnn)
     }
