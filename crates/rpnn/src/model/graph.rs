@@ -95,8 +95,9 @@ fn floats(t: &TensorProto) -> Result<Vec<f32>, String> {
 /// activations to overflow, where ONNX Runtime and the WGSL MLP give different non-answers.
 const MAX_WEIGHT: f32 = 1e3;
 
-/// The most values one weight tensor may hold: 2²⁶ (256 MB of float32), 50× the largest matrix
-/// of a shipped model (2 251 × 200 would be the widest; the blocks' are 200 × 200).
+/// The most values one weight tensor may hold: 2²⁶ (256 MB of float32), 149× a layer reading
+/// the whole descriptor at width 200 (2 251 × 200; the shipped models' largest matrices are a
+/// block's 226 × 200).
 const MAX_VALUES: i64 = 1 << 26;
 
 fn ints(t: &TensorProto) -> Result<Vec<i64>, String> {
