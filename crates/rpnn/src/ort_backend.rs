@@ -150,9 +150,9 @@ fn metadata(session: &ort::session::Session, key: &str) -> Result<Option<String>
 ///
 /// With an f32 model the outputs do not depend on the split: equal to the bit with one session
 /// or any number of workers and pieces (tested). An int8 copy ([`OrtModel::load_int8`]) scales
-/// each layer's input per run, so its outputs depend on the split — the number of workers and
-/// [`OrtModel::rows_per_run`] — by far less than its own difference from f32 (see
-/// `models/int8.md`); with the same cores and seed an image is still the same.
+/// each layer's input per run, so its outputs depend on which queries share a run: its runs
+/// are cut from the batch by the number of queries alone ([`OrtModel::predict_rows`]), never by
+/// the number of workers, so an int8 image is the same on any number of cores (tested).
 ///
 /// Each session holds the weights (5.2 MB for the paper's network) and a kept buffer of up to
 /// `rows_per_run` rows (9 MB at 1 024), so memory grows with the number of workers.
@@ -183,6 +183,17 @@ impl From<usize> for Cores {
 /// changes.
 pub const ROWS_PER_RUN: usize = 1024;
 
+/// [`ROWS_PER_RUN`] of an int8 copy. Its runs are cut by the batch's size alone, in pairs
+/// (2 ⌈n / 512⌉ pieces), so that two workers always get equal shares, however small the batch:
+/// the bench suite's samples hold 200–1 300 queries. `cargo run --release -p nimbus-rpnn
+/// --example int8_split`, two workers (2-core AMD EPYC, the int8 sky model), 10th percentile
+/// of µs per query at 200 / 648 / 1 297 / 12 175 queries: cut per worker as an f32 model's
+/// batch 12.7–13.0 / 11.8–12.1 / 11.9–12.0 / 12.6–12.9, by n in pairs 12.8–12.9 / 12.2–12.3 /
+/// 12.0–12.2 / 12.1–12.3. Without the pairing (⌈n / 256⌉ pieces) 200 queries were one run on
+/// one worker (24.5) and 648 three runs split 2 : 1 (15.8–16.1); pieces of at most 128 cost
+/// 13.3–13.4 at 1 297 (one run costs more the fewer its queries).
+pub const INT8_ROWS_PER_RUN: usize = 256;
+
 /// Milliseconds of one [`OrtModel::predict_rows`] call: making the rows and running the
 /// network. With [`Cores::Workers`] the call's wall time is split between the two in the
 /// proportion of the workers' summed times, so the two add up to the call's time (a worker
@@ -206,8 +217,8 @@ pub struct OrtModel {
     pub model: PathBuf,
     /// Whether this is a model's int8 copy ([`OrtModel::load_int8`]).
     pub int8: bool,
-    /// Queries per run of a session in [`OrtModel::predict_rows`] ([`ROWS_PER_RUN`]; 0 counts
-    /// as 1).
+    /// The most queries per run of a session in [`OrtModel::predict_rows`] ([`ROWS_PER_RUN`],
+    /// [`INT8_ROWS_PER_RUN`] for an int8 copy; 0 counts as 1).
     pub rows_per_run: usize,
 }
 
@@ -302,8 +313,8 @@ impl OrtModel {
 
     /// Loads the int8 copy of the f32 model `f32_path` ([`int8_path_for`], made by
     /// `training/quantize.py`: weights int8 per output channel, the blocks' input activations
-    /// u8 with one scale per run of a session (at most [`OrtModel::rows_per_run`] queries: the
-    /// outputs depend on the split, see [`Cores`]), the heads f32; beyond the paper, see
+    /// u8 with one scale per run of a session (at most [`INT8_ROWS_PER_RUN`] queries, cut by the
+    /// batch's size alone, see [`Cores`]), the heads f32; beyond the paper, see
     /// BENCHMARKS.md "The int8 network"). A missing copy, or a copy of another model (its metadata
     /// `nimbus.rpnn.int8_of` is not the sha256 of `f32_path`), is an error naming the file and
     /// the command that makes it.
@@ -356,6 +367,7 @@ impl OrtModel {
         };
         let mut model = Self::load_checked(&path, cores.into(), check)?;
         model.int8 = true;
+        model.rows_per_run = INT8_ROWS_PER_RUN;
         Ok(model)
     }
 
@@ -369,12 +381,18 @@ impl OrtModel {
     }
 
     /// Runs `n` queries of `cols` inputs each whose rows `fill(i, row)` writes (`row` has
-    /// `cols` values, all to be written), [`OrtModel::rows_per_run`] at a time: with one
-    /// session the rows of a piece are written in parallel on rayon's threads and the
-    /// session's own threads run it; with workers ([`Cores::Workers`]) worker w takes the w-th
-    /// contiguous share of the queries and writes and runs them alone. Returns the outputs
-    /// row-major (query order) and the time of each part. An f32 model gives equal outputs
-    /// either way; an int8 copy's depend on the split ([`Cores`]).
+    /// `cols` values, all to be written), in runs (pieces) of at most
+    /// [`OrtModel::rows_per_run`]: with one session the rows of a piece are written in parallel
+    /// on rayon's threads and the session's own threads run it; with workers
+    /// ([`Cores::Workers`]) worker w takes the w-th contiguous share of the pieces and writes
+    /// and runs them alone. Returns the outputs row-major (query order) and the time of each
+    /// part.
+    ///
+    /// The pieces are equal to within one query. An f32 model's are cut per worker (each
+    /// worker's share of the queries, in as few pieces as fit): its outputs do not depend on
+    /// the split. An int8 copy's are cut from the whole batch by `n` alone, 2 ⌈n / (2
+    /// rows_per_run)⌉ of them, and the workers share them out: the same queries share a run, so the same
+    /// answers come back, whatever the number of workers or threads ([`Cores`]).
     pub fn predict_rows<F>(
         &mut self,
         n: usize,
@@ -391,25 +409,40 @@ impl OrtModel {
             return Err(OrtError::Run(format!("{n} queries of no inputs")));
         }
         let (input, output) = (self.input.as_str(), self.output.as_str());
+        let k = self.sessions.len();
+        let most = self.rows_per_run.max(1);
         let share = Share {
             input,
             output,
-            piece: self.rows_per_run.max(1),
+            n,
+            pieces: if self.int8 {
+                // By n alone, in pairs: two workers (a 2-core machine) get equal shares.
+                2 * n.div_ceil(2 * most)
+            } else {
+                // k shares of ⌈n / k⌉ or fewer, each in pieces of at most `most`; a multiple
+                // of k, so that worker w's share starts at n w / k.
+                k * n.div_ceil(k).div_ceil(most)
+            },
             cols,
             // One session: rayon's threads write its rows; workers write their own.
-            parallel: self.sessions.len() == 1,
+            parallel: k == 1,
         };
         if share.parallel {
-            return share.run(&mut self.sessions[0], &mut self.buffers[0], 0..n, &fill);
+            return share.run(
+                &mut self.sessions[0],
+                &mut self.buffers[0],
+                0..share.pieces,
+                &fill,
+            );
         }
-        let k = self.sessions.len();
+        let p = share.pieces;
         let clock = Instant::now();
         let shares: Vec<_> = self
             .sessions
             .par_iter_mut()
             .zip(self.buffers.par_iter_mut())
             .enumerate()
-            .map(|(w, (session, buf))| share.run(session, buf, n * w / k..n * (w + 1) / k, &fill))
+            .map(|(w, (session, buf))| share.run(session, buf, p * w / k..p * (w + 1) / k, &fill))
             .collect::<Result<_, _>>()?;
         let wall = clock.elapsed().as_secs_f64() * 1e3;
         let mut y = Vec::with_capacity(shares.iter().map(|(p, _)| p.len()).sum());
@@ -436,20 +469,22 @@ impl OrtModel {
 struct Share<'a> {
     input: &'a str,
     output: &'a str,
-    /// Queries per run.
-    piece: usize,
+    /// Queries in the whole batch.
+    n: usize,
+    /// Runs the batch is cut into: piece j holds the queries n j / pieces .. n (j + 1) / pieces.
+    pieces: usize,
     cols: usize,
     /// Rows written by rayon's threads, or by the calling one.
     parallel: bool,
 }
 
 impl Share<'_> {
-    /// The queries `range`, `piece` at a time, through `session` (rows in `buf`).
+    /// The pieces `pieces`, one run each, through `session` (rows in `buf`).
     fn run<F>(
         &self,
         session: &mut ort::session::Session,
         buf: &mut Vec<f32>,
-        range: std::ops::Range<usize>,
+        pieces: std::ops::Range<usize>,
         fill: F,
     ) -> Result<(Vec<f32>, RowTimes), OrtError>
     where
@@ -458,9 +493,13 @@ impl Share<'_> {
         let cols = self.cols;
         let mut y = Vec::new();
         let mut t = RowTimes::default();
-        let mut start = range.start;
-        while start < range.end {
-            let m = self.piece.min(range.end - start);
+        // u128: n × pieces would overflow 32-bit sizes long before a frame is too large.
+        let bound = |j: usize| (self.n as u128 * j as u128 / self.pieces as u128) as usize;
+        for j in pieces {
+            let (start, m) = (bound(j), bound(j + 1) - bound(j));
+            if m == 0 {
+                continue;
+            }
             let clock = Instant::now();
             // The buffer only grows: a short last piece uses its front (no zeroing again).
             if buf.len() < m * cols {
@@ -480,7 +519,6 @@ impl Share<'_> {
             let clock = Instant::now();
             y.extend_from_slice(&run(session, self.input, self.output, &buf[..m * cols], m)?);
             t.network_ms += clock.elapsed().as_secs_f64() * 1e3;
-            start += m;
         }
         Ok((y, t))
     }

@@ -202,9 +202,10 @@ fn f16_network_on_held_out_records() {
 
 /// The int8 copies of the shipped models (`training/quantize.py`, `--backend ort-int8`, beyond
 /// the paper) against the f32 models they were made from, both in ONNX Runtime, on 210
-/// descriptors of a generated cumulus, in one batch and split as a render splits them (two
-/// workers, here in pieces of 64; the copy scales activations per run, so the split changes its
-/// answers slightly, by less than the bounds below, and the same split gives the same answers).
+/// descriptors of a generated cumulus, in one batch and split as a render splits them (here in
+/// pieces of at most 64; the copy scales activations per run, so the pieces change its answers
+/// slightly, by less than the bounds below; the pieces are cut by the number of queries alone,
+/// so one session or any number of workers give the same answers, to the bit).
 /// On 3 000 test records quantize.py measured the sun output's difference at 0.6 % median,
 /// 3.9 % at the 95th percentile and a mean ratio of 1.0007 (BENCHMARKS.md, "The int8
 /// network"); the bounds below are those with room for 210 rows: median ≤ 2 %, mean ratio
@@ -243,6 +244,23 @@ fn int8_copies_agree_with_their_models_and_refuse_others() {
         let (split, _) = w.predict_rows(rows, DESCRIPTOR_LEN, copy).unwrap();
         let (again, _) = w.predict_rows(rows, DESCRIPTOR_LEN, copy).unwrap();
         assert_eq!(split, again, "{name}: the same split, other answers");
+        // The runs are cut by the number of queries alone: one session on its threads, or
+        // one, three or five workers, give the two workers' answers to the bit.
+        for cores in [
+            Cores::Pool(1),
+            Cores::Pool(2),
+            Cores::Workers(1),
+            Cores::Workers(3),
+            Cores::Workers(5),
+        ] {
+            let mut o = OrtModel::load_int8(&f32_path, cores).unwrap();
+            o.rows_per_run = 64;
+            let (other, _) = o.predict_rows(rows, DESCRIPTOR_LEN, copy).unwrap();
+            assert!(
+                other == split,
+                "{name}: {cores:?} answers otherwise than two workers"
+            );
+        }
         let cols = a.len() / rows;
         let sun = |v: &[f32]| (0..rows).map(|r| v[r * cols] as f64).collect::<Vec<_>>();
         let sa = sun(&a);

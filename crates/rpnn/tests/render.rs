@@ -320,7 +320,8 @@ const RMSE_BOUND: f64 = 0.10;
 /// unseen cumulus under sun + sky at 32 spp the cloud pixels' mean luminance moves by less than
 /// 0.5 % and its 4×4-block relative RMSE against the f32 image stays under 1 %: a tenth of the
 /// shipped model's own bias on the bench suite (2–4 %), so int8 leaves the error a user sees
-/// where it was (quantize.py: 0.6 % median per query).
+/// where it was (quantize.py: 0.6 % median per query). The int8 image is the same to the bit
+/// on one core or three.
 #[test]
 fn int8_network_renders_the_f32_image() {
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rpnn-hg-sky.onnx");
@@ -355,6 +356,16 @@ fn int8_network_renders_the_f32_image() {
     );
     assert!(m.rel_rmse_cloud_4x4 < 0.01, "{}", m.rel_rmse_cloud_4x4);
     assert!(m.rel_rmse_cloud_4x4 > 0.0, "int8 is not the f32 network");
+    // The same int8 image on any number of cores: one session on one thread, or three
+    // single-threaded workers (the runs the copy scales by are cut by the queries alone).
+    for cores in [
+        nimbus_rpnn::ort_backend::Cores::Pool(1),
+        nimbus_rpnn::ort_backend::Cores::Workers(3),
+    ] {
+        let mut o = Backend::Ort(OrtModel::load_int8(&model, cores).unwrap());
+        let c = render(&s, &pyr, &mut o, &opts).unwrap();
+        assert!(c.image == b.image, "{cores:?}: another int8 image");
+    }
 }
 
 /// With a sky head, a sky costs no query of its own: one query per shading point (the sun's,
