@@ -37,7 +37,8 @@ fn bench(c: &mut Criterion) {
     let mut int8 = OrtModel::load_int8(&model_path, 0).expect("the shipped model's int8 copy");
     g.bench_function("ort_int8", |b| b.iter(|| int8.predict(&x, N).unwrap()));
     // As a render runs it: one single-threaded session per core, each on its share of the
-    // batch in pieces of `ROWS_PER_RUN` (the rows copied from the same descriptors).
+    // batch in pieces of at most `ROWS_PER_RUN` (an int8 copy: pieces of at most
+    // `INT8_ROWS_PER_RUN`, cut by the batch's size; the rows copied from the same descriptors).
     let copy = |i: usize, row: &mut [f32]| {
         row.copy_from_slice(&x[i * DESCRIPTOR_LEN..(i + 1) * DESCRIPTOR_LEN])
     };

@@ -189,9 +189,8 @@ pub const ROWS_PER_RUN: usize = 1024;
 /// --example int8_split`, two workers (2-core AMD EPYC, the int8 sky model), 10th percentile
 /// of µs per query at 200 / 648 / 1 297 / 12 175 queries: cut per worker as an f32 model's
 /// batch 12.7–13.0 / 11.8–12.1 / 11.9–12.0 / 12.6–12.9, by n in pairs 12.8–12.9 / 12.2–12.3 /
-/// 12.0–12.2 / 12.1–12.3. Without the pairing (⌈n / 256⌉ pieces) 200 queries were one run on
-/// one worker (24.5) and 648 three runs split 2 : 1 (15.8–16.1); pieces of at most 128 cost
-/// 13.3–13.4 at 1 297 (one run costs more the fewer its queries).
+/// 12.0–12.2 / 12.1–12.3. (Unpaired, ⌈n / 256⌉ pieces, 200 queries were one run on one worker,
+/// at twice the time.) On more cores a batch keeps at most 2 ⌈n / 512⌉ of them busy.
 pub const INT8_ROWS_PER_RUN: usize = 256;
 
 /// Milliseconds of one [`OrtModel::predict_rows`] call: making the rows and running the
@@ -390,8 +389,8 @@ impl OrtModel {
     ///
     /// The pieces are equal to within one query. An f32 model's are cut per worker (each
     /// worker's share of the queries, in as few pieces as fit): its outputs do not depend on
-    /// the split. An int8 copy's are cut from the whole batch by `n` alone, 2 ⌈n / (2
-    /// rows_per_run)⌉ of them, and the workers share them out: the same queries share a run, so the same
+    /// the split. An int8 copy's are cut from the whole batch by `n` alone, in pairs:
+    /// 2 ⌈n / (2 rows_per_run)⌉ of them, which the workers share out: the same queries share a run, so the same
     /// answers come back, whatever the number of workers or threads ([`Cores`]).
     pub fn predict_rows<F>(
         &mut self,
@@ -417,7 +416,7 @@ impl OrtModel {
             n,
             pieces: if self.int8 {
                 // By n alone, in pairs: two workers (a 2-core machine) get equal shares.
-                2 * n.div_ceil(2 * most)
+                2 * n.div_ceil(most.saturating_mul(2))
             } else {
                 // k shares of ⌈n / k⌉ or fewer, each in pieces of at most `most`; a multiple
                 // of k, so that worker w's share starts at n w / k.

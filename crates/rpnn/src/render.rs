@@ -323,21 +323,26 @@ pub fn accumulate(
         // A NaN or infinite answer is the model's fault (the f32 model's weights are checked
         // on load, an int8 copy's are not): an error naming the file, never a black pixel.
         if let Some(i) = y.iter().position(|v| !v.is_finite()) {
-            let model = match backend {
-                Backend::Ort(m) => m.model.display().to_string(),
-                Backend::Wgpu(_) => "the model".into(),
+            let (model, why) = match backend {
+                Backend::Ort(m) if m.int8 => (
+                    m.model.display().to_string(),
+                    "its int8 copy's weights are not a trained network's (make the copy again: \
+                     training/quantize.py)",
+                ),
+                Backend::Ort(m) => (
+                    m.model.display().to_string(),
+                    "its weights are not a trained network's",
+                ),
+                Backend::Wgpu(_) => (
+                    "the network on the GPU".into(),
+                    "its activations overflow (with --net-precision f16: try f32)",
+                ),
             };
             return Err(RenderError::Setting(format!(
-                "{model}: the network answered {} for query {} (output {} of {outputs}); its \
-                 weights are not a trained network's{}",
+                "{model}: the network answered {} for query {} (output {} of {outputs}); {why}",
                 y[i],
                 i / outputs.max(1),
                 i % outputs.max(1),
-                if backend.name() == "ort int8" {
-                    " (make the int8 copy again: training/quantize.py)"
-                } else {
-                    ""
-                }
             )));
         }
         let mut k = 0;

@@ -577,7 +577,8 @@ fn ort_workers_and_pieces_reproduce_one_run() {
             *o = x * s;
         }
     };
-    // Two whole pieces and a part of one, split unevenly among 2 and 3 workers.
+    // More than two pieces' worth, split among 2 and 3 workers (pieces of 695 in one
+    // session or among three workers, of 521 or 522 among two).
     let n = 2 * ROWS_PER_RUN + 37;
     let mut flat = vec![0.0; n * cols];
     for (i, r) in flat.chunks_mut(cols).enumerate() {

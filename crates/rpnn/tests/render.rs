@@ -106,7 +106,7 @@ fn ort_workers_render_the_one_session_image() {
     let mut one = Backend::Ort(OrtModel::load(&path, 1).unwrap());
     let a = render(&s, &pyr, &mut one, &opts).unwrap();
     let mut workers = OrtModel::load(&path, Cores::Workers(3)).unwrap();
-    // Pieces of 7 queries: many runs per worker, and a short last one.
+    // Pieces of at most 7 queries: many runs per worker.
     workers.rows_per_run = 7;
     let b = render(&s, &pyr, &mut Backend::Ort(workers), &opts).unwrap();
     assert!(a.times.queries > 3 * 7, "{} queries", a.times.queries);

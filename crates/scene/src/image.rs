@@ -108,7 +108,11 @@ impl Image {
             crate::memory::check(
                 size.width() as u128 * size.height() as u128 * 12,
                 "dataWindow",
-                &format!("a {}×{} RGB float image", size.width(), size.height()),
+                &format!(
+                    "a {}×{} part read as RGB floats",
+                    size.width(),
+                    size.height()
+                ),
             )
             .map_err(|e| e.at(path))?;
         }

@@ -233,10 +233,10 @@ impl EnvMap {
                 ),
             ));
         }
-        // The sampling tables below: per texel a weight and a CDF entry (f64 each), on top of
-        // the 12 bytes of the image the reader has checked.
+        // The image (12 bytes a texel) and the sampling tables below (a weight and a CDF entry,
+        // f64 each), held together.
         crate::memory::check(
-            image.pixels.len() as u128 * 16,
+            image.pixels.len() as u128 * 28,
             "sky.envmap",
             &format!(
                 "sampling a {}×{} environment map",

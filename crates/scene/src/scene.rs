@@ -523,24 +523,27 @@ impl Scene {
                 (None, None) => {
                     return Err(Error::invalid(label, "sky", "needs `radiance` or `envmap`"));
                 }
+                // The scale is the scene's, for either kind of sky: checked here (an env map's
+                // errors otherwise name the EXR). Each factor on its own: -1 × -1 is no sky
+                // radiance of 1.
+                _ if !(s.scale.is_finite() && s.scale >= 0.0) => {
+                    return Err(Error::invalid(
+                        label,
+                        "sky.scale",
+                        format!("must be finite and ≥ 0, got {}", s.scale),
+                    ));
+                }
                 (Some(r), None) => {
-                    // Each factor on its own: -1 × -1 is no sky radiance of 1.
-                    if !(s.scale.is_finite() && s.scale >= 0.0) {
-                        return Err(Error::invalid(
-                            label,
-                            "sky.scale",
-                            format!("must be finite and ≥ 0, got {}", s.scale),
-                        ));
-                    }
                     let c = r.vec() * s.scale * atmosphere.map_or(DVec3::ONE, |a| a.1);
-                    if !r.vec().is_finite() || r.vec().min_element() < 0.0 || !c.is_finite() {
+                    if !r.vec().is_finite() || r.vec().min_element() < 0.0 {
                         return Err(Error::invalid(
                             label,
                             "sky.radiance",
                             "must be finite and ≥ 0",
                         ));
                     }
-                    if c.max_element() > crate::light::MAX_RADIANCE {
+                    // (also an overflow of the product to ∞)
+                    if !c.is_finite() || c.max_element() > crate::light::MAX_RADIANCE {
                         return Err(Error::invalid(
                             label,
                             "sky.radiance",
@@ -558,6 +561,10 @@ impl Scene {
                         // A file that cannot be read or parsed: name the scene's field too.
                         Error::Io { .. } | Error::Parse { .. } => {
                             Error::invalid(label, "sky.envmap", err.to_string())
+                        }
+                        // The scale is the scene's field (scale × brightest texel too large).
+                        Error::Invalid { path, field, msg } if field == "sky.scale" => {
+                            Error::invalid(label, field, format!("{msg} ({})", path.display()))
                         }
                         invalid => invalid,
                     })?,

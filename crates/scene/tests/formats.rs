@@ -191,6 +191,12 @@ fn scene_errors_name_file_and_field() {
             "radiance = [0.1, nan, 0.3]",
             "sky.radiance",
         ),
+        // Two valid factors whose product overflows: named as the overflow it is.
+        (
+            "radiance = [0.1, 0.2, 0.3]",
+            "radiance = 1e300\nscale = 1e300",
+            "radiance × scale = inf exceeds",
+        ),
     ];
     for (from, to, field) in cases {
         assert!(GOOD.contains(from), "{from}");
@@ -239,6 +245,21 @@ fn bad_environment_maps_are_refused() {
         .unwrap();
         let e = parse(&with_map(&p)).unwrap_err();
         assert!(e.contains(name) && e.contains(says), "{name}: {e}");
+    }
+    // The scale is the scene's field, named there, with either kind of sky.
+    let bright = tmp("bright-map.exr");
+    exr::prelude::write_rgb_file(&bright, 8, 4, |x, _| {
+        let v = if x == 0 { 1e20f32 } else { 1.0 };
+        (v, v, v)
+    })
+    .unwrap();
+    for (scale, says) in [("-1.0", "must be finite"), ("1e20", "brightest pixel")] {
+        let text = with_map(&bright).replace("[camera]", &format!("scale = {scale}\n[camera]"));
+        let e = parse(&text).unwrap_err();
+        assert!(
+            e.starts_with("test.toml") && e.contains("sky.scale") && e.contains(says),
+            "scale {scale}: {e}"
+        );
     }
     // Two parts: a 1×1 depth image, then a 4×4 RGB image whose data window is patched to
     // 10⁶ × 10⁶ (its chunk table stays the 4×4 one's: the header is what the budget reads).

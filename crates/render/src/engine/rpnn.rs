@@ -163,7 +163,8 @@ impl<'g> RpnnEngine<'g> {
         let backend = match &mut self.runner {
             Runner::Gpu(g) => {
                 g.sync(scene)?;
-                g.add(spp).context("RPNN render")?;
+                g.add(spp)
+                    .with_context(|| format!("RPNN render with {}", self.model_path.display()))?;
                 // The stages are the sampler's ([`RpnnEngine::stages`]).
                 self.times.total_ms = g.times.total_ms;
                 return Ok(());
@@ -184,7 +185,7 @@ impl<'g> RpnnEngine<'g> {
             &ro,
             &mut self.sums,
         )
-        .context("RPNN render")?;
+        .with_context(|| format!("RPNN render with {}", self.model_path.display()))?;
         let a = &mut self.times;
         a.descriptor_ms += t.descriptor_ms;
         a.inference_ms += t.inference_ms;
