@@ -186,7 +186,7 @@ pub const ROWS_PER_RUN: usize = 1024;
 /// [`ROWS_PER_RUN`] of an int8 copy. Its runs are cut by the batch's size alone, in pairs
 /// (2 ⌈n / 512⌉ pieces), so that two workers always get equal shares, however small the batch:
 /// the bench suite's samples hold 200–1 300 queries. `cargo run --release -p nimbus-rpnn
-/// --example int8_split`, two workers (2-core AMD EPYC, the int8 sky model), 10th percentile
+/// --example int8_split`, two workers (2-core Intel Xeon, the int8 sky model), 10th percentile
 /// of µs per query at 200 / 648 / 1 297 / 12 175 queries: cut per worker as an f32 model's
 /// batch 12.7–13.0 / 11.8–12.1 / 11.9–12.0 / 12.6–12.9, by n in pairs 12.8–12.9 / 12.2–12.3 /
 /// 12.0–12.2 / 12.1–12.3. (Unpaired, ⌈n / 256⌉ pieces, 200 queries were one run on one worker,
