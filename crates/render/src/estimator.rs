@@ -283,6 +283,18 @@ pub fn prepare<'g>(
              {method} computes every order of scattering"
         ));
     }
+    // Every estimator reads an environment map as latitude–longitude (2:1); another layout
+    // (a mirror ball, a cube cross) would light the cloud wrongly without a word.
+    if let Some(nimbus_scene::Sky::Env(env)) = &scene.sky {
+        let (w, h) = (env.image().width, env.image().height);
+        if w != 2 * h {
+            warnings.push(format!(
+                "warning: {label}: sky.envmap is {w}×{h}, not 2:1; it is read as a \
+                 latitude–longitude map (a mirror ball or a cube cross would light the cloud \
+                 wrongly)"
+            ));
+        }
+    }
     if method != Method::Pt {
         check_f32_scale(scene, method)?;
     }

@@ -33,6 +33,27 @@ fn options() -> Options {
     }
 }
 
+/// An environment map that is not 2:1 is read as latitude–longitude anyway, with a warning
+/// naming its size; a 2:1 map gets none.
+#[test]
+fn env_maps_that_are_not_two_to_one_are_named() {
+    let gpu = GpuSlot::new();
+    for (w, h, warned) in [(16, 8, false), (8, 8, true), (24, 4, true)] {
+        let mut s = scene();
+        let mut img = nimbus_scene::Image::new(w, h);
+        img.pixels.fill([0.2, 0.3, 0.5]);
+        s.sky = Some(nimbus_scene::Sky::Env(
+            nimbus_scene::EnvMap::new(img, 1.0).unwrap(),
+        ));
+        let est = prepare(&s, Method::Pt, &options(), &gpu).unwrap();
+        let said = est
+            .warnings
+            .iter()
+            .any(|m| m.contains("sky.envmap") && m.contains(&format!("{w}×{h}, not 2:1")));
+        assert_eq!(said, warned, "{w}×{h}: {:?}", est.warnings);
+    }
+}
+
 /// For `method`: `steps` samples accumulated after a restart equal a render of 8 (colour and
 /// variance, bit for bit); a camera change restarts the count and draws other samples.
 fn steps_equal_one_render(method: Method, gpu: &GpuSlot, steps: [u32; 2]) {
