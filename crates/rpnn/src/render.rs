@@ -331,7 +331,7 @@ pub fn accumulate(
                 ),
                 Backend::Ort(m) => (
                     m.model.display().to_string(),
-                    "its weights are not a trained network's",
+                    "its activations overflow float32 (its weights passed the load checks)",
                 ),
                 Backend::Wgpu(_) => (
                     "the network on the GPU".into(),

@@ -132,7 +132,8 @@ impl Sky {
     pub fn is_black(&self) -> bool {
         match self {
             Sky::Constant(c) => c.max_element() <= 0.0,
-            Sky::Env(e) => e.total <= 0.0,
+            // `total` is the texels' (before the scale): a scale of 0 is a black sky too.
+            Sky::Env(e) => e.total <= 0.0 || e.scale == 0.0,
         }
     }
 }
@@ -239,7 +240,7 @@ impl EnvMap {
             image.pixels.len() as u128 * 28,
             "sky.envmap",
             &format!(
-                "sampling a {}×{} environment map",
+                "a {}×{} environment map and its sampling tables",
                 image.width, image.height
             ),
         )?;

@@ -253,6 +253,9 @@ fn bad_environment_maps_are_refused() {
         (v, v, v)
     })
     .unwrap();
+    // A map scaled by 0 is no sky: left out, as a black constant sky is.
+    let text = with_map(&bright).replace("[camera]", "scale = 0.0\n[camera]");
+    assert!(parse(&text).unwrap().sky.is_none());
     for (scale, says) in [("-1.0", "must be finite"), ("1e20", "brightest pixel")] {
         let text = with_map(&bright).replace("[camera]", &format!("scale = {scale}\n[camera]"));
         let e = parse(&text).unwrap_err();
