@@ -390,8 +390,9 @@ impl OrtModel {
     /// The pieces are equal to within one query. An f32 model's are cut per worker (each
     /// worker's share of the queries, in as few pieces as fit): its outputs do not depend on
     /// the split. An int8 copy's are cut from the whole batch by `n` alone, in pairs:
-    /// 2 ⌈n / (2 rows_per_run)⌉ of them, which the workers share out: the same queries share a run, so the same
-    /// answers come back, whatever the number of workers or threads ([`Cores`]).
+    /// 2 ⌈n / (2 rows_per_run)⌉ of them, which the workers share out. The same queries share a
+    /// run, so the same answers come back, whatever the number of workers or threads
+    /// ([`Cores`]).
     pub fn predict_rows<F>(
         &mut self,
         n: usize,
