@@ -40,7 +40,7 @@ struct Sample {
     degree: u32,       // highest SH degree of the contraction
     rows: u32,         // slots of a chunk (the network's batch)
     sky_dirs: u32,     // the paper's sky directions per collision (constant sky; 0: none)
-    _b: u32,
+    every: u32,        // one sample in every `every` of a pixel asks the network (1: all)
 };
 
 struct Config { x: vec4<f32>, view: vec4<f32>, to_light: vec4<f32> };
@@ -138,9 +138,22 @@ fn shade(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
         }
     }
     let known = P.albedo * direct;
+    // One sample in every S.every asks the network (`nimbus_rpnn::render::asks_network`): when
+    // (sample + offset) mod every = 0, the offset uniform per pixel from its own stream; the
+    // answers are weighted S.every, so the sum is unbiased at any number of samples.
+    var m = 1.0;
+    if (S.every > 1u) {
+        var orng = rng_new(P.seed ^ 0x6a09e667u, pixel, 0xffffffffu);
+        let offset = min(u32(rand(&orng) * f32(S.every)), S.every - 1u);
+        if ((S.sample + offset) % S.every != 0u) {
+            add(pixel, known);
+            return;
+        }
+        m = f32(S.every);
+    }
     // The first query: the sun's frame when there is a sun, else the zenith's (for the sky
     // head); then the paper's sky directions.
-    let sky_w = select(0.0, P.albedo, has_sky && (S.flags & 4u) != 0u);
+    let sky_w = select(0.0, m * P.albedo, has_sky && (S.flags & 4u) != 0u);
     let first = u32(has_sun || sky_w != 0.0);
     // (no directions for a black sky: their weights would be 0, as the CPU leaves them out)
     let dirs = select(0u, S.sky_dirs, has_sky && any(P.sky_radiance > vec3<f32>(0.0)));
@@ -156,13 +169,13 @@ fn shade(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
     heads[2u * h + 1u] = vec4<f32>(bitcast<f32>(base), bitcast<f32>(n), 0.0, 0.0);
     if (first == 1u) {
         let to_light = select(vec3<f32>(0.0, 1.0, 0.0), P.sun_dir, has_sun);
-        let sun_w = select(vec3<f32>(0.0), P.albedo * P.sun_irradiance, has_sun);
+        let sun_w = select(vec3<f32>(0.0), m * P.albedo * P.sun_irradiance, has_sun);
         configs[base] = Config(vec4<f32>(x, 0.0), vec4<f32>(d, 0.0), vec4<f32>(to_light, 0.0));
         extra[base] = vec4<f32>(sun_w, sky_w);
     }
     // The paper's sky directions (Kallweit §4.4): uniform on the sphere, each prediction per
     // unit irradiance weighted by 4π L_sky / N (a constant sky).
-    let w = P.albedo * P.sky_radiance * (4.0 * PI / f32(max(dirs, 1u)));
+    let w = m * P.albedo * P.sky_radiance * (4.0 * PI / f32(max(dirs, 1u)));
     for (var k = 0u; k < dirs; k++) {
         let z = 1.0 - 2.0 * rand(&rng);
         let phi = 2.0 * PI * rand(&rng);

@@ -144,6 +144,7 @@ impl EvalArgs {
                 rpnn_precision: self.rpnn.net_precision.into(),
                 rpnn_tiles: self.rpnn.net_tiles.into(),
                 traced_bounces: self.rpnn.traced_bounces,
+                query_every: self.rpnn.query_every,
             },
             reference: ReferenceSettings {
                 spp: self.ref_spp,

@@ -82,6 +82,8 @@ pub struct RunSettings {
     pub rpnn_tiles: nimbus_rpnn::gpu_mlp::Tiles,
     /// RPNN: bounces traced before the network is asked (0: the paper).
     pub traced_bounces: u32,
+    /// RPNN: one sample in every this many asks the network (1: the paper).
+    pub query_every: u32,
 }
 
 impl Default for RunSettings {
@@ -98,6 +100,7 @@ impl Default for RunSettings {
             rpnn_precision: Default::default(),
             rpnn_tiles: Default::default(),
             traced_bounces: 0,
+            query_every: 1,
         }
     }
 }
@@ -176,6 +179,7 @@ impl RunSettings {
                 precision: self.rpnn_precision,
                 tiles: self.rpnn_tiles,
                 traced_bounces: self.traced_bounces,
+                query_every: self.query_every,
             },
         }
     }

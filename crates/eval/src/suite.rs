@@ -398,6 +398,14 @@ fn results_markdown(opts: &SuiteOptions, rows: &[Row], clouds: &[HeldOut]) -> St
             c.run.traced_bounces
         );
     }
+    if c.run.query_every > 1 && methods.iter().any(|m| m.name().starts_with("rpnn")) {
+        let _ = writeln!(
+            s,
+            "RPNN asks the network in one sample of every {} per pixel and weights the answers \
+             {} (`--query-every`; beyond the paper, which asks in every sample).\n",
+            c.run.query_every, c.run.query_every
+        );
+    }
     if c.run.rpnn_backend == nimbus_render::NetBackend::OrtInt8
         && methods.iter().any(|m| m.name().starts_with("rpnn"))
     {

@@ -49,6 +49,9 @@ pub struct RpnnSettings {
     /// Bounces traced before the network is asked (0: the paper;
     /// [`nimbus_rpnn::render::RpnnOptions::traced_bounces`]). More than 0 shades on the CPU.
     pub traced_bounces: u32,
+    /// One sample in every `query_every` of a pixel asks the network (1: every sample, the
+    /// paper; [`nimbus_rpnn::render::RpnnOptions::query_every`]).
+    pub query_every: u32,
 }
 
 impl RpnnSettings {
@@ -79,6 +82,7 @@ impl Default for RpnnSettings {
             precision: Default::default(),
             tiles: Default::default(),
             traced_bounces: 0,
+            query_every: 1,
         }
     }
 }
@@ -387,6 +391,7 @@ pub fn prepare<'g>(
                 scene,
                 sky_sh.as_ref(),
                 r.sky_dirs,
+                r.query_every,
             )?;
             if let Some(n) = note
                 && !cpu_shading

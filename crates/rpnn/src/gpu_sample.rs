@@ -57,7 +57,9 @@ pub struct SampleParams {
     pub degree: u32,
     pub rows: u32,
     pub sky_dirs: u32,
-    pub _b: u32,
+    /// One sample in every `every` of a pixel asks the network
+    /// ([`crate::render::RpnnOptions::query_every`]).
+    pub every: u32,
 }
 
 /// Passes timed per submission (a query set holds at most 4 096 timestamps, two per pass).
@@ -93,6 +95,9 @@ pub struct SamplerSettings {
     /// Under a constant sky without the sky head: the paper's sky directions per collision
     /// (Kallweit §4.4, `rpnn-dirs`).
     pub sky_dirs: u32,
+    /// One sample in every this many of a pixel asks the network (1: every sample, the paper;
+    /// [`crate::render::RpnnOptions::query_every`]).
+    pub query_every: u32,
 }
 
 impl Default for SamplerSettings {
@@ -103,6 +108,7 @@ impl Default for SamplerSettings {
             precision: Precision::F32,
             tiles: Default::default(),
             sky_dirs: 4,
+            query_every: 1,
         }
     }
 }
@@ -230,7 +236,14 @@ impl<'g> GpuSampler<'g> {
             precision,
             tiles,
             sky_dirs,
+            query_every,
         } = *settings;
+        if !(1..=crate::render::MAX_QUERY_EVERY).contains(&query_every) {
+            return Err(RenderError::Setting(format!(
+                "the network's query period must lie in 1..={}, got {query_every}",
+                crate::render::MAX_QUERY_EVERY
+            )));
+        }
         if let Some(why) = unsupported(scene, model, sky_sh, sky_dirs) {
             return Err(RenderError::Setting(format!(
                 "{}: {why}",
@@ -326,6 +339,7 @@ impl<'g> GpuSampler<'g> {
                 degree,
                 rows: rows as u32,
                 sky_dirs: dirs,
+                every: query_every,
                 ..Default::default()
             },
             desc,
@@ -605,7 +619,7 @@ mod tests {
             "degree",
             "rows",
             "sky_dirs",
-            "_b",
+            "every",
         ];
         assert_eq!(members.len(), names.len());
         for (i, (name, off)) in members.iter().enumerate() {

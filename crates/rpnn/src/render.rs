@@ -81,6 +81,15 @@ pub struct RpnnOptions {
     /// scattered more than k + 1 times, for the noise of the traced bounces. A bounce that
     /// leaves the cloud asks nothing.
     pub traced_bounces: u32,
+    /// One sample in every m of a pixel asks the network (beyond the paper; 1: every sample,
+    /// the paper). Every sample still tracks its camera ray and estimates the direct light; the
+    /// network's answers are weighted m in the samples that ask, which a pixel picks with a
+    /// random offset ([`asks_network`]): unbiased at any number of samples, and in any n
+    /// consecutive samples a pixel asks ⌊n/m⌋ or ⌈n/m⌉ times. Where the image's error is the
+    /// network's bias (the bench suite's 32 spp) the network's time, most of a sample on a
+    /// CPU, falls m-fold for a little more noise (`docs/rpnn.md`, "Fewer queries"). Not for
+    /// previews of a few samples: until a pixel has asked once, it shows direct light only.
+    pub query_every: u32,
 }
 
 impl RpnnOptions {
@@ -93,8 +102,31 @@ impl RpnnOptions {
             sky_sh: None,
             sun_outputs: 1,
             traced_bounces: 0,
+            query_every: 1,
         }
     }
+}
+
+/// The longest [`RpnnOptions::query_every`]: beyond, a pixel would wait too many samples
+/// for its first answer.
+pub const MAX_QUERY_EVERY: u32 = 64;
+
+/// Whether sample `sample` of `pixel` asks the network when one in `every` = m does: when
+/// (sample + o) mod m = 0, with the offset o uniform in 0..m per pixel (its own stream of
+/// `seed`). Over o each sample asks with probability exactly 1/m, so weighting the answers m
+/// is unbiased at any number of samples; a pixel asks in every m-th sample, so n consecutive
+/// samples hold ⌊n/m⌋ or ⌈n/m⌉ of its answers (a Cranley–Patterson rotation of the lattice
+/// of multiples of m). m = 1: every sample, drawing nothing. The GPU sample
+/// (`shaders/lib/rpnn_sample_core.wgsl`) makes the same choice from its own random numbers.
+pub fn asks_network(seed: u64, pixel: u64, sample: u64, every: u32) -> bool {
+    if every <= 1 {
+        return true;
+    }
+    // The offset's stream: sample index u64::MAX is never rendered. (u32 × m) >> 32 is
+    // uniform in 0..m up to 2⁻³² relative.
+    let u = Pcg32::for_sample(seed, pixel, u64::MAX).next_u32();
+    let offset = (u as u64 * every as u64) >> 32;
+    (sample + offset).is_multiple_of(every as u64)
 }
 
 /// The sky for the sky head: its coefficients in the world (`crate::sky::project`) and the
@@ -241,6 +273,12 @@ pub fn accumulate(
     if opts.spp == 0 {
         return Err(RenderError::Setting("spp must be at least 1".into()));
     }
+    if !(1..=MAX_QUERY_EVERY).contains(&opts.query_every) {
+        return Err(RenderError::Setting(format!(
+            "the network's query period must lie in 1..={MAX_QUERY_EVERY}, got {}",
+            opts.query_every
+        )));
+    }
     if opts.traced_bounces > MAX_TRACED_BOUNCES {
         return Err(RenderError::Setting(format!(
             "traced bounces must lie in 0..={MAX_TRACED_BOUNCES}, got {}",
@@ -264,8 +302,21 @@ pub fn accumulate(
         let shades: Vec<Shade> = (0..w * h)
             .into_par_iter()
             .map(|p| {
-                let mut rng = Pcg32::for_sample(opts.seed, p as u64, first + s as u64);
-                shade(scene, &tracker, p, opts, &mut rng)
+                let i = first + s as u64;
+                let mut rng = Pcg32::for_sample(opts.seed, p as u64, i);
+                let mut sh = shade(scene, &tracker, p, opts, &mut rng);
+                if opts.query_every > 1 {
+                    if asks_network(opts.seed, p as u64, i, opts.query_every) {
+                        let w = opts.query_every as f64;
+                        for q in &mut sh.queries {
+                            q.1 *= w;
+                            q.2 *= w;
+                        }
+                    } else {
+                        sh.queries.clear();
+                    }
+                }
+                sh
             })
             .collect();
         let configs: Vec<Config> = shades
@@ -594,6 +645,34 @@ pub fn albedo_mismatch(scene: &Scene, model_albedo: Option<f64>) -> Option<Strin
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A pixel asks in exactly one of every m consecutive samples (any start), and its offset
+    /// is uniform over pixels: for m = 4, 8 000 pixels ask in sample 0 in 2 000 ± 4σ (σ = 39)
+    /// of them, and every offset occurs. m = 1 asks always.
+    #[test]
+    fn one_sample_in_every_m_asks() {
+        for m in [2u32, 3, 4, 7, 64] {
+            for p in 0..200u64 {
+                for start in [0u64, 5, 1_000_003] {
+                    let asks = (start..start + m as u64)
+                        .filter(|&i| asks_network(9, p, i, m))
+                        .count();
+                    assert_eq!(asks, 1, "m {m}, pixel {p}, from {start}");
+                }
+            }
+        }
+        let m = 4;
+        let mut per_offset = [0usize; 4];
+        for p in 0..8000u64 {
+            let first = (0..m as u64).find(|&i| asks_network(9, p, i, m)).unwrap();
+            per_offset[first as usize] += 1;
+        }
+        let sd = (8000.0f64 * 0.25 * 0.75).sqrt();
+        for c in per_offset {
+            assert!((c as f64 - 2000.0).abs() < 4.0 * sd, "{per_offset:?}");
+        }
+        assert!((0..10).all(|i| asks_network(9, 3, i, 1)));
+    }
 
     /// The contraction takes the transfer from the query's frame to the world: for a transfer
     /// T given as a band-limited function of the local direction and a band-limited sky L,

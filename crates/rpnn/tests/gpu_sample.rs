@@ -274,6 +274,86 @@ fn the_whole_sample_on_the_gpu_estimates_what_cpu_shading_does() {
     assert!((dg / dc - 1.0).abs() < 0.25, "GPU {dg}, CPU {dc}");
 }
 
+/// One sample in every m asking the network (`query_every`) on the GPU: it estimates the
+/// image of every sample asking (the GPU's own, and CPU shading's with the same m), and a
+/// quarter of the queries are made. Sun + sky through the sky head, m = 4, 64 spp; bounds as
+/// in [`the_whole_sample_on_the_gpu_estimates_what_cpu_shading_does`] (each image's variance
+/// of the mean treats its samples as independent, which overstates the lattice's, so the z
+/// bounds are conservative). A GPU that ignored m (asking in every sample with weight 4)
+/// would be 3 × the network's part too bright.
+#[test]
+fn one_query_in_every_m_samples_on_the_gpu() {
+    let Some(gpu) = nimbus_gpu::testing::gpu("gpu_sample::one_query_in_every_m_samples_on_the_gpu")
+    else {
+        return;
+    };
+    let s = scene(
+        "irradiance = [1.0, 0.9, 0.8]",
+        "[sky]\nradiance = [0.1, 0.15, 0.3]",
+    );
+    let path = shipped("rpnn-hg-sky.onnx");
+    let model = Rpnn::load(&path).unwrap();
+    let pyr = Pyramid::new(&s.volume).unwrap();
+    let sky_sh = SkySh::of(&s, 4, 32);
+    let spp = 64;
+    let gpu_run = |m: u32, seed: u64| {
+        let settings = SamplerSettings {
+            max_batch: 1 << 12,
+            query_every: m,
+            ..Default::default()
+        };
+        let mut g =
+            GpuSampler::with_settings(&gpu, &s, &pyr, &model, sky_sh.as_ref(), &settings).unwrap();
+        g.reset(seed);
+        g.add(spp).unwrap();
+        let (i, v) = g.image().unwrap();
+        (i, v, g.queries().unwrap())
+    };
+    for bad in [0, nimbus_rpnn::render::MAX_QUERY_EVERY + 1] {
+        let settings = SamplerSettings {
+            query_every: bad,
+            ..Default::default()
+        };
+        let e = GpuSampler::with_settings(&gpu, &s, &pyr, &model, sky_sh.as_ref(), &settings)
+            .err()
+            .expect("refused");
+        assert!(e.to_string().contains("query period"), "{e}");
+    }
+    let (g4, v4, q4) = gpu_run(4, 11);
+    let (g1, v1, q1) = gpu_run(1, 12);
+    let opts = RpnnOptions {
+        sky_sh: sky_sh.clone(),
+        sun_outputs: model.outputs,
+        query_every: 4,
+        ..RpnnOptions::new(spp, 13, 1)
+    };
+    let mut ort = Backend::Ort(OrtModel::load(&path, 1).unwrap());
+    let c4 = render(&s, &pyr, &mut ort, &opts).unwrap();
+    let (m4, s4) = mean_and_var(&g4, &v4);
+    for (name, img, var) in [
+        ("the GPU, every sample", &g1, &v1),
+        ("CPU shading, one in 4", &c4.image, &c4.variance),
+    ] {
+        let (m, sv) = mean_and_var(img, var);
+        let z = (m4 - m).abs() / (s4 + sv).sqrt();
+        eprintln!("GPU one in 4: {m4:.5}; {name}: {m:.5} (z = {z:.2})");
+        assert!(
+            m.abs() > 10.0 * (s4 + sv).sqrt(),
+            "{name}: a signal to compare"
+        );
+        assert!(z <= 4.0, "{name}: image means {m4} vs {m}, z = {z}");
+        let bz = max_block_z((&g4, &v4), (img, var));
+        assert!(
+            bz <= 4.5,
+            "{name}: a 4x4 block differs by {bz} standard errors"
+        );
+    }
+    // A quarter of the collisions ask: within 5 % of q1 / 4 (the collisions themselves vary
+    // by ≈ 1 % between seeds at 64 spp).
+    let r = q4 as f64 / q1 as f64;
+    assert!((r - 0.25).abs() < 0.25 * 0.05, "{q4} of {q1}");
+}
+
 /// Steps of samples give the image one call gives, bit for bit (sample indices continue); a
 /// reset with the same seed repeats it; the brick-map density gives the same image as the
 /// dense buffer; a moved sun takes effect without a new upload.

@@ -124,6 +124,58 @@ fn ort_workers_render_the_one_session_image() {
     assert!(a.image.pixels.iter().any(|p| *p != first));
 }
 
+/// One sample in every m asking the network (`query_every`, beyond the paper) renders the
+/// image of every sample asking, up to noise. The samples' random numbers do not depend on m,
+/// so the direct light is the same in both images, and their difference is the network's part
+/// only: m × (the answers of the samples that ask) − (all answers). With the sky head under
+/// sun + sky, 128 spp on 24×16 pixels, m = 4: the image means differ by less than 4 standard
+/// errors of that difference (a weight of 1 instead of m would leave out three quarters of
+/// the network's part, ≥ 30 % of the image), the queries fall to a quarter (±5 %), and m
+/// outside 1..=64 is refused by name.
+#[test]
+fn one_query_in_every_m_samples_renders_the_same_image() {
+    let s = scene(true, 24, 16, 5);
+    let pyr = Pyramid::new(&s.volume).unwrap();
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/rpnn-hg-sky.onnx");
+    let mut o = Backend::Ort(OrtModel::load(&path, 0).unwrap());
+    let opts = |m| RpnnOptions {
+        sky_sh: nimbus_rpnn::render::SkySh::of(&s, 4, 32),
+        query_every: m,
+        ..RpnnOptions::new(128, 1, 4)
+    };
+    for bad in [0, nimbus_rpnn::render::MAX_QUERY_EVERY + 1] {
+        let e = render(&s, &pyr, &mut o, &opts(bad)).err().expect("refused");
+        assert!(e.to_string().contains("query period"), "{e}");
+    }
+    let all = render(&s, &pyr, &mut o, &opts(1)).unwrap();
+    let some = render(&s, &pyr, &mut o, &opts(4)).unwrap();
+    let lum = |p: &[f32; 3]| (p[0] + p[1] + p[2]) as f64 / 3.0;
+    let n = all.image.pixels.len() as f64;
+    // Per pixel the difference of the two means is a mean over 128 samples of
+    // (m·[asks] − 1) × answer; its variance is at most the m = 4 image's variance of the mean
+    // (which holds m² × the answers' spread), so the sum of those bounds the mean's.
+    let diff: f64 = all
+        .image
+        .pixels
+        .iter()
+        .zip(&some.image.pixels)
+        .map(|(a, b)| lum(b) - lum(a))
+        .sum::<f64>()
+        / n;
+    let var: f64 = some.variance.iter().map(|&v| v as f64).sum::<f64>() / (n * n);
+    let mean: f64 = all.image.pixels.iter().map(lum).sum::<f64>() / n;
+    eprintln!(
+        "mean {mean:.5}, m = 4 − m = 1: {diff:.6} ± {:.6}; queries {} and {}",
+        var.sqrt(),
+        all.times.queries,
+        some.times.queries
+    );
+    assert!(diff.abs() <= 4.0 * var.sqrt(), "{diff} vs σ {}", var.sqrt());
+    assert!(4.0 * var.sqrt() < 0.05 * mean, "a test that could fail");
+    let ratio = some.times.queries as f64 / all.times.queries as f64;
+    assert!((ratio - 0.25).abs() < 0.25 * 0.05, "{ratio}");
+}
+
 #[test]
 fn no_sky_means_no_sky_queries() {
     let s = scene(false, 16, 12, 5);

@@ -52,6 +52,7 @@ pub(crate) fn runner<'g>(
     scene: &Scene,
     sky_sh: Option<&SkySh>,
     sky_dirs: u32,
+    query_every: u32,
 ) -> Result<(Runner<'g>, String, Option<String>)> {
     let mut note = None;
     if let Some(g) = adapter
@@ -63,6 +64,7 @@ pub(crate) fn runner<'g>(
                     precision: net_opts.precision,
                     tiles: net_opts.tiles,
                     sky_dirs,
+                    query_every,
                     ..Default::default()
                 };
                 match GpuSampler::with_settings(g, scene, pyramid, model, sky_sh, &settings) {
@@ -116,6 +118,8 @@ pub(crate) struct RpnnEngine<'g> {
     sky_dirs: u32,
     /// Bounces traced before the network is asked (CPU shading).
     traced_bounces: u32,
+    /// One sample in every this many asks the network.
+    query_every: u32,
     /// The sky through the sky head (`None`: the paper's directions).
     sky_sh: Option<SkySh>,
     /// Stage times since the last restart.
@@ -154,6 +158,7 @@ impl<'g> RpnnEngine<'g> {
             seed: scene.render.seed,
             sky_dirs: settings.sky_dirs,
             traced_bounces: settings.traced_bounces,
+            query_every: settings.query_every,
             sky_sh,
             times: StageTimes::default(),
         }
@@ -175,6 +180,7 @@ impl<'g> RpnnEngine<'g> {
             sky_sh: self.sky_sh.clone(),
             sun_outputs: self.model.outputs,
             traced_bounces: self.traced_bounces,
+            query_every: self.query_every,
             ..RpnnOptions::new(spp, self.seed, self.sky_dirs)
         };
         let t = nimbus_rpnn::render::accumulate(
@@ -240,6 +246,7 @@ impl<'g> RpnnEngine<'g> {
             scene,
             self.sky_sh.as_ref(),
             self.sky_dirs,
+            self.query_every,
         )?
         .0;
         if let Runner::Gpu(g) = &mut self.runner {
@@ -333,7 +340,7 @@ impl Engine for RpnnEngine<'_> {
         let n = budget.max(1) as f64;
         Ok(Rendered {
             summary: format!(
-                "RPNN ({}, {}{}{}) {}x{} at {} spp in {:.2} s — {:.1} ms per spp, {} network queries",
+                "RPNN ({}, {}{}{}{}) {}x{} at {} spp in {:.2} s — {:.1} ms per spp, {} network queries",
                 self.model_path.display(),
                 match &self.runner {
                     Runner::Cpu(Backend::Ort(_)) => self.runner.name().to_string(),
@@ -359,6 +366,10 @@ impl Engine for RpnnEngine<'_> {
                     0 => String::new(),
                     1 => ", 1 traced bounce".to_string(),
                     k => format!(", {k} traced bounces"),
+                },
+                match self.query_every {
+                    1 => String::new(),
+                    m => format!(", the network in 1 sample of {m}"),
                 },
                 cam.width,
                 cam.height,
