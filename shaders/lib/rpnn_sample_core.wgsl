@@ -40,7 +40,7 @@ struct Sample {
     degree: u32,       // highest SH degree of the contraction
     rows: u32,         // slots of a chunk (the network's batch)
     sky_dirs: u32,     // the paper's sky directions per collision (constant sky; 0: none)
-    every: u32,        // one sample in every `every` of a pixel asks the network (1: all)
+    query_every: u32,  // one sample in every `query_every` of a pixel asks the network (1: all)
 };
 
 struct Config { x: vec4<f32>, view: vec4<f32>, to_light: vec4<f32> };
@@ -138,18 +138,20 @@ fn shade(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups)
         }
     }
     let known = P.albedo * direct;
-    // One sample in every S.every asks the network (`nimbus_rpnn::render::asks_network`): when
-    // (sample + offset) mod every = 0, the offset uniform per pixel from its own stream; the
-    // answers are weighted S.every, so the sum is unbiased at any number of samples.
+    // One sample in every S.query_every asks the network (`nimbus_rpnn::render::asks_network`'s
+    // rule): when (sample + offset) mod query_every = 0, the offset ⌊u m / 2²⁴⌋ per pixel from
+    // 24 random bits u of its own stream (uniform up to 2⁻²⁴; u m < 2³⁰ for m ≤ 64); the
+    // answers are weighted query_every, so the sum is unbiased at any number of samples.
     var m = 1.0;
-    if (S.every > 1u) {
+    let every = S.query_every;
+    if (every > 1u) {
         var orng = rng_new(P.seed ^ 0x6a09e667u, pixel, 0xffffffffu);
-        let offset = min(u32(rand(&orng) * f32(S.every)), S.every - 1u);
-        if ((S.sample + offset) % S.every != 0u) {
+        let offset = (rand_u24(&orng) * every) >> 24u;
+        if ((S.sample + offset) % every != 0u) {
             add(pixel, known);
             return;
         }
-        m = f32(S.every);
+        m = f32(every);
     }
     // The first query: the sun's frame when there is a sun, else the zenith's (for the sky
     // head); then the paper's sky directions.

@@ -336,6 +336,8 @@ pub fn prepare<'g>(
                     r.sky_dirs
                 );
             }
+            // Before the model and the pyramid are made.
+            nimbus_rpnn::render::check_query_every(r.query_every)?;
             let want_sky = method == Method::Rpnn && scene.sky.is_some();
             let model_path = rpnn_model_path(
                 r.model.as_deref(),

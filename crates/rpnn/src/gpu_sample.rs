@@ -57,9 +57,9 @@ pub struct SampleParams {
     pub degree: u32,
     pub rows: u32,
     pub sky_dirs: u32,
-    /// One sample in every `every` of a pixel asks the network
+    /// One sample in every `query_every` of a pixel asks the network
     /// ([`crate::render::RpnnOptions::query_every`]).
-    pub every: u32,
+    pub query_every: u32,
 }
 
 /// Passes timed per submission (a query set holds at most 4 096 timestamps, two per pass).
@@ -238,12 +238,7 @@ impl<'g> GpuSampler<'g> {
             sky_dirs,
             query_every,
         } = *settings;
-        if !(1..=crate::render::MAX_QUERY_EVERY).contains(&query_every) {
-            return Err(RenderError::Setting(format!(
-                "the network's query period must lie in 1..={}, got {query_every}",
-                crate::render::MAX_QUERY_EVERY
-            )));
-        }
+        crate::render::check_query_every(query_every)?;
         if let Some(why) = unsupported(scene, model, sky_sh, sky_dirs) {
             return Err(RenderError::Setting(format!(
                 "{}: {why}",
@@ -339,7 +334,7 @@ impl<'g> GpuSampler<'g> {
                 degree,
                 rows: rows as u32,
                 sky_dirs: dirs,
-                every: query_every,
+                query_every,
                 ..Default::default()
             },
             desc,
@@ -619,7 +614,7 @@ mod tests {
             "degree",
             "rows",
             "sky_dirs",
-            "every",
+            "query_every",
         ];
         assert_eq!(members.len(), names.len());
         for (i, (name, off)) in members.iter().enumerate() {

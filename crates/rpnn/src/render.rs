@@ -111,19 +111,32 @@ impl RpnnOptions {
 /// for its first answer.
 pub const MAX_QUERY_EVERY: u32 = 64;
 
+/// The refusal of a [`RpnnOptions::query_every`] outside 1..=[`MAX_QUERY_EVERY`] (the
+/// renderers' and the estimator's check).
+pub fn check_query_every(every: u32) -> Result<(), RenderError> {
+    if (1..=MAX_QUERY_EVERY).contains(&every) {
+        Ok(())
+    } else {
+        Err(RenderError::Setting(format!(
+            "the network's query period (--query-every) must lie in 1..={MAX_QUERY_EVERY}, got {every}"
+        )))
+    }
+}
+
 /// Whether sample `sample` of `pixel` asks the network when one in `every` = m does: when
-/// (sample + o) mod m = 0, with the offset o uniform in 0..m per pixel (its own stream of
-/// `seed`). Over o each sample asks with probability exactly 1/m, so weighting the answers m
-/// is unbiased at any number of samples; a pixel asks in every m-th sample, so n consecutive
-/// samples hold ⌊n/m⌋ or ⌈n/m⌉ of its answers (a Cranley–Patterson rotation of the lattice
-/// of multiples of m). m = 1: every sample, drawing nothing. The GPU sample
-/// (`shaders/lib/rpnn_sample_core.wgsl`) makes the same choice from its own random numbers.
+/// (sample + o) mod m = 0, with the offset o in 0..m per pixel from its own stream of `seed`,
+/// o = ⌊u m / 2³²⌋ for a random u32 u: uniform up to 2⁻³² relative. Over o each sample asks
+/// with probability 1/m (to that precision), so weighting the answers m is unbiased at any
+/// number of samples; a pixel asks in every m-th sample, so n consecutive samples hold ⌊n/m⌋
+/// or ⌈n/m⌉ of its answers (a Cranley–Patterson rotation of the lattice of multiples of m).
+/// m = 1: every sample, drawing nothing. The GPU sample (`shaders/lib/rpnn_sample_core.wgsl`)
+/// applies the same rule with offsets from its own random numbers (24 bits: uniform up to
+/// 2⁻²⁴).
 pub fn asks_network(seed: u64, pixel: u64, sample: u64, every: u32) -> bool {
     if every <= 1 {
         return true;
     }
-    // The offset's stream: sample index u64::MAX is never rendered. (u32 × m) >> 32 is
-    // uniform in 0..m up to 2⁻³² relative.
+    // The offset's stream: sample index u64::MAX is never rendered.
     let u = Pcg32::for_sample(seed, pixel, u64::MAX).next_u32();
     let offset = (u as u64 * every as u64) >> 32;
     (sample + offset).is_multiple_of(every as u64)
@@ -273,12 +286,7 @@ pub fn accumulate(
     if opts.spp == 0 {
         return Err(RenderError::Setting("spp must be at least 1".into()));
     }
-    if !(1..=MAX_QUERY_EVERY).contains(&opts.query_every) {
-        return Err(RenderError::Setting(format!(
-            "the network's query period must lie in 1..={MAX_QUERY_EVERY}, got {}",
-            opts.query_every
-        )));
-    }
+    check_query_every(opts.query_every)?;
     if opts.traced_bounces > MAX_TRACED_BOUNCES {
         return Err(RenderError::Setting(format!(
             "traced bounces must lie in 0..={MAX_TRACED_BOUNCES}, got {}",
@@ -304,6 +312,8 @@ pub fn accumulate(
             .map(|p| {
                 let i = first + s as u64;
                 let mut rng = Pcg32::for_sample(opts.seed, p as u64, i);
+                // A sample that does not ask still builds its queries: its random numbers,
+                // and with them its direct light, are those of m = 1.
                 let mut sh = shade(scene, &tracker, p, opts, &mut rng);
                 if opts.query_every > 1 {
                     if asks_network(opts.seed, p as u64, i, opts.query_every) {

@@ -280,7 +280,11 @@ fn the_whole_sample_on_the_gpu_estimates_what_cpu_shading_does() {
 /// in [`the_whole_sample_on_the_gpu_estimates_what_cpu_shading_does`] (each image's variance
 /// of the mean treats its samples as independent, which overstates the lattice's, so the z
 /// bounds are conservative). A GPU that ignored m (asking in every sample with weight 4)
-/// would be 3 × the network's part too bright.
+/// would be 3 × the network's part too bright, one that kept the weight 1 three quarters of
+/// it too dark: that part (the heads' last layers zeroed) is asserted to exceed 8 standard
+/// errors. Offsets are uniform per pixel: over the first sample of 8 seeds the pixels that
+/// ask are a quarter of the collisions (binomial, within 4σ; a constant offset would give
+/// all or none). Progressive steps give one call's image to the bit.
 #[test]
 fn one_query_in_every_m_samples_on_the_gpu() {
     let Some(gpu) = nimbus_gpu::testing::gpu("gpu_sample::one_query_in_every_m_samples_on_the_gpu")
@@ -352,6 +356,74 @@ fn one_query_in_every_m_samples_on_the_gpu() {
     // by ≈ 1 % between seeds at 64 spp).
     let r = q4 as f64 / q1 as f64;
     assert!((r - 0.25).abs() < 0.25 * 0.05, "{q4} of {q1}");
+    // The network's part, against the noise of the comparisons above.
+    let mut silent = model.clone();
+    for l in [silent.head.last_mut(), silent.sky_head.last_mut()]
+        .into_iter()
+        .flatten()
+    {
+        l.w.fill(0.0);
+        l.b.fill(0.0);
+    }
+    let mut d = GpuSampler::with_settings(
+        &gpu,
+        &s,
+        &pyr,
+        &silent,
+        sky_sh.as_ref(),
+        &SamplerSettings {
+            max_batch: 1 << 12,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    d.reset(12);
+    d.add(spp).unwrap();
+    let (di, dv) = d.image().unwrap();
+    let (md, _) = mean_and_var(&di, &dv);
+    let (m1, s1) = mean_and_var(&g1, &v1);
+    eprintln!("the network's part: {:.5} of {m1:.5}", m1 - md);
+    assert!(
+        0.75 * (m1 - md) > 8.0 * (s4 + s1).sqrt(),
+        "a test that could fail"
+    );
+    // Per-pixel offsets: the first sample of 8 seeds. The same seed gives the same paths at
+    // any m, so the pixels that ask are a binomial draw of 1/4 from m = 1's collisions.
+    let first_sample = |m: u32| {
+        let settings = SamplerSettings {
+            max_batch: 1 << 12,
+            query_every: m,
+            ..Default::default()
+        };
+        let mut g =
+            GpuSampler::with_settings(&gpu, &s, &pyr, &model, sky_sh.as_ref(), &settings).unwrap();
+        (0..8u64)
+            .map(|seed| {
+                g.reset(100 + seed);
+                g.add(1).unwrap();
+                g.queries().unwrap()
+            })
+            .sum::<u64>() as f64
+    };
+    let (n1, n4) = (first_sample(1), first_sample(4));
+    let sd = (n1 * 0.25 * 0.75).sqrt();
+    eprintln!("first samples: {n4} of {n1} collisions ask");
+    assert!((n4 - 0.25 * n1).abs() <= 4.0 * sd, "{n4} of {n1}");
+    // Progressive steps: 1 + 3 samples are the 4 of one call, bit for bit.
+    let settings = SamplerSettings {
+        max_batch: 100,
+        query_every: 4,
+        ..Default::default()
+    };
+    let mut g =
+        GpuSampler::with_settings(&gpu, &s, &pyr, &model, sky_sh.as_ref(), &settings).unwrap();
+    g.reset(5);
+    g.add(4).unwrap();
+    let one = g.image().unwrap().0;
+    g.reset(5);
+    g.add(1).unwrap();
+    g.add(3).unwrap();
+    assert_eq!(one.pixels, g.image().unwrap().0.pixels);
 }
 
 /// Steps of samples give the image one call gives, bit for bit (sample indices continue); a

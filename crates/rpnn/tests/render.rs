@@ -129,9 +129,12 @@ fn ort_workers_render_the_one_session_image() {
 /// so the direct light is the same in both images, and their difference is the network's part
 /// only: m × (the answers of the samples that ask) − (all answers). With the sky head under
 /// sun + sky, 128 spp on 24×16 pixels, m = 4: the image means differ by less than 4 standard
-/// errors of that difference (a weight of 1 instead of m would leave out three quarters of
-/// the network's part, ≥ 30 % of the image), the queries fall to a quarter (±5 %), and m
-/// outside 1..=64 is refused by name.
+/// errors of that difference, the queries fall to a quarter (±5 %), and m outside 1..=64 is
+/// refused by name. A weight of 1 instead of m would leave out three quarters of the
+/// network's part (the image with the heads' last layers zeroed gives the part): asserted to
+/// be more than 8 of those standard errors. Progressive steps (1 + 4 samples) give the image
+/// of one call of 5 to the bit, so the sample index that picks the asking samples carries
+/// over between calls.
 #[test]
 fn one_query_in_every_m_samples_renders_the_same_image() {
     let s = scene(true, 24, 16, 5);
@@ -171,9 +174,47 @@ fn one_query_in_every_m_samples_renders_the_same_image() {
         some.times.queries
     );
     assert!(diff.abs() <= 4.0 * var.sqrt(), "{diff} vs σ {}", var.sqrt());
-    assert!(4.0 * var.sqrt() < 0.05 * mean, "a test that could fail");
     let ratio = some.times.queries as f64 / all.times.queries as f64;
     assert!((ratio - 0.25).abs() < 0.25 * 0.05, "{ratio}");
+    // The network's part: the same paths with both heads' last layers zeroed.
+    let silent = zeroed_heads(&path);
+    let mut z = Backend::Ort(OrtModel::load(&silent, 0).unwrap());
+    let direct = render(&s, &pyr, &mut z, &opts(1)).unwrap();
+    std::fs::remove_file(&silent).ok();
+    let part = mean - direct.image.pixels.iter().map(lum).sum::<f64>() / n;
+    eprintln!("the network's part: {part:.5} of {mean:.5}");
+    assert!(0.75 * part > 8.0 * var.sqrt(), "a test that could fail");
+    // Progressive: 1 + 4 samples are the 5 of one call, bit for bit.
+    let mut progressive = |steps: &[u32]| {
+        let mut sums = nimbus_rpnn::render::RpnnSums::new(s.camera.width, s.camera.height);
+        let maj = nimbus_rpnn::render::majorants(&s);
+        for &spp in steps {
+            let step = RpnnOptions { spp, ..opts(4) };
+            nimbus_rpnn::render::accumulate(&s, &pyr, &maj, &mut o, &step, &mut sums).unwrap();
+        }
+        sums.image().0.pixels
+    };
+    assert_eq!(progressive(&[1, 4]), progressive(&[5]));
+}
+
+/// A copy of the model at `path` whose heads' last layers (sun `sun.head.2`, sky
+/// `head.layers.2`) are zero: it answers 0, and a render with it is the direct light alone.
+fn zeroed_heads(path: &Path) -> std::path::PathBuf {
+    use protobuf::Message;
+    let bytes = std::fs::read(path).unwrap();
+    let mut m = onnx_protobuf::ModelProto::parse_from_bytes(&bytes).unwrap();
+    let mut zeroed = 0;
+    for t in &mut m.graph.as_mut().unwrap().initializer {
+        if t.name.starts_with("sun.head.2.") || t.name.starts_with("head.layers.2.") {
+            t.raw_data.iter_mut().for_each(|b| *b = 0);
+            t.float_data.iter_mut().for_each(|v| *v = 0.0);
+            zeroed += 1;
+        }
+    }
+    assert_eq!(zeroed, 4, "{}: the heads' last layers", path.display());
+    let out = std::env::temp_dir().join(format!("nimbus-zeroed-heads-{}.onnx", std::process::id()));
+    std::fs::write(&out, m.write_to_bytes().unwrap()).unwrap();
+    out
 }
 
 #[test]
