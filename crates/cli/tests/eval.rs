@@ -430,10 +430,11 @@ fn bench_suite_writes_the_table() {
     let scene_dir = d.join("results/scenes/cumulus_004_back_sunsky");
     assert!(scene_dir.join("report.csv").is_file());
     assert!(d.join("results/error_vs_time.png").is_file());
-    // The paper's RPNN says nothing of traced bounces or an int8 network; with them the table
-    // says so (the references are cached; pm, which `small_suite` gives a budget, runs again).
+    // The paper's RPNN says nothing of traced bounces, an int8 network or fewer queries; with
+    // them the table says so (the references are cached; pm, which `small_suite` gives a
+    // budget, runs again).
     assert!(
-        !md.contains("traced-bounces") && !md.contains("int8"),
+        !md.contains("traced-bounces") && !md.contains("int8") && !md.contains("query-every"),
         "{md}"
     );
     let o = small_suite(
@@ -445,6 +446,8 @@ fn bench_suite_writes_the_table() {
             "1",
             "--backend",
             "ort-int8",
+            "--query-every",
+            "4",
         ],
     );
     assert!(o.status.success(), "{}", text(&o));
@@ -452,9 +455,22 @@ fn bench_suite_writes_the_table() {
     assert!(
         md.contains("RPNN traces 1 bounce(s)")
             && md.contains("int8 copy in ONNX Runtime (`--backend ort-int8`")
+            && md.contains("one sample of every 4 per pixel and weights the answers 4")
             && md.contains("| rpnn | sun+sky |"),
         "{md}"
     );
+    // A query period outside 1..=64 is refused by the flag's name.
+    for bad in ["0", "65", "1/4"] {
+        let o = nimbus(&[
+            "bench-suite",
+            "--query-every",
+            bad,
+            "--out",
+            d.to_str().unwrap(),
+        ]);
+        assert!(!o.status.success());
+        assert!(text(&o).contains("--query-every"), "{}", text(&o));
+    }
     let o = nimbus(&["bench-suite", "--clouds", "9", "--out", d.to_str().unwrap()]);
     assert!(!o.status.success());
     assert!(text(&o).contains("1..=8"), "{}", text(&o));
