@@ -170,6 +170,14 @@ done
 for b in wgpu ort; do
   rpnn_run rpnn_720p_sky "$sky_scene" rpnn-dirs "$b"
 done
+# One query in every 4 samples (`--query-every 4`, beyond the paper; unbiased) under the same
+# sky, the whole sample on the GPU and ONNX Runtime: what the network's share of a sample is
+# worth on this machine (each pixel asks in one sample of four with its own offset, so every
+# sample holds a quarter of the queries, at any spp).
+for b in "wgpu --query-every 4" "ort --query-every 4"; do
+  # shellcheck disable=SC2086
+  rpnn_run rpnn_720p_sky "$sky_scene" rpnn $b
+done
 fi # step 2
 
 if want 3; then
