@@ -91,6 +91,20 @@ fn mean_and_var(img: &Image, var: &[f32]) -> (f64, f64) {
     (m, v)
 }
 
+/// `model` with both heads' last layers zeroed: it answers 0, so an image with it is the
+/// direct light alone (the network's part is the difference).
+fn zeroed_heads(model: &Rpnn) -> Rpnn {
+    let mut silent = model.clone();
+    for l in [silent.head.last_mut(), silent.sky_head.last_mut()]
+        .into_iter()
+        .flatten()
+    {
+        l.w.fill(0.0);
+        l.b.fill(0.0);
+    }
+    silent
+}
+
 /// Largest |z| over 4×4 blocks of the difference of two independent estimates.
 fn max_block_z(a: (&Image, &[f32]), b: (&Image, &[f32])) -> f64 {
     let (w, h) = (a.0.width, a.0.height);
@@ -211,14 +225,7 @@ fn the_whole_sample_on_the_gpu_estimates_what_cpu_shading_does() {
         // The network's share: the same GPU sample with both heads' last layers zeroed
         // (direct light only, 16 spp) must lie ≥ 10 standard errors below, so the agreement
         // above is an agreement about the network's part.
-        let mut silent = model.clone();
-        for l in [silent.head.last_mut(), silent.sky_head.last_mut()]
-            .into_iter()
-            .flatten()
-        {
-            l.w.fill(0.0);
-            l.b.fill(0.0);
-        }
+        let silent = zeroed_heads(&model);
         let mut d =
             GpuSampler::with_settings(&gpu, &s, &pyr, &silent, sky_sh.as_ref(), &settings).unwrap();
         d.reset(13);
@@ -300,27 +307,24 @@ fn one_query_in_every_m_samples_on_the_gpu() {
     let pyr = Pyramid::new(&s.volume).unwrap();
     let sky_sh = SkySh::of(&s, 4, 32);
     let spp = 64;
-    let gpu_run = |m: u32, seed: u64| {
+    // A sampler of `net` asking in one sample of `m`, in chunks of `batch` queries.
+    let sampler = |net: &Rpnn, m: u32, batch: usize| {
         let settings = SamplerSettings {
-            max_batch: 1 << 12,
+            max_batch: batch,
             query_every: m,
             ..Default::default()
         };
-        let mut g =
-            GpuSampler::with_settings(&gpu, &s, &pyr, &model, sky_sh.as_ref(), &settings).unwrap();
+        GpuSampler::with_settings(&gpu, &s, &pyr, net, sky_sh.as_ref(), &settings)
+    };
+    let gpu_run = |m: u32, seed: u64| {
+        let mut g = sampler(&model, m, 1 << 12).unwrap();
         g.reset(seed);
         g.add(spp).unwrap();
         let (i, v) = g.image().unwrap();
         (i, v, g.queries().unwrap())
     };
     for bad in [0, nimbus_rpnn::render::MAX_QUERY_EVERY + 1] {
-        let settings = SamplerSettings {
-            query_every: bad,
-            ..Default::default()
-        };
-        let e = GpuSampler::with_settings(&gpu, &s, &pyr, &model, sky_sh.as_ref(), &settings)
-            .err()
-            .expect("refused");
+        let e = sampler(&model, bad, 1 << 12).err().expect("refused");
         assert!(e.to_string().contains("query period"), "{e}");
     }
     let (g4, v4, q4) = gpu_run(4, 11);
@@ -357,26 +361,7 @@ fn one_query_in_every_m_samples_on_the_gpu() {
     let r = q4 as f64 / q1 as f64;
     assert!((r - 0.25).abs() < 0.25 * 0.05, "{q4} of {q1}");
     // The network's part, against the noise of the comparisons above.
-    let mut silent = model.clone();
-    for l in [silent.head.last_mut(), silent.sky_head.last_mut()]
-        .into_iter()
-        .flatten()
-    {
-        l.w.fill(0.0);
-        l.b.fill(0.0);
-    }
-    let mut d = GpuSampler::with_settings(
-        &gpu,
-        &s,
-        &pyr,
-        &silent,
-        sky_sh.as_ref(),
-        &SamplerSettings {
-            max_batch: 1 << 12,
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let mut d = sampler(&zeroed_heads(&model), 1, 1 << 12).unwrap();
     d.reset(12);
     d.add(spp).unwrap();
     let (di, dv) = d.image().unwrap();
@@ -390,13 +375,7 @@ fn one_query_in_every_m_samples_on_the_gpu() {
     // Per-pixel offsets: the first sample of 8 seeds. The same seed gives the same paths at
     // any m, so the pixels that ask are a binomial draw of 1/4 from m = 1's collisions.
     let first_sample = |m: u32| {
-        let settings = SamplerSettings {
-            max_batch: 1 << 12,
-            query_every: m,
-            ..Default::default()
-        };
-        let mut g =
-            GpuSampler::with_settings(&gpu, &s, &pyr, &model, sky_sh.as_ref(), &settings).unwrap();
+        let mut g = sampler(&model, m, 1 << 12).unwrap();
         (0..8u64)
             .map(|seed| {
                 g.reset(100 + seed);
@@ -409,14 +388,8 @@ fn one_query_in_every_m_samples_on_the_gpu() {
     let sd = (n1 * 0.25 * 0.75).sqrt();
     eprintln!("first samples: {n4} of {n1} collisions ask");
     assert!((n4 - 0.25 * n1).abs() <= 4.0 * sd, "{n4} of {n1}");
-    // Progressive steps: 1 + 3 samples are the 4 of one call, bit for bit.
-    let settings = SamplerSettings {
-        max_batch: 100,
-        query_every: 4,
-        ..Default::default()
-    };
-    let mut g =
-        GpuSampler::with_settings(&gpu, &s, &pyr, &model, sky_sh.as_ref(), &settings).unwrap();
+    // Progressive steps: 1 + 3 samples are the 4 of one call, bit for bit (chunks of 100).
+    let mut g = sampler(&model, 4, 100).unwrap();
     g.reset(5);
     g.add(4).unwrap();
     let one = g.image().unwrap().0;
