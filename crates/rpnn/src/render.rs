@@ -125,13 +125,13 @@ pub fn check_query_every(every: u32) -> Result<(), RenderError> {
 
 /// Whether sample `sample` of `pixel` asks the network when one in `every` = m does: when
 /// (sample + o) mod m = 0, with the offset o in 0..m per pixel from its own stream of `seed`,
-/// o = ⌊u m / 2³²⌋ for a random u32 u: uniform up to 2⁻³² relative. Over o each sample asks
+/// o = ⌊u m / 2³²⌋ for a random u32 u: each offset's probability within 2⁻³² of 1/m. Over o each sample asks
 /// with probability 1/m (to that precision), so weighting the answers m is unbiased at any
 /// number of samples; a pixel asks in every m-th sample, so n consecutive samples hold ⌊n/m⌋
 /// or ⌈n/m⌉ of its answers (a Cranley–Patterson rotation of the lattice of multiples of m).
 /// m = 1: every sample, drawing nothing. The GPU sample (`shaders/lib/rpnn_sample_core.wgsl`)
-/// applies the same rule with offsets from its own random numbers (24 bits: uniform up to
-/// 2⁻²⁴).
+/// applies the same rule with offsets from its own random numbers (24 bits: each offset's
+/// probability within 2⁻²⁴ of 1/m).
 pub fn asks_network(seed: u64, pixel: u64, sample: u64, every: u32) -> bool {
     if every <= 1 {
         return true;
@@ -317,10 +317,10 @@ pub fn accumulate(
                 let mut sh = shade(scene, &tracker, p, opts, &mut rng);
                 if opts.query_every > 1 {
                     if asks_network(opts.seed, p as u64, i, opts.query_every) {
-                        let w = opts.query_every as f64;
+                        let weight = opts.query_every as f64;
                         for q in &mut sh.queries {
-                            q.1 *= w;
-                            q.2 *= w;
+                            q.1 *= weight;
+                            q.2 *= weight;
                         }
                     } else {
                         sh.queries.clear();

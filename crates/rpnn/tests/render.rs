@@ -176,11 +176,23 @@ fn one_query_in_every_m_samples_renders_the_same_image() {
     assert!(diff.abs() <= 4.0 * var.sqrt(), "{diff} vs σ {}", var.sqrt());
     let ratio = some.times.queries as f64 / all.times.queries as f64;
     assert!((ratio - 0.25).abs() < 0.25 * 0.05, "{ratio}");
+    // Per-pixel offsets: in one sample the pixels that ask are a binomial draw of 1/4 from
+    // m = 1's queries (the same paths at any m): within 4 standard deviations. An offset
+    // shared by all pixels would ask in all of them or none, 4·n₁/4 away.
+    let mut first = |m| {
+        let one = RpnnOptions { spp: 1, ..opts(m) };
+        render(&s, &pyr, &mut o, &one).unwrap().times.queries as f64
+    };
+    let (n1, n4) = (first(1), first(4));
+    let sd = (n1 * 0.25 * 0.75).sqrt();
+    eprintln!("one sample: {n4} of {n1} queries ask");
+    assert!(0.25 * n1 > 4.0 * sd, "a test that could fail: {n1} queries");
+    assert!((n4 - 0.25 * n1).abs() <= 4.0 * sd, "{n4} of {n1}");
     // The network's part: the same paths with both heads' last layers zeroed.
     let silent = zeroed_heads(&path);
     let mut z = Backend::Ort(OrtModel::load(&silent, 0).unwrap());
-    let direct = render(&s, &pyr, &mut z, &opts(1)).unwrap();
     std::fs::remove_file(&silent).ok();
+    let direct = render(&s, &pyr, &mut z, &opts(1)).unwrap();
     let part = mean - direct.image.pixels.iter().map(lum).sum::<f64>() / n;
     eprintln!("the network's part: {part:.5} of {mean:.5}");
     assert!(0.75 * part > 8.0 * var.sqrt(), "a test that could fail");
