@@ -149,6 +149,25 @@ pub fn datagen(a: DatagenArgs) -> Result<()> {
         other => bail!("--light {other}: expected sphere or uniform-gamma"),
     };
     let test_records = a.test_records.unwrap_or(records / 4);
+    // A set of no records at all once finished with exit status 0 and an empty manifest (a
+    // test set alone, `--records 0 --test-records N`, is one of the training scripts').
+    if records == 0 && test_records == 0 && a.val_records.unwrap_or(test_records) == 0 {
+        bail!(
+            "--records 0 with no --test-records or --val-records: a set of no records (a test \
+             set alone: --records 0 --test-records N)"
+        );
+    }
+    if a.test_records.is_none() && test_records == 0 {
+        say!(
+            "note: --records {records}: a quarter of it is 0, so the set has no test records{} \
+             (--test-records and --val-records set them)",
+            if a.val_records.is_none() {
+                " and no validation records"
+            } else {
+                ""
+            }
+        );
+    }
     let eval_noise = a.eval_noise.unwrap_or(0.0);
     if !(eval_noise.is_finite() && (0.0..1.0).contains(&eval_noise)) {
         bail!(
@@ -183,6 +202,14 @@ pub fn datagen(a: DatagenArgs) -> Result<()> {
         sky_transfer: a.sky_transfer,
     };
     let r = dataset::run(&set, &opts, &out)?;
+    if let Some(p) = a.shard
+        && r.records == 0
+    {
+        say!(
+            "note: --shard {p}: the set has fewer shards than parts, and this part holds none \
+             (merge accepts it; fewer parts, or a smaller --shard-size, would use every one)"
+        );
+    }
     {
         say!(
             "{}{} records ({} computed now in {:.1} s, {:.2} records/s), {:.1} % converged -> {}",

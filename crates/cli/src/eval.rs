@@ -199,6 +199,11 @@ fn preflight(
     }
     for p in &paths {
         nimbus_rpnn::model::Rpnn::load(p)?;
+        // The int8 copy beside it as well: missing, made from another model or damaged, it
+        // was found only after the references and the other methods had run.
+        if opts.run.rpnn_backend == nimbus_render::NetBackend::OrtInt8 {
+            nimbus_rpnn::ort_backend::OrtModel::load_int8(p, 1)?;
+        }
     }
     Ok(())
 }

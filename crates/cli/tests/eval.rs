@@ -331,6 +331,36 @@ fn compare_rejects_bad_arguments() {
             text(&o)
         );
     }
+    // `--backend ort-int8` with no int8 copy beside the model: refused before the reference
+    // too (it once came after the reference and every other method).
+    let lonely = d.join("lonely.onnx");
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../rpnn/tests/data/rpnn-tiny.onnx"),
+        &lonely,
+    )
+    .unwrap();
+    let a = [
+        "compare",
+        s,
+        "--ref-spp",
+        "1000000",
+        "--methods",
+        "pt,rpnn",
+        "--out",
+        rep,
+        "--cache",
+        cache,
+        "--model",
+        lonely.to_str().unwrap(),
+        "--backend",
+        "ort-int8",
+    ];
+    let o = nimbus_within(&a, 20).expect("the check came after the reference");
+    assert!(
+        !o.status.success() && text(&o).contains("lonely.int8.onnx"),
+        "{}",
+        text(&o)
+    );
     // A reference with a negative pixel (once dropped from the metrics without a word).
     let mut img = nimbus_scene::Image::new(4, 3);
     for p in img.pixels.iter_mut() {
@@ -349,6 +379,34 @@ fn compare_rejects_bad_arguments() {
     let t = text(&o);
     assert!(
         !o.status.success() && t.contains("ref.exr") && t.contains("1 of 12 pixels are negative"),
+        "{t}"
+    );
+    // A camera too small for a 4×4 block of cloud (once a report of NaN errors and a bias of
+    // 0 "within the floor", exit status 0): refused after its reference, naming the size.
+    let small = d.join("small.toml");
+    let txt = SCENE
+        .replace("width = 40", "width = 3")
+        .replace("height = 28", "height = 2");
+    std::fs::write(&small, txt).unwrap();
+    let o = nimbus(&[
+        "compare",
+        small.to_str().unwrap(),
+        "--methods",
+        "pt",
+        "--budgets",
+        "pt=1",
+        "--ref-spp",
+        "16",
+        "--ref-noise",
+        "0",
+        "--out",
+        d.join("small-rep").to_str().unwrap(),
+        "--cache",
+        d.join("small-cache").to_str().unwrap(),
+    ]);
+    let t = text(&o);
+    assert!(
+        !o.status.success() && t.contains("at 3x2 the cloud covers no 4×4 block"),
         "{t}"
     );
 }
@@ -474,6 +532,10 @@ fn bench_suite_writes_the_table() {
     let o = nimbus(&["bench-suite", "--clouds", "9", "--out", d.to_str().unwrap()]);
     assert!(!o.status.success());
     assert!(text(&o).contains("1..=8"), "{}", text(&o));
+    // A side under 4 pixels holds no 4×4 block to take the errors over.
+    let o = nimbus(&["bench-suite", "--size", "3x3", "--out", d.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(text(&o).contains("4..=4096"), "{}", text(&o));
 }
 
 /// `bench-suite --device gpu`: the GPU estimators' table (pt-gpu the baseline, the network in

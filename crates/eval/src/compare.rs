@@ -3,7 +3,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use anyhow::Result;
+use anyhow::{Result, bail};
 use nimbus_scene::Scene;
 
 use crate::method::{GpuSlot, Method, Run, RunSettings, sweep};
@@ -54,6 +54,17 @@ pub fn compare_scene(
     log: &mut dyn FnMut(String),
 ) -> Result<Comparison> {
     let reference = reference(scene, &opts.reference, gpu, log)?;
+    let rs = ref_stats(&reference);
+    if rs.cloud_blocks == 0 {
+        bail!(
+            "{name}: at {}x{} the cloud covers no 4×4 block at least half ({} cloud pixels), \
+             and the errors over 4×4 blocks, the bias and the speed-ups are taken over those: \
+             render it larger (the camera's width and height, or --size) or nearer",
+            scene.camera.width,
+            scene.camera.height,
+            rs.cloud_pixels
+        );
+    }
     let mut runs = Vec::new();
     for &m in &opts.methods {
         let budgets = opts.budgets_of(m);
@@ -73,7 +84,7 @@ pub fn compare_scene(
         scene: name.to_string(),
         width: scene.camera.width,
         height: scene.camera.height,
-        reference: RefInfo::new(&reference, ref_stats(&reference)),
+        reference: RefInfo::new(&reference, rs),
         rows,
     };
     let files = write(out, &report, &reference.image, &runs, log)?;

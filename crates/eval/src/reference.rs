@@ -249,11 +249,18 @@ pub fn reference(
         100.0 * noise,
         if met {
             "target met".to_string()
+        } else if settings.target_rel_noise <= 0.0 {
+            "one round: no noise target".to_string()
+        } else if rounds >= MAX_ROUNDS {
+            format!(
+                "target {:.1} % not met within {MAX_ROUNDS} rounds",
+                100.0 * settings.target_rel_noise
+            )
         } else {
             format!(
-                "target {:.1} % not met within the {:.0} s cap",
+                "target {:.1} % not met within the {} s cap",
                 100.0 * settings.target_rel_noise,
-                settings.time_cap_s
+                fmt_seconds(settings.time_cap_s)
             )
         }
     ));
@@ -373,4 +380,14 @@ fn load(files: [&PathBuf; 4], key: &str, w: usize, h: usize) -> Result<Reference
         cached: true,
         path: None,
     })
+}
+
+/// A time cap as the log prints it: whole seconds, or in scientific notation beyond 10⁹ s
+/// (`--ref-time-cap 1e300` once printed 301 digits).
+fn fmt_seconds(s: f64) -> String {
+    if s < 1e9 {
+        format!("{s:.0}")
+    } else {
+        format!("{s:.1e}")
+    }
 }

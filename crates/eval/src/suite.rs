@@ -217,9 +217,10 @@ pub fn scene_toml(
 /// Runs the suite; per-scene reports go to `out/results/scenes/<name>/`, the summary to
 /// `out/results.md` with `out/results/error_vs_time.{png,svg}`.
 pub fn run(opts: &SuiteOptions, out: &Path, log: &mut dyn FnMut(String)) -> Result<Vec<Row>> {
-    if opts.width == 0 || opts.height == 0 || opts.width > 4096 || opts.height > 4096 {
+    // The errors are taken over 4×4 blocks of cloud pixels: a side under 4 holds none.
+    if opts.width < 4 || opts.height < 4 || opts.width > 4096 || opts.height > 4096 {
         bail!(
-            "--size must lie in 1..=4096 per side, got {}x{}",
+            "--size must lie in 4..=4096 per side (the errors are taken over 4×4 blocks), got {}x{}",
             opts.width,
             opts.height
         );

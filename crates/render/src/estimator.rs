@@ -400,6 +400,31 @@ pub fn prepare<'g>(
             {
                 warnings.push(format!("note: {label}: {n}"));
             }
+            // Settings of a path this render does not take, said instead of ignored.
+            let defaults = RpnnSettings::default();
+            if !runner.network_in_wgsl() {
+                let gpu_only: Vec<&str> = [
+                    (r.cpu_shading, "--cpu-shading"),
+                    (r.precision != defaults.precision, "--net-precision"),
+                    (r.tiles != defaults.tiles, "--net-tiles"),
+                ]
+                .into_iter()
+                .filter_map(|(set, flag)| set.then_some(flag))
+                .collect();
+                if !gpu_only.is_empty() {
+                    warnings.push(format!(
+                        "warning: {label}: {} are settings of the WGSL network (--backend \
+                         wgpu); ignored: the network runs on {device}",
+                        gpu_only.join(", ")
+                    ));
+                }
+            }
+            if sky_sh.is_none() && r.sky_degree != defaults.sky_degree {
+                warnings.push(format!(
+                    "warning: {label}: --sky-degree applies to a sky head's sky \
+                     (--method rpnn, a model with one, a scene with a sky); ignored"
+                ));
+            }
             (
                 Box::new(engine::rpnn::RpnnEngine::new(
                     scene,

@@ -353,6 +353,11 @@ impl OrtModel {
                 msg: other.to_string(),
             },
         })?;
+        // Its own float tensors (scales, biases, the f32 heads), which ONNX Runtime runs
+        // unchecked: a damaged copy would render a wrong image without a word.
+        let bytes = crate::model::read_bytes(&path).map_err(err)?;
+        crate::model::Rpnn::check_int8_tensors(&bytes).map_err(err)?;
+        drop(bytes);
         // Checked on the first session, before the workers' sessions are made.
         let check = |first: &ort::session::Session| match metadata(first, INT8_OF).map_err(err)? {
             Some(g) if g == want => Ok(()),

@@ -175,6 +175,72 @@ fn other_graphs_and_bad_files_are_refused() {
             "{file}: {e}"
         );
     }
+    // Metadata that is no value or contradicts the graph: an albedo outside [0, 1] or NaN
+    // (−3 was once taken as the training albedo), a sky basis the graph has no head for or
+    // Nimbus does not read, an input declared narrower than the layers read (ONNX Runtime
+    // refuses it; the WGSL network once ran it). Each is refused, naming the file and the entry.
+    type Edit = fn(&mut onnx_protobuf::ModelProto);
+    fn set_meta(m: &mut onnx_protobuf::ModelProto, key: &str, value: &str) {
+        m.metadata_props.retain(|p| p.key != key);
+        let mut p = onnx_protobuf::StringStringEntryProto::new();
+        p.key = key.into();
+        p.value = value.into();
+        m.metadata_props.push(p);
+    }
+    let edits: [(&str, &str, Edit, &str); 5] = [
+        (
+            "rpnn-tiny.onnx",
+            "albedo-negative",
+            |m| set_meta(m, "nimbus.rpnn.albedo", "-3"),
+            "nimbus.rpnn.albedo",
+        ),
+        (
+            "rpnn-tiny.onnx",
+            "albedo-nan",
+            |m| set_meta(m, "nimbus.rpnn.albedo", "NaN"),
+            "nimbus.rpnn.albedo",
+        ),
+        (
+            "rpnn-tiny.onnx",
+            "sky-without-head",
+            |m| set_meta(m, "nimbus.rpnn.sky", "sh4"),
+            "no sky head",
+        ),
+        (
+            "rpnn-tiny-sky.onnx",
+            "sky-sh9",
+            |m| set_meta(m, "nimbus.rpnn.sky", "sh9"),
+            "\"sh9\"",
+        ),
+        (
+            "rpnn-tiny.onnx",
+            "narrow-input",
+            |m| {
+                let input = &mut m.graph.as_mut().unwrap().input[0];
+                let t = input.type_.as_mut().unwrap().mut_tensor_type();
+                t.shape.as_mut().unwrap().dim[1].set_dim_value(2250);
+            },
+            "declared 2250 wide, the layers read 2251",
+        ),
+    ];
+    for (source, file, edit, says) in edits {
+        let bytes = std::fs::read(data(source)).unwrap();
+        let mut m = onnx_protobuf::ModelProto::parse_from_bytes(&bytes).unwrap();
+        edit(&mut m);
+        let path = dir.join(format!("{file}.onnx"));
+        std::fs::write(&path, m.write_to_bytes().unwrap()).unwrap();
+        let e = Rpnn::load(&path).unwrap_err().to_string();
+        assert!(
+            e.contains(&format!("{file}.onnx")) && e.contains(says),
+            "{file}: {e}"
+        );
+    }
+    // The same entries, stated rightly, are read.
+    let mut m = onnx_protobuf::ModelProto::parse_from_bytes(&bytes).unwrap();
+    set_meta(&mut m, "nimbus.rpnn.albedo", "0.99");
+    let fine = dir.join("albedo-fine.onnx");
+    std::fs::write(&fine, m.write_to_bytes().unwrap()).unwrap();
+    assert_eq!(Rpnn::load(&fine).unwrap().albedo, Some(0.99));
     // A folder is not read as a model.
     let e = Rpnn::load(&dir).unwrap_err().to_string();
     assert!(e.contains("a folder"), "{e}");

@@ -332,5 +332,53 @@ fn int8_copies_agree_with_their_models_and_refuse_others() {
         e.contains("rpnn-hg.int8.onnx") && e.contains("pass the f32 model"),
         "{e}"
     );
+    // A damaged copy of the right model (its metadata intact): a NaN bias, a head's weights
+    // ×10⁶ (once rendered a mean of 2 070 for 0.002 with exit status 0), a scale ≤ 0. ONNX
+    // Runtime runs each without a word; the loader refuses it, naming the file and the tensor.
+    use protobuf::Message;
+    let f32_copy = dir.join("rpnn-hg.onnx");
+    std::fs::copy(models.join("rpnn-hg.onnx"), &f32_copy).unwrap();
+    let good = std::fs::read(models.join("rpnn-hg.int8.onnx")).unwrap();
+    type Damage = fn(&mut [f32]);
+    let damages: [(&str, Damage, &str); 3] = [
+        ("blocks.4.V.bias", |v| v[7] = f32::NAN, "is NaN"),
+        (
+            "head.0.weight",
+            |v| v.iter_mut().for_each(|x| *x *= 1e6),
+            "beyond ±",
+        ),
+        ("blocks.0.V.weight_scale", |v| v[0] = -v[0], "not positive"),
+    ];
+    for (name, damage, says) in damages {
+        let mut m = onnx_protobuf::ModelProto::parse_from_bytes(&good).unwrap();
+        let t = m
+            .graph
+            .as_mut()
+            .unwrap()
+            .initializer
+            .iter_mut()
+            .find(|t| t.name == name && t.data_type == 1)
+            .unwrap_or_else(|| panic!("a float tensor {name}"));
+        let mut v: Vec<f32> = if t.raw_data.is_empty() {
+            t.float_data.clone()
+        } else {
+            t.raw_data
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+                .collect()
+        };
+        damage(&mut v);
+        t.float_data.clear();
+        t.raw_data = v.iter().flat_map(|x| x.to_le_bytes()).collect();
+        std::fs::write(int8_path_for(&f32_copy), m.write_to_bytes().unwrap()).unwrap();
+        let e = err(&f32_copy);
+        assert!(
+            e.contains("rpnn-hg.int8.onnx") && e.contains(name) && e.contains(says),
+            "{name}: {e}"
+        );
+    }
+    // The undamaged copy beside the same model loads (the damage, not the place, was refused).
+    std::fs::write(int8_path_for(&f32_copy), &good).unwrap();
+    OrtModel::load_int8(&f32_copy, 1).unwrap_or_else(|e| panic!("{e}"));
     std::fs::remove_dir_all(&dir).ok();
 }

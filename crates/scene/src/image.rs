@@ -94,7 +94,8 @@ impl Image {
         })
     }
 
-    /// Reads the RGB channels of the first layer of an EXR (Y-only images are broadcast).
+    /// Reads the RGB channels (float or half) of the first layer of an EXR that has them; a
+    /// file without them (Y or alpha alone) or with integer ones is an error naming what it has.
     pub fn read_exr(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
         crate::memory::regular_file(path)?;
@@ -115,6 +116,45 @@ impl Image {
                 ),
             )
             .map_err(|e| e.at(path))?;
+        }
+        // Said before the reader's own words ("no layer matched", "invalid decompressed data").
+        let is = |n: &exr::meta::attribute::Text, c: &str| {
+            let n = n.to_string();
+            n == c || n.ends_with(&format!(".{c}"))
+        };
+        let rgb = meta.headers.iter().find(|h| {
+            ["R", "G", "B"]
+                .iter()
+                .all(|c| h.channels.list.iter().any(|ch| is(&ch.name, c)))
+        });
+        let Some(rgb) = rgb else {
+            let has: Vec<String> = meta
+                .headers
+                .iter()
+                .flat_map(|h| h.channels.list.iter().map(|ch| ch.name.to_string()))
+                .collect();
+            return Err(Error::invalid(
+                path,
+                "channels",
+                format!(
+                    "needs R, G and B channels (float or half); the file has {}",
+                    if has.is_empty() {
+                        "none".to_string()
+                    } else {
+                        has.join(", ")
+                    }
+                ),
+            ));
+        };
+        if let Some(ch) = rgb.channels.list.iter().find(|ch| {
+            ["R", "G", "B"].iter().any(|c| is(&ch.name, c))
+                && ch.sample_type == exr::meta::attribute::SampleType::U32
+        }) {
+            return Err(Error::invalid(
+                path,
+                format!("channel {}", ch.name),
+                "holds 32-bit integers; radiance needs float or half",
+            ));
         }
         let img = exr::prelude::read_first_rgba_layer_from_file(
             path,
@@ -300,6 +340,50 @@ mod tests {
                 .unwrap()
                 .contains("white at exposure")
         );
+    }
+
+    /// EXRs without float RGB (luminance alone, alpha alone, integer channels) are refused,
+    /// naming the channels the file has; the reader's own words said neither ("no layer in the
+    /// image matched", "invalid: decompressed data").
+    #[test]
+    fn exr_without_float_rgb_is_refused_by_its_channels() {
+        use exr::prelude::*;
+        let dir = std::env::temp_dir().join(format!("nimbus-img-ch-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let write = |name: &str, channels: Vec<AnyChannel<FlatSamples>>| {
+            let layer = Layer::new(
+                (3, 2),
+                LayerAttributes::default(),
+                Encoding::FAST_LOSSLESS,
+                AnyChannels::sort(channels.into()),
+            );
+            let path = dir.join(name);
+            exr::image::Image::from_layer(layer)
+                .write()
+                .to_file(&path)
+                .unwrap();
+            path
+        };
+        let f = |c: &str| AnyChannel::new(c, FlatSamples::F32(vec![0.5; 6]));
+        let u = |c: &str| AnyChannel::new(c, FlatSamples::U32(vec![1; 6]));
+        for (name, channels, says) in [
+            (
+                "y.exr",
+                vec![f("Y")],
+                "needs R, G and B channels (float or half); the file has Y",
+            ),
+            ("a.exr", vec![f("A")], "the file has A"),
+            ("u32.exr", vec![u("B"), u("G"), u("R")], "32-bit integers"),
+        ] {
+            let e = super::Image::read_exr(write(name, channels))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(name) && e.contains(says), "{name}: {e}");
+        }
+        // Float RGB with alpha reads.
+        let ok = write("rgba.exr", vec![f("A"), f("B"), f("G"), f("R")]);
+        assert_eq!(super::Image::read_exr(ok).unwrap().pixels[5], [0.5; 3]);
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]

@@ -28,6 +28,12 @@ pub(crate) enum Runner<'g> {
 }
 
 impl Runner<'_> {
+    /// Whether the network runs in WGSL (the whole sample on the GPU, or CPU shading with the
+    /// WGSL network), where its precision and kernel apply.
+    pub(crate) fn network_in_wgsl(&self) -> bool {
+        matches!(self, Runner::Gpu(_) | Runner::Cpu(Backend::Wgpu(_)))
+    }
+
     fn name(&self) -> &'static str {
         match self {
             Runner::Cpu(b) => b.name(),

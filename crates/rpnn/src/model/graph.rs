@@ -32,7 +32,7 @@ pub(super) struct Matcher<'a> {
     pub(super) denses: Vec<Dense>,
 }
 
-fn floats(t: &TensorProto) -> Result<Vec<f32>, String> {
+pub(super) fn floats(t: &TensorProto) -> Result<Vec<f32>, String> {
     if t.data_type != 1 {
         return Err(format!(
             "tensor `{}`: data type {} is not float32",

@@ -228,6 +228,41 @@ impl Rpnn {
         o
     }
 
+    /// Checks the float tensors of an int8 copy (`training/quantize.py`): the scales, biases and
+    /// f32 heads that ONNX Runtime reads unchecked. Each must be finite and within the bound
+    /// of an f32 model's weights, and each quantization scale positive, so that a damaged copy
+    /// is refused on load instead of rendering a wrong image. Errors without the file name.
+    pub fn check_int8_tensors(bytes: &[u8]) -> Result<(), String> {
+        let model = ModelProto::parse_from_bytes(bytes)
+            .map_err(|e| format!("not a valid ONNX (protobuf) file: {e}"))?;
+        let graph = model.graph.as_ref().ok_or("the model has no graph")?;
+        let constants = graph
+            .node
+            .iter()
+            .filter(|n| n.op_type == "Constant")
+            .flat_map(|n| n.attribute.iter().filter_map(|a| a.t.as_ref()));
+        let mut checked = 0;
+        for t in graph.initializer.iter().chain(constants) {
+            if t.data_type != 1 {
+                continue; // int8/uint8 weights and zero points: every value is one
+            }
+            let v = graph::floats(t)?;
+            if t.name.ends_with("scale")
+                && let Some(i) = v.iter().position(|&x| x <= 0.0)
+            {
+                return Err(format!(
+                    "tensor `{}`: scale {i} is {:e}, not positive",
+                    t.name, v[i]
+                ));
+            }
+            checked += 1;
+        }
+        if checked == 0 {
+            return Err("no float tensors: not an int8 copy made by training/quantize.py".into());
+        }
+        Ok(())
+    }
+
     /// Reads and checks an ONNX file.
     pub fn load(path: &Path) -> Result<Self, ModelError> {
         let err = |msg: String| ModelError {
@@ -241,14 +276,7 @@ impl Rpnn {
                     .into(),
             ));
         }
-        // A regular file whose bytes fit the memory budget, before it is read whole (a 6 GiB
-        // file named as a model was once read to the end before the protobuf parser refused it).
-        nimbus_scene::memory::check_file(path, 1).map_err(|e| {
-            let t = e.to_string();
-            let prefix = format!("{}: ", path.display());
-            err(t.strip_prefix(&prefix).unwrap_or(&t).to_string())
-        })?;
-        let bytes = std::fs::read(path).map_err(|e| err(e.to_string()))?;
+        let bytes = read_bytes(path).map_err(err)?;
         let mut m = Self::from_bytes(&bytes).map_err(err)?;
         if m.albedo.is_none() {
             // Models exported before the albedo entered the metadata: read the card.
@@ -328,10 +356,45 @@ impl Rpnn {
         rpnn.phase = meta
             .get("nimbus.rpnn.phase")
             .map_or("unknown".into(), |s| s.to_string());
-        rpnn.albedo = meta
-            .get("nimbus.rpnn.albedo")
-            .and_then(|a| a.parse::<f64>().ok())
-            .filter(|a| a.is_finite());
+        // Stated, the albedo must be one (a model of albedo −3 or NaN is a broken file, not an
+        // old one without the entry).
+        rpnn.albedo = match meta.get("nimbus.rpnn.albedo") {
+            None => None,
+            Some(a) => match a.trim().parse::<f64>() {
+                Ok(v) if (0.0..=1.0).contains(&v) => Some(v),
+                _ => {
+                    return Err(format!(
+                        "metadata nimbus.rpnn.albedo = {a:?}: not an albedo (a number in [0, 1])"
+                    ));
+                }
+            },
+        };
+        // The input's declared width, where it is a number, is the width the layers read: ONNX
+        // Runtime refuses a graph whose declaration and weights disagree, so the WGSL network
+        // must too.
+        if let Some(w) = declared_width(&graph.input[0])
+            && w != rpnn.input_len() as i64
+        {
+            return Err(format!(
+                "input `{}` is declared {w} wide, the layers read {}",
+                graph.input[0].name,
+                rpnn.input_len()
+            ));
+        }
+        // `nimbus.rpnn.sky` names the sky head's basis (train_sky.py writes `sh4`).
+        if let Some(sky) = meta.get("nimbus.rpnn.sky") {
+            let want = format!("sh{}", crate::sky::SH_DEGREE);
+            if rpnn.sky_coeffs() == 0 || *sky != want {
+                return Err(format!(
+                    "metadata nimbus.rpnn.sky = {sky:?}, but the graph has {}: Nimbus reads                      `{want}`, a head of {} spherical-harmonic coefficients",
+                    match rpnn.sky_coeffs() {
+                        0 => "no sky head".to_string(),
+                        n => format!("a sky head of {n} outputs"),
+                    },
+                    crate::sky::SH_COEFFS
+                ));
+            }
+        }
         if let Some(cfg) = meta.get("nimbus.rpnn.config") {
             let v: serde_json::Value = serde_json::from_str(cfg)
                 .map_err(|e| format!("metadata nimbus.rpnn.config: {e}"))?;
@@ -372,4 +435,26 @@ impl Rpnn {
         }
         Ok(rpnn)
     }
+}
+
+/// A model file's bytes: a regular file whose bytes fit the memory budget, checked before it
+/// is read whole (a 6 GiB file named as a model was once read to the end before the protobuf
+/// parser refused it). Errors without the file name.
+pub(crate) fn read_bytes(path: &Path) -> Result<Vec<u8>, String> {
+    nimbus_scene::memory::check_file(path, 1).map_err(|e| {
+        let t = e.to_string();
+        let prefix = format!("{}: ", path.display());
+        t.strip_prefix(&prefix).unwrap_or(&t).to_string()
+    })?;
+    std::fs::read(path).map_err(|e| e.to_string())
+}
+
+/// The second dimension of a graph input's declared shape, where it is a number.
+fn declared_width(v: &onnx_protobuf::ValueInfoProto) -> Option<i64> {
+    let t = v.type_.as_ref()?;
+    if !t.has_tensor_type() {
+        return None;
+    }
+    let d = t.tensor_type().shape.as_ref()?.dim.get(1)?;
+    d.has_dim_value().then(|| d.dim_value())
 }
