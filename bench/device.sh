@@ -33,7 +33,8 @@
 #   bash bench/device.sh [--small] [--steps LIST] [--out DIR]
 #
 # `--steps 2,9` runs only those steps (default: all), so a machine's time can go first to what
-# is unmeasured, or a run can be split into parts under a time limit (each with its own --out).
+# is unmeasured, or a run can be split into parts under a time limit (each with its own --out;
+# bench/device_lease.sh runs a part as one call of a lent GPU machine).
 #
 # On an H200 the full run took 134 s (2026-12-04), before steps 7–10. Steps 9 and 10 render 18
 # and 9 scenes with references capped at 30 s each: allow 10 and 5 minutes more. `--small`
@@ -147,9 +148,16 @@ rpnn_run() { # NAME SCENE METHOD BACKEND…: one render's ms per spp and its sta
   local b="$*" tag setting
   tag=$(echo "$([ "$method" = rpnn ] || echo "$method ")$b" | tr -d ' -' | sed 's/cpushading/_cpu_shading/')
   setting="${RW}x${RH} backend=$b$([ "$method" = rpnn ] || echo " method=$method")"
+  # One runner that fails (ONNX Runtime missing, an adapter's limit) is a row that says so,
+  # and the other runners are still measured: a lent machine's minutes are few.
   # shellcheck disable=SC2086
-  "$nimbus" render "$path" --method "$method" --backend $b --spp "$RSPP" --timings -q \
-    -o "$out/${name}_$tag.exr" > "$out/${name}_$tag.txt"
+  if ! "$nimbus" render "$path" --method "$method" --backend $b --spp "$RSPP" --timings -q \
+    -o "$out/${name}_$tag.exr" > "$out/${name}_$tag.txt" 2>&1; then
+    echo "bench/device.sh: $name $setting failed; the end of $out/${name}_$tag.txt:" >&2
+    tail -5 "$out/${name}_$tag.txt" >&2
+    row rpnn_ms_per_spp "$name" "$setting" failed ms
+    return 0
+  fi
   ms=$(grep -m1 "ms per spp" "$out/${name}_$tag.txt" | sed -E 's/.* ([0-9.]+) ms per spp.*/\1/')
   row rpnn_ms_per_spp "$name" "$setting" "$ms" ms
   for stage in shade descriptor inference resolve rest; do

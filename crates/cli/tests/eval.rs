@@ -747,6 +747,86 @@ fn device_benchmark_script_small() {
     );
 }
 
+/// `bench/device_lease.sh`, one call of the lent GPU machine, on this machine's adapter:
+/// without `--small` a software adapter stops it before anything runs (exit 3: no figure of
+/// lavapipe recorded as the GPU's); `--small --steps 2` with ONNX Runtime made unfindable
+/// measures the 12 GPU runners and writes `failed` for the 6 ONNX Runtime ones (one failing
+/// runner once ended the step), and brings everything back as at most 8 files directly under
+/// $OUT (what the device tool returns); a limit the steps run past is exit 124 with the table
+/// of the rows measured so far.
+#[test]
+fn device_lease_script_brings_back_what_the_device_tool_returns() {
+    if !nimbus_gpu::testing::has_adapter(
+        "eval::device_lease_script_brings_back_what_the_device_tool_returns",
+    ) {
+        return;
+    }
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let run = |args: &[&str], out: &std::path::Path, ort: bool| {
+        let mut c = std::process::Command::new("bash");
+        c.current_dir(&root)
+            .arg("bench/device_lease.sh")
+            .args(args)
+            .env("OUT", out)
+            .env("NIMBUS", env!("CARGO_BIN_EXE_nimbus"))
+            .env("XDG_RUNTIME_DIR", "/tmp");
+        if !ort {
+            c.env("ORT_DYLIB_PATH", out.join("no-libonnxruntime.so"));
+        }
+        c.output().unwrap()
+    };
+    let d = tmp("lease_software");
+    let o = run(&["--steps", "2"], &d, true);
+    assert_eq!(o.status.code(), Some(3), "{}", text(&o));
+    assert!(text(&o).contains("no hardware GPU"), "{}", text(&o));
+    assert!(!d.join("device.csv").exists());
+    let d = tmp("lease");
+    let o = run(&["--small", "--steps", "2", "--limit", "500"], &d, false);
+    assert!(o.status.success(), "{}", text(&o));
+    let mut names: Vec<String> = std::fs::read_dir(&d)
+        .unwrap()
+        .map(|e| {
+            let e = e.unwrap();
+            assert!(
+                e.file_type().unwrap().is_file(),
+                "{:?} is no file",
+                e.path()
+            );
+            e.file_name().to_string_lossy().into_owned()
+        })
+        .collect();
+    names.sort();
+    assert_eq!(
+        names,
+        [
+            "adapter.txt",
+            "device.csv",
+            "device.md",
+            "lease.log",
+            "results.tgz"
+        ],
+        "at most 8 files come back"
+    );
+    let csv = std::fs::read_to_string(d.join("device.csv")).unwrap();
+    let rows: Vec<&str> = csv
+        .lines()
+        .filter(|l| l.starts_with("rpnn_ms_per_spp,"))
+        .collect();
+    let failed: Vec<&&str> = rows.iter().filter(|l| l.contains(",failed,")).collect();
+    assert_eq!(rows.len(), 18, "{csv}");
+    assert_eq!(failed.len(), 6, "{csv}");
+    assert!(failed.iter().all(|l| l.contains("backend=ort")), "{csv}");
+    for l in rows.iter().filter(|l| !l.contains(",failed,")) {
+        let v: f64 = l.split(',').nth(3).unwrap().parse().unwrap();
+        assert!(v.is_finite() && v > 0.0, "{l}");
+    }
+    let d = tmp("lease_limit");
+    let o = run(&["--small", "--steps", "2", "--limit", "1"], &d, true);
+    assert_eq!(o.status.code(), Some(124), "{}", text(&o));
+    let md = std::fs::read_to_string(d.join("device.md")).unwrap();
+    assert!(md.contains("cut short at 1 s"), "{md}");
+}
+
 /// `bench/device.sh --steps`: only the steps asked for run (a GPU machine's time goes first to what
 /// is unmeasured), and a list naming no step 1–10 is refused before anything runs.
 #[test]
