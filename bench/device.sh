@@ -30,14 +30,23 @@
 #      environment map, and bench-suite leaves the methods that cannot out of that condition;
 #      DIR/suite_env/results.md).
 #
-#   bash bench/device.sh [--small] [--steps LIST] [--out DIR]
+#   bash bench/device.sh [--small] [--steps LIST] [--out DIR] [--prepare-refs | --check-refs]
+#
+# Steps 9 and 10 take their references (the CPU path tracer to 1 % noise per 4×4 cloud block,
+# as the CPU table's) from SUITE_REFS (default out/device_refs), and only from there: a
+# missing one stops the step before anything renders. `--prepare-refs --steps 9,10` renders
+# them on this machine instead (the 27 of the full size; their time: BENCHMARKS.md, "Device
+# benchmark"), to be carried to the GPU's; `--check-refs` only says whether they are all there
+# for this machine's scenes (seconds). With --small and no SUITE_REFS the steps render their
+# own references into DIR/suite_cache. SUITE_REF replaces the reference flags (e.g.
+# "--ref-device gpu --ref-time-cap 30" with SUITE_CACHED_ONLY=0 renders them on the GPU).
 #
 # `--steps 2,9` runs only those steps (default: all), so a machine's time can go first to what
 # is unmeasured, or a run can be split into parts under a time limit (each with its own --out;
 # bench/device_lease.sh runs a part as one call of a lent GPU machine).
 #
-# On an H200 the full run took 134 s (2026-12-04), before steps 7–10. Steps 9 and 10 render 18
-# and 9 scenes with references capped at 30 s each: allow 10 and 5 minutes more. `--small`
+# On an H200 the full run took 134 s (2026-12-04), before steps 7–10. Steps 9 and 10 run five
+# and three methods on 18 and 9 scenes of 192×108 (their references prepared). `--small`
 # runs the same steps at reduced sizes (1/8 of the pixels or fewer, fewer frames, beams and
 # records) so lavapipe finishes in about a minute; the tests run it that way. The binary is
 # ./target/release/nimbus (or $NIMBUS: the release profile keeps line tables of Nimbus' own
@@ -50,11 +59,15 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 small=0
+prepare=0
+check=0
 steps=1,2,3,4,5,6,7,8,9,10
 out=out/device
 while [ $# -gt 0 ]; do
   case "$1" in
     --small) small=1 ;;
+    --prepare-refs) prepare=1 ;;
+    --check-refs) check=1 ;;
     --out) out="$2"; shift ;;
     --steps) steps="$2"; shift ;;
     -h|--help) sed -n '2,/^set -euo/p' "$0" | sed '$d'; exit 0 ;;
@@ -74,6 +87,14 @@ for n in ${steps//,/ }; do
   asked="$asked,$n"
 done
 steps=${asked#,}
+[ "$prepare$check" != 11 ] || { echo "bench/device.sh: --prepare-refs or --check-refs, not both" >&2; exit 2; }
+if [ "$prepare" = 1 ] || [ "$check" = 1 ]; then
+  # Only the references of steps 9 and 10: rendered here for a later run elsewhere, or checked.
+  keep=
+  for n in ${steps//,/ }; do case $n in 9|10) keep="$keep,$n" ;; esac; done
+  [ -n "$keep" ] || { echo "bench/device.sh: --prepare-refs and --check-refs are about the references of steps 9 and 10; --steps $steps names neither" >&2; exit 2; }
+  steps=${keep#,}
+fi
 want() { case ",$steps," in *",$1,"*) return 0 ;; esac; return 1; }
 nimbus=${NIMBUS:-./target/release/nimbus}
 [ -x "$nimbus" ] || { echo "bench/device.sh: $nimbus not found (cargo build --release -p nimbus-cli)" >&2; exit 1; }
@@ -83,6 +104,8 @@ csv="$out/device.csv"
 echo "measure,scene,setting,value,unit" > "$csv"
 row() { echo "$1,$2,$3,$4,$5" >> "$csv"; }
 
+# References for steps 9 and 10 from elsewhere (SUITE_REFS, or full size): cached only.
+refs_given=$([ -n "${SUITE_REFS:-}" ] && echo 1 || echo 0)
 if [ "$small" = 1 ]; then
   W=240; H=150; FRAMES=3; BEAMS=1024; RW=64; RH=36; RSPP=1; PW=128; PH=96; PTSPP=4; GPTSPP=16
   DG_RECORDS=16; DG_SAMPLES=256; VOLRES=96; TR_RECORDS=3000; TR_EPOCHS=1; TR_BATCH="1000"
@@ -91,7 +114,10 @@ if [ "$small" = 1 ]; then
   CMP_BUDGETS="--budgets pt-gpu=4,16,64 --budgets pm=1,4,16 --budgets pm-march=4,16 --budgets rpnn=1,4"
   CMP_REF="--ref-spp 64 --ref-time-cap 60"
   SUITE_SIZE=32x18
-  SUITE="--clouds 1 --lights back --size $SUITE_SIZE --methods pt-gpu,pm,pm-elek2012,rpnn,rpnn-dirs --budgets pt-gpu=4,16 --budgets pm=4 --budgets pm-elek2012=4 --budgets rpnn=2 --budgets rpnn-dirs=2 --beams 1024 --ref-spp 128 --ref-noise 0"
+  SUITE="--clouds 1 --lights back --size $SUITE_SIZE"
+  SUITE_METHODS="--methods pt-gpu,pm,pm-elek2012,rpnn,rpnn-dirs --budgets pt-gpu=4,16 --budgets pm=4 --budgets pm-elek2012=4 --budgets rpnn=2 --budgets rpnn-dirs=2 --beams 1024"
+  SUITE_REF=${SUITE_REF:---ref-device cpu --ref-spp 128 --ref-noise 0}
+  SUITE_REFS=${SUITE_REFS:-$out/suite_cache}
 else
   W=1920; H=1200; FRAMES=12; BEAMS=8192; RW=1280; RH=720; RSPP=2; PW=1280; PH=720; PTSPP=4; GPTSPP=64
   DG_RECORDS=2000; DG_SAMPLES=1024; VOLRES=1200; TR_RECORDS=200000; TR_EPOCHS=3
@@ -101,7 +127,12 @@ else
   CMP_BUDGETS="--budgets pt-gpu=4,16,64,256,1024 --budgets pm=1,4,16,64,256 --budgets pm-march=4,16,100 --budgets rpnn=1,4,16"
   CMP_REF="--ref-spp 1024 --ref-time-cap 300"
   SUITE_SIZE=192x108
-  SUITE="--clouds 3 --size $SUITE_SIZE --ref-device gpu --ref-time-cap 30 --methods pt-gpu,pm,pm-elek2012,rpnn,rpnn-dirs"
+  SUITE="--clouds 3 --size $SUITE_SIZE"
+  SUITE_METHODS="--methods pt-gpu,pm,pm-elek2012,rpnn,rpnn-dirs"
+  # The references of the CPU table's kind (the CPU path tracer to 1 % noise per 4×4 block),
+  # rendered beforehand on another machine (--prepare-refs) and carried: none on the GPU's time.
+  SUITE_REF=${SUITE_REF:---ref-device cpu --ref-spp 512 --ref-noise 0.01 --ref-time-cap 1200}
+  SUITE_REFS=${SUITE_REFS:-out/device_refs}
 fi
 # The training environment of training/setup.sh where there is one, else python3 (with torch).
 py=${PYTHON:-$([ -x training/.venv/bin/python ] && echo training/.venv/bin/python || echo python3)}
@@ -327,9 +358,34 @@ fi # step 8
 # and its summary rows (median speed-up at equal error where finite, cases within twice the
 # floor, zero included) into the CSV.
 suite() { # NAME SKIES
+  if [ "$check" = 1 ]; then
+    # shellcheck disable=SC2086
+    "$nimbus" bench-suite $SUITE $SUITE_REF --ref-cached-only --skies "$2" --methods pt \
+      --budgets pt=1 --out "$out/$1_check" --work "$out/$1_work" --cache "$SUITE_REFS" \
+      > "$out/$1_check.log" 2>&1 ||
+      { echo "bench/device.sh: the references of $1 ($2) are not all in $SUITE_REFS:" >&2; tail -5 "$out/$1_check.log" >&2; exit 1; }
+    echo "bench/device.sh: the references of $1 ($2) are all in $SUITE_REFS" >&2
+    return 0
+  fi
+  if [ "$prepare" = 1 ]; then
+    # The references alone, on this machine's CPU (the path tracer at 1 spp is the cheapest
+    # method to run beside them), into SUITE_REFS.
+    # shellcheck disable=SC2086
+    "$nimbus" bench-suite $SUITE $SUITE_REF --skies "$2" --methods pt --budgets pt=1 \
+      --out "$out/$1_refs" --work "$out/$1_work" --cache "$SUITE_REFS" > "$out/$1_refs.log" 2>&1 ||
+      { echo "bench/device.sh: preparing the references failed; the end of $out/$1_refs.log:" >&2; tail -30 "$out/$1_refs.log" >&2; exit 1; }
+    echo "bench/device.sh: the references of $1 ($2) are in $SUITE_REFS" >&2
+    return 0
+  fi
+  # Full size or SUITE_REFS: only the prepared references (a missing one stops the step
+  # before anything renders).
+  local only=
+  if { [ "$small" = 0 ] || [ "$refs_given" = 1 ]; } && [ "${SUITE_CACHED_ONLY:-1}" != 0 ]; then
+    only=--ref-cached-only
+  fi
   # shellcheck disable=SC2086
-  "$nimbus" bench-suite --device gpu $SUITE --skies "$2" --out "$out/$1" --work "$out/$1_work" \
-    --cache "$out/suite_cache" > "$out/$1.log" 2>&1 ||
+  "$nimbus" bench-suite --device gpu $SUITE $SUITE_METHODS $SUITE_REF $only --skies "$2" \
+    --out "$out/$1" --work "$out/$1_work" --cache "$SUITE_REFS" > "$out/$1.log" 2>&1 ||
     { echo "bench/device.sh: bench-suite failed; the end of $out/$1.log:" >&2; tail -30 "$out/$1.log" >&2; exit 1; }
   "$py" - "$out/$1/results.md" "$SUITE_SIZE" >> "$csv" <<'PY'
 import math, re, sys
@@ -359,6 +415,7 @@ if want 10; then
 # 10. The same under the sun and an environment map (the methods that take one).
 suite suite_env sun+env
 fi # step 10
+if [ "$prepare" = 1 ] || [ "$check" = 1 ]; then exit 0; fi
 
 # The Markdown table.
 {

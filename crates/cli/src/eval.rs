@@ -51,8 +51,12 @@ pub(crate) struct EvalArgs {
     #[arg(long, default_value = "out/cache/reference")]
     cache: PathBuf,
     /// Render the reference even when a cached one exists, and do not store it.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "ref_cached_only")]
     no_cache: bool,
+    /// Only references from the cache: a missing one is an error before anything renders
+    /// (references prepared here for a run on a machine whose time is short).
+    #[arg(long)]
+    ref_cached_only: bool,
     /// Seed of the method runs (default: the scene's `render.seed`).
     #[arg(long)]
     seed: Option<u64>,
@@ -157,6 +161,7 @@ impl EvalArgs {
                     RefDeviceArg::Gpu => RefDevice::Gpu,
                 },
                 cache_dir: (!self.no_cache).then(|| self.cache.clone()),
+                cached_only: self.ref_cached_only,
             },
         })
     }
@@ -177,7 +182,10 @@ fn preflight(
 ) -> Result<()> {
     use anyhow::Context;
     nimbus_scene::io::check_writable(out.join("report.md")).context("--out")?;
+    // With --ref-cached-only nothing is stored: the folder is only read (a mistyped one is
+    // named with the references it lacks, not created).
     if let Some(cache) = &opts.reference.cache_dir
+        && !opts.reference.cached_only
         && let Err(e) = nimbus_scene::io::check_writable(cache.join("reference.exr"))
     {
         // A read-only cache still serves the references it holds.

@@ -222,8 +222,11 @@ fn compare_scene_writes_a_report_and_reuses_the_cached_reference() {
         "{st}"
     );
     assert_eq!(json["reference"]["cached"], false);
-    // Second run: the reference comes from the cache (same key), with the same numbers.
-    let o2 = nimbus(&args);
+    // Second run: the reference comes from the cache (same key), with the same numbers; with
+    // --ref-cached-only too, since it is there.
+    let mut cached_only = args.to_vec();
+    cached_only.push("--ref-cached-only");
+    let o2 = nimbus(&cached_only);
     assert!(o2.status.success(), "{}", text(&o2));
     assert!(text(&o2).contains("reference: cached"), "{}", text(&o2));
     let json2: serde_json::Value =
@@ -236,7 +239,7 @@ fn compare_scene_writes_a_report_and_reuses_the_cached_reference() {
         SCENE.replace("density_scale = 30.0", "density_scale = 31.0"),
     )
     .unwrap();
-    let o3 = nimbus(&[
+    let denser = [
         "compare",
         scene.to_str().unwrap(),
         "--methods",
@@ -253,7 +256,21 @@ fn compare_scene_writes_a_report_and_reuses_the_cached_reference() {
         cache.to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
-    ]);
+    ];
+    // Its reference is not cached: --ref-cached-only refuses, naming the scene, and renders
+    // nothing.
+    let mut only = denser.to_vec();
+    only.push("--ref-cached-only");
+    let o = nimbus(&only);
+    let t = text(&o);
+    assert!(
+        !o.status.success()
+            && t.contains("--ref-cached-only: no cached reference of")
+            && t.contains("tiny.toml")
+            && !t.contains("reference: pt"),
+        "{t}"
+    );
+    let o3 = nimbus(&denser);
     assert!(o3.status.success(), "{}", text(&o3));
     assert!(!text(&o3).contains("reference: cached"), "{}", text(&o3));
 }
@@ -382,7 +399,7 @@ fn compare_rejects_bad_arguments() {
         "{t}"
     );
     // A camera too small for a 4×4 block of cloud (once a report of NaN errors and a bias of
-    // 0 "within the floor", exit status 0): refused after its reference, naming the size.
+    // 0 "within the floor", exit status 0): refused before its reference, naming the size.
     let small = d.join("small.toml");
     let txt = SCENE
         .replace("width = 40", "width = 3")
@@ -536,6 +553,19 @@ fn bench_suite_writes_the_table() {
     let o = nimbus(&["bench-suite", "--size", "3x3", "--out", d.to_str().unwrap()]);
     assert!(!o.status.success());
     assert!(text(&o).contains("4..=4096"), "{}", text(&o));
+    // --ref-cached-only with an empty cache: refused before any scene renders, naming each
+    // missing reference (references prepared on one machine for a run on another).
+    let e = tmp("suite-cached-only");
+    let o = small_suite(&e, &["--ref-cached-only"]);
+    let t = text(&o);
+    assert!(
+        !o.status.success()
+            && t.contains("--ref-cached-only: 2 of 2 references are not in")
+            && t.contains("cumulus_004_back_sunsky.toml")
+            && t.contains("cumulus_004_back_sunenv.toml")
+            && !t.contains("reference: pt"),
+        "{t}"
+    );
 }
 
 /// `bench-suite --device gpu`: the GPU estimators' table (pt-gpu the baseline, the network in
@@ -751,9 +781,9 @@ fn device_benchmark_script_small() {
 /// without `--small` a software adapter stops it before anything runs (exit 3: no figure of
 /// lavapipe recorded as the GPU's); `--small --steps 2` with ONNX Runtime made unfindable
 /// measures the 12 GPU runners and writes `failed` for the 6 ONNX Runtime ones (one failing
-/// runner once ended the step), and brings everything back as at most 8 files directly under
-/// $OUT (what the device tool returns); a limit the steps run past is exit 124 with the table
-/// of the rows measured so far.
+/// runner once ended the step), says that step 9's references are missing (`--check-refs`),
+/// and brings everything back as at most 8 files directly under $OUT (what the device tool
+/// returns); a limit the steps run past is exit 124 with the table of the rows measured so far.
 #[test]
 fn device_lease_script_brings_back_what_the_device_tool_returns() {
     if !nimbus_gpu::testing::has_adapter(
@@ -769,20 +799,47 @@ fn device_lease_script_brings_back_what_the_device_tool_returns() {
             .args(args)
             .env("OUT", out)
             .env("NIMBUS", env!("CARGO_BIN_EXE_nimbus"))
-            .env("XDG_RUNTIME_DIR", "/tmp");
+            .env("XDG_RUNTIME_DIR", "/tmp")
+            .env("SUITE_REFS", out.join("no-refs"));
         if !ort {
             c.env("ORT_DYLIB_PATH", out.join("no-libonnxruntime.so"));
         }
         c.output().unwrap()
     };
-    let d = tmp("lease_software");
-    let o = run(&["--steps", "2"], &d, true);
-    assert_eq!(o.status.code(), Some(3), "{}", text(&o));
-    assert!(text(&o).contains("no hardware GPU"), "{}", text(&o));
-    assert!(!d.join("device.csv").exists());
+    // (A machine with a hardware GPU would run step 2 at full size here: only a software
+    // adapter is checked for the refusal.)
+    let info = nimbus(&["info", "--gpu"]);
+    if text(&info)
+        .lines()
+        .any(|l| l.starts_with("used") && l.contains("(Cpu,"))
+    {
+        let d = tmp("lease_software");
+        let o = run(&["--steps", "2"], &d, true);
+        assert_eq!(o.status.code(), Some(3), "{}", text(&o));
+        assert!(text(&o).contains("no hardware GPU"), "{}", text(&o));
+        assert!(!d.join("device.csv").exists());
+    }
     let d = tmp("lease");
-    let o = run(&["--small", "--steps", "2", "--limit", "500"], &d, false);
+    let o = run(
+        &[
+            "--small",
+            "--steps",
+            "2",
+            "--limit",
+            "500",
+            "--check-refs",
+            "9",
+        ],
+        &d,
+        false,
+    );
     assert!(o.status.success(), "{}", text(&o));
+    // No references where SUITE_REFS points: said, before a call is spent on steps 9 and 10.
+    let log = std::fs::read_to_string(d.join("lease.log")).unwrap();
+    assert!(
+        log.contains("references of steps 9: NOT all usable here"),
+        "{log}"
+    );
     let mut names: Vec<String> = std::fs::read_dir(&d)
         .unwrap()
         .map(|e| {
@@ -870,6 +927,58 @@ fn device_benchmark_script_runs_only_the_steps_asked() {
     );
     let md = std::fs::read_to_string(d.join("device.md")).unwrap();
     assert!(md.contains("--small --steps 3"), "{md}");
+    // Step 9's references prepared on another machine (SUITE_REFS): with none there the step
+    // stops before anything renders; `--prepare-refs` renders them and nothing else (step 2
+    // dropped from the list); then step 9 reads them from there and renders none.
+    let refs = tmp("device_refs");
+    let with_refs = |args: &[&str], out: &std::path::Path| {
+        std::process::Command::new("bash")
+            .current_dir(&root)
+            .arg("bench/device.sh")
+            .args(args)
+            .args(["--out", out.to_str().unwrap()])
+            .env("NIMBUS", env!("CARGO_BIN_EXE_nimbus"))
+            .env("XDG_RUNTIME_DIR", "/tmp")
+            .env("SUITE_REFS", &refs)
+            .output()
+            .unwrap()
+    };
+    let d = tmp("device_step9_no_refs");
+    let o = with_refs(&["--small", "--steps", "9"], &d);
+    let log = std::fs::read_to_string(d.join("suite.log")).unwrap_or_default();
+    assert!(
+        !o.status.success() && log.contains("--ref-cached-only: 2 of 2 references"),
+        "{}\n{log}",
+        text(&o)
+    );
+    let o = with_refs(&["--small", "--check-refs", "--steps", "9"], &d);
+    assert!(
+        !o.status.success() && text(&o).contains("are not all in"),
+        "{}",
+        text(&o)
+    );
+    let d = tmp("device_prepare_refs");
+    let o = with_refs(&["--small", "--prepare-refs", "--steps", "2,9"], &d);
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("the references of suite (sun,sun+sky) are in"));
+    let csv = std::fs::read_to_string(d.join("device.csv")).unwrap_or_default();
+    assert!(csv.lines().count() <= 1, "step 2 ran: {csv}");
+    // 2 scenes (one cloud, back-lit, under sun and sun + sky) × 4 files.
+    assert_eq!(std::fs::read_dir(&refs).unwrap().count(), 8);
+    let o = with_refs(&["--small", "--check-refs", "--steps", "9"], &d);
+    assert!(
+        o.status.success() && text(&o).contains("are all in"),
+        "{}",
+        text(&o)
+    );
+    let d = tmp("device_step9_refs");
+    let o = with_refs(&["--small", "--steps", "9"], &d);
+    assert!(o.status.success(), "{}", text(&o));
+    let log = std::fs::read_to_string(d.join("suite.log")).unwrap();
+    assert!(
+        log.matches("reference: cached").count() == 2 && !log.contains("reference: pt "),
+        "{log}"
+    );
 }
 
 /// `training/device_stage.sh --small`: the GPU fine-tuning stage runs end to end on this

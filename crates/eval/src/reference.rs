@@ -21,7 +21,9 @@
 //! entry is four files named by the first 16 hex digits of the key: `<key>.exr` (RGB + variance
 //! channel), `<key>_diff.npy` (luminance of half A − half B per pixel), `<key>_tau.npy` (camera
 //! optical depth) and `<key>.json` (settings, spp reached, noise, time, the full key). An
-//! unreadable or mismatched entry is recomputed, never trusted.
+//! unreadable or mismatched entry is recomputed, never trusted; with
+//! [`ReferenceSettings::cached_only`] (`--ref-cached-only`) it is an error, as is a missing one,
+//! before anything renders.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -55,6 +57,9 @@ pub struct ReferenceSettings {
     pub device: RefDevice,
     /// Cache folder (`None`: no cache).
     pub cache_dir: Option<PathBuf>,
+    /// Only cached references: a missing one is an error before anything renders (references
+    /// prepared on one machine for a run on another whose time is short, e.g. a lent GPU's).
+    pub cached_only: bool,
 }
 
 /// A reference image.
@@ -128,14 +133,15 @@ pub fn cache_key(scene: &Scene, estimator: &str, settings: &ReferenceSettings) -
     h.finalize().iter().map(|b| format!("{b:02x}")).collect()
 }
 
-/// The reference of `scene`: from the cache when a matching entry exists, else rendered (and
-/// stored). `log` receives one line describing what happened.
-pub fn reference(
+/// A reference's four cache files: image, half difference, optical depth, metadata.
+type CacheFiles = (PathBuf, PathBuf, PathBuf, PathBuf);
+
+/// Whether `scene`'s reference is rendered on the GPU, its cache key and its cache files.
+fn cache_entry(
     scene: &Scene,
     settings: &ReferenceSettings,
     gpu: &mut GpuSlot,
-    log: &mut dyn FnMut(String),
-) -> Result<Reference> {
+) -> Result<(bool, String, Option<CacheFiles>)> {
     let use_gpu = match settings.device {
         RefDevice::Cpu => false,
         RefDevice::Gpu => {
@@ -147,7 +153,6 @@ pub fn reference(
     };
     let estimator = if use_gpu { "pt-gpu" } else { "pt" };
     let key = cache_key(scene, estimator, settings);
-    let (w, h) = (scene.camera.width, scene.camera.height);
     let files = settings.cache_dir.as_ref().map(|d| {
         let stem = d.join(&key[..16]);
         (
@@ -157,6 +162,53 @@ pub fn reference(
             stem.with_extension("json"),
         )
     });
+    Ok((use_gpu, key, files))
+}
+
+/// With [`ReferenceSettings::cached_only`]: an error naming every scene of `scenes` whose
+/// reference is not in the cache, before anything renders (none with it off).
+pub fn require_cached(
+    scenes: &[&Scene],
+    settings: &ReferenceSettings,
+    gpu: &mut GpuSlot,
+) -> Result<()> {
+    if !settings.cached_only {
+        return Ok(());
+    }
+    let mut missing = Vec::new();
+    for s in scenes {
+        let (_, key, files) = cache_entry(s, settings, gpu)?;
+        if !files.is_some_and(|f| f.3.exists()) {
+            missing.push(format!("{} (key {}…)", s.source.display(), &key[..16]));
+        }
+    }
+    if !missing.is_empty() {
+        anyhow::bail!(
+            "--ref-cached-only: {} of {} references are not in {}: {}; render them first with \
+             the same flags without --ref-cached-only",
+            missing.len(),
+            scenes.len(),
+            settings
+                .cache_dir
+                .as_ref()
+                .map_or("a cache (--no-cache)".into(), |d| d.display().to_string()),
+            missing.join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// The reference of `scene`: from the cache when a matching entry exists, else rendered (and
+/// stored). `log` receives one line describing what happened.
+pub fn reference(
+    scene: &Scene,
+    settings: &ReferenceSettings,
+    gpu: &mut GpuSlot,
+    log: &mut dyn FnMut(String),
+) -> Result<Reference> {
+    let (use_gpu, key, files) = cache_entry(scene, settings, gpu)?;
+    let estimator = if use_gpu { "pt-gpu" } else { "pt" };
+    let (w, h) = (scene.camera.width, scene.camera.height);
     if let Some((exr, diff, tau, json)) = &files
         && json.exists()
     {
@@ -171,10 +223,29 @@ pub fn reference(
                 ));
                 return Ok(r);
             }
+            Err(e) if settings.cached_only => {
+                return Err(e.context(format!(
+                    "the cached reference {} of {} is unreadable (--ref-cached-only)",
+                    json.display(),
+                    scene.source.display()
+                )));
+            }
             Err(e) => log(format!(
                 "reference: ignoring cache entry ({e:#}); rendering"
             )),
         }
+    }
+    if settings.cached_only {
+        anyhow::bail!(
+            "--ref-cached-only: no cached reference of {} ({w}x{h}, {estimator}, key {}…) in {}; \
+             render it first with the same flags without --ref-cached-only",
+            scene.source.display(),
+            &key[..16],
+            settings
+                .cache_dir
+                .as_ref()
+                .map_or("no cache (--no-cache)".into(), |d| d.display().to_string())
+        );
     }
     let t0 = Instant::now();
     let tau = nimbus_scene::tau::optical_depth_image(scene);

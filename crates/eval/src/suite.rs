@@ -229,6 +229,7 @@ pub fn run(opts: &SuiteOptions, out: &Path, log: &mut dyn FnMut(String)) -> Resu
     let clouds = held_out_clouds(opts.clouds, &opts.work_dir.join("clouds"))?;
     let mut gpu = GpuSlot::default();
     let mut rows = Vec::new();
+    let mut cases = Vec::new();
     for cloud in &clouds {
         for &l in &opts.lightings {
             for &sky in &opts.skies {
@@ -257,17 +258,27 @@ pub fn run(opts: &SuiteOptions, out: &Path, log: &mut dyn FnMut(String)) -> Resu
                 if sky == SkyCondition::SunEnv {
                     compare.methods.retain(|m| m.supports_env_map());
                 }
-                let c = compare_scene(
-                    &scene,
-                    &name,
-                    &compare,
-                    &work.join("scenes").join(&name),
-                    &mut gpu,
-                    log,
-                )?;
-                rows.extend(c.report.rows);
+                cases.push((name, scene, compare));
             }
         }
+    }
+    // Before any scene runs: each has blocks of cloud to measure, and (--ref-cached-only) its
+    // reference.
+    for (name, scene, _) in &cases {
+        crate::compare::check_cloud_blocks(scene, name)?;
+    }
+    let scenes: Vec<&Scene> = cases.iter().map(|c| &c.1).collect();
+    crate::reference::require_cached(&scenes, &opts.compare.reference, &mut gpu)?;
+    for (name, scene, compare) in &cases {
+        let c = compare_scene(
+            scene,
+            name,
+            compare,
+            &work.join("scenes").join(name),
+            &mut gpu,
+            log,
+        )?;
+        rows.extend(c.report.rows);
     }
     let md = results_markdown(opts, &rows, &clouds);
     let fig = error_vs_time(

@@ -386,7 +386,8 @@ impl Rpnn {
             let want = format!("sh{}", crate::sky::SH_DEGREE);
             if rpnn.sky_coeffs() == 0 || *sky != want {
                 return Err(format!(
-                    "metadata nimbus.rpnn.sky = {sky:?}, but the graph has {}: Nimbus reads                      `{want}`, a head of {} spherical-harmonic coefficients",
+                    "metadata nimbus.rpnn.sky = {sky:?}, but the graph has {}: Nimbus reads \
+                     `{want}`, a head of {} spherical-harmonic coefficients",
                     match rpnn.sky_coeffs() {
                         0 => "no sky head".to_string(),
                         n => format!("a sky head of {n} outputs"),
