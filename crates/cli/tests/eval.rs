@@ -888,18 +888,22 @@ fn device_lease_script_brings_back_what_the_device_tool_returns() {
 /// is unmeasured), and a list naming no step 1–10 is refused before anything runs.
 #[test]
 fn device_benchmark_script_runs_only_the_steps_asked() {
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let run = |args: &[&str], out: &std::path::Path| {
-        std::process::Command::new("bash")
-            .current_dir(&root)
+    // `bash bench/device.sh ARGS --out OUT` from the checkout's root with this build's binary,
+    // SUITE_REFS set where `refs` is given.
+    let device_sh = |args: &[&str], out: &std::path::Path, refs: Option<&std::path::Path>| {
+        let mut c = std::process::Command::new("bash");
+        c.current_dir(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../.."))
             .arg("bench/device.sh")
             .args(args)
             .args(["--out", out.to_str().unwrap()])
             .env("NIMBUS", env!("CARGO_BIN_EXE_nimbus"))
-            .env("XDG_RUNTIME_DIR", "/tmp")
-            .output()
-            .unwrap()
+            .env("XDG_RUNTIME_DIR", "/tmp");
+        if let Some(r) = refs {
+            c.env("SUITE_REFS", r);
+        }
+        c.output().unwrap()
     };
+    let run = |args: &[&str], out: &std::path::Path| device_sh(args, out, None);
     for bad in ["0", "11", "2,x", ","] {
         let d = tmp("device_bad_steps");
         let o = run(&["--small", "--steps", bad], &d);
@@ -931,18 +935,7 @@ fn device_benchmark_script_runs_only_the_steps_asked() {
     // stops before anything renders; `--prepare-refs` renders them and nothing else (step 2
     // dropped from the list); then step 9 reads them from there and renders none.
     let refs = tmp("device_refs");
-    let with_refs = |args: &[&str], out: &std::path::Path| {
-        std::process::Command::new("bash")
-            .current_dir(&root)
-            .arg("bench/device.sh")
-            .args(args)
-            .args(["--out", out.to_str().unwrap()])
-            .env("NIMBUS", env!("CARGO_BIN_EXE_nimbus"))
-            .env("XDG_RUNTIME_DIR", "/tmp")
-            .env("SUITE_REFS", &refs)
-            .output()
-            .unwrap()
-    };
+    let with_refs = |args: &[&str], out: &std::path::Path| device_sh(args, out, Some(&refs));
     let d = tmp("device_step9_no_refs");
     let o = with_refs(&["--small", "--steps", "9"], &d);
     let log = std::fs::read_to_string(d.join("suite.log")).unwrap_or_default();
