@@ -35,8 +35,8 @@
 # Steps 9 and 10 take their references (the CPU path tracer to 1 % noise per 4×4 cloud block,
 # as the CPU table's) from SUITE_REFS (default out/device_refs), and only from there: a
 # missing one stops the step before anything renders. `--prepare-refs --steps 9,10` renders
-# them on this machine instead (the 27 of the full size; their time: BENCHMARKS.md, "Device
-# benchmark"), to be carried to the GPU's; `--check-refs` only says whether they are all there
+# them on this machine instead (the 27 of the full size: 72 minutes on the 2-core machine,
+# BENCHMARKS.md "Device benchmark"), to be carried to the GPU's; `--check-refs` only says whether they are all there
 # for this machine's scenes (seconds). With --small and no SUITE_REFS the steps render their
 # own references into DIR/suite_cache. SUITE_REF replaces the reference flags (e.g.
 # "--ref-device gpu --ref-time-cap 30" with SUITE_CACHED_ONLY=0 renders them on the GPU).
