@@ -5,6 +5,7 @@ mod bad_inputs;
 mod budget;
 mod cli;
 mod common;
+mod device;
 mod eval;
 mod view;
 mod volumes;
