@@ -5,6 +5,7 @@
 //! per channel, with the standard sRGB transfer function. `exposure` defaults to the value that
 //! maps the 99th-percentile luminance of the non-black pixels to 0.9.
 
+use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
 
 use crate::error::{Error, Result};
@@ -99,11 +100,27 @@ impl Image {
     pub fn read_exr(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
         crate::memory::regular_file(path)?;
+        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+        Self::parse_exr(std::io::BufReader::new(file), path)
+    }
+
+    /// [`Image::read_exr`] on a reader (a file, or bytes in memory); `path` only names the
+    /// input in errors. Malformed input is an error, never a panic: the reader's own panics
+    /// (the `exr` crate's, on some damaged files) are caught and reported as errors.
+    pub fn parse_exr(mut reader: impl Read + Seek, path: &Path) -> Result<Self> {
         // The data window sizes the image: checked against the memory budget before the
         // pixels are allocated (a 10 kB file can claim 10⁶ × 10⁶ pixels). Every part counts:
         // the reader takes the first part with RGB channels, which need not be the first.
-        let meta = exr::meta::MetaData::read_from_file(path, false)
-            .map_err(|e| Error::parse(path, format!("cannot read EXR header: {e}")))?;
+        let damaged = |e: String| {
+            Error::parse(
+                path,
+                format!("cannot read EXR: the decoder failed on damaged data ({e})"),
+            )
+        };
+        let meta =
+            crate::contain::contain(|| exr::meta::MetaData::read_from_buffered(&mut reader, false))
+                .map_err(damaged)?
+                .map_err(|e| Error::parse(path, format!("cannot read EXR header: {e}")))?;
         for header in &meta.headers {
             let size = header.layer_size;
             crate::memory::check(
@@ -156,13 +173,28 @@ impl Image {
                 "holds 32-bit integers; radiance needs float or half",
             ));
         }
-        let img = exr::prelude::read_first_rgba_layer_from_file(
-            path,
-            |res, _| Image::new(res.width(), res.height()),
-            |img: &mut Image, pos, (r, g, b, _a): (f32, f32, f32, f32)| {
-                img.pixels[pos.y() * img.width + pos.x()] = [r, g, b];
-            },
-        )
+        reader
+            .seek(SeekFrom::Start(0))
+            .map_err(|e| Error::io(path, e))?;
+        // Blocks are decoded on this thread (`non_parallel`), where a decoder's panic can be
+        // caught: one on the crate's own decoder threads aborts the process.
+        use exr::prelude::{ReadChannels as _, ReadLayers as _};
+        let img = crate::contain::contain(|| {
+            exr::prelude::read()
+                .no_deep_data()
+                .largest_resolution_level()
+                .rgba_channels(
+                    |res, _| Image::new(res.width(), res.height()),
+                    |img: &mut Image, pos, (r, g, b, _a): (f32, f32, f32, f32)| {
+                        img.pixels[pos.y() * img.width + pos.x()] = [r, g, b];
+                    },
+                )
+                .first_valid_layer()
+                .all_attributes()
+                .non_parallel()
+                .from_buffered(reader)
+        })
+        .map_err(damaged)?
         .map_err(|e| Error::parse(path, format!("cannot read EXR: {e}")))?;
         let img = img.layer_data.channel_data.pixels;
         if let Some(i) = img

@@ -24,6 +24,7 @@ pub mod brick;
 pub mod build;
 pub mod camera;
 pub mod compare;
+pub mod contain;
 pub mod downsample;
 pub mod error;
 pub mod frame;
