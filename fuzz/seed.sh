@@ -4,7 +4,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 nimbus=target/release/nimbus
-for t in vol npy vdb nvdb scene onnx; do mkdir -p fuzz/corpus/$t; done
+for t in vol npy vdb nvdb scene onnx exr; do mkdir -p fuzz/corpus/$t; done
 "$nimbus" generate cumulus --res 8,6,8 --out fuzz/corpus/vol/cumulus.vol >/dev/null
 "$nimbus" generate stratus --res 6,4,6 --out fuzz/corpus/npy/stratus.npy >/dev/null
 # OpenVDB: every codec and the bad-input regressions; not the 214 kB uncompressed copy or the
@@ -18,4 +18,6 @@ cp crates/scene/tests/data/cloud.nvdb crates/scene/tests/data/cloud_blosc.nvdb \
 cp scenes/*.toml scenes/bench/*.toml fuzz/corpus/scene/
 # rpnn-micro.onnx (3.6 kB, a whole valid model) keeps the mutants of valid models small and fast.
 cp crates/rpnn/tests/data/*.onnx fuzz/corpus/onnx/
-echo "seeded fuzz/corpus/{vol,npy,vdb,nvdb,scene,onnx}"
+# EXR: a test pattern in each of the 8 compressions, half and float (16 files, 1–8 kB).
+cargo run -q --release -p nimbus-scene --example exr_codecs -- fuzz/corpus/exr
+echo "seeded fuzz/corpus/{vol,npy,vdb,nvdb,scene,onnx,exr}"
