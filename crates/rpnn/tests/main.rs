@@ -5,6 +5,7 @@ mod datagen;
 mod descriptor;
 mod gpu_sample;
 mod model;
+mod model_damage;
 mod precision;
 mod render;
 mod sky;

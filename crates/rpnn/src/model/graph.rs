@@ -172,6 +172,7 @@ impl<'a> Matcher<'a> {
                 n.name, n.op_type
             )
         };
+        check_attributes(n)?;
         let sym = match n.op_type.as_str() {
             "Slice" => {
                 if !matches!(self.value(n, 0)?, Sym::Input) {
@@ -277,6 +278,65 @@ impl<'a> Matcher<'a> {
         }
         Ok(())
     }
+}
+
+/// The attributes each operator of the architecture may carry, with their types (the ONNX
+/// operator schemas, default domain). ONNX Runtime refuses a node with any other attribute, an
+/// attribute of another type, or another domain; so does this reader, so that the WGSL network
+/// never runs a graph that ONNX Runtime would not. (A damaged name, `t+ansB` for `transB`, was
+/// read as an absent attribute: a square layer silently transposed.)
+pub(super) fn check_attributes(n: &NodeProto) -> Result<(), String> {
+    use onnx_protobuf::attribute_proto::AttributeType as T;
+    let node = || format!("node `{}` ({})", n.name, n.op_type);
+    if !n.domain.is_empty() && n.domain != "ai.onnx" {
+        return Err(format!(
+            "{}: operator domain `{}`; the RPNN graph uses ONNX's own operators",
+            node(),
+            n.domain
+        ));
+    }
+    let allowed: &[(&str, T)] = match n.op_type.as_str() {
+        "Gemm" => &[
+            ("alpha", T::FLOAT),
+            ("beta", T::FLOAT),
+            ("transA", T::INT),
+            ("transB", T::INT),
+        ],
+        "Concat" => &[("axis", T::INT)],
+        "Constant" => &[("value", T::TENSOR)],
+        _ => &[],
+    };
+    for (i, a) in n.attribute.iter().enumerate() {
+        let Some((_, want)) = allowed.iter().find(|(name, _)| *name == a.name) else {
+            let names: Vec<&str> = allowed.iter().map(|(name, _)| *name).collect();
+            return Err(format!(
+                "{}: attribute `{}` is not one of the operator's ({})",
+                node(),
+                a.name,
+                if names.is_empty() {
+                    "it has none".to_string()
+                } else {
+                    names.join(", ")
+                }
+            ));
+        };
+        let have = a.type_.enum_value();
+        if have != Ok(*want) {
+            return Err(format!(
+                "{}: attribute `{}` is of type {}, expected {want:?}",
+                node(),
+                a.name,
+                match have {
+                    Ok(t) => format!("{t:?}"),
+                    Err(code) => format!("code {code}"),
+                }
+            ));
+        }
+        if n.attribute[..i].iter().any(|b| b.name == a.name) {
+            return Err(format!("{}: attribute `{}` given twice", node(), a.name));
+        }
+    }
+    Ok(())
 }
 
 fn not_rpnn(msg: &str) -> String {

@@ -312,6 +312,7 @@ impl Rpnn {
             .collect();
         for n in &graph.node {
             if n.op_type == "Constant" {
+                graph::check_attributes(n)?;
                 let t = n
                     .attribute
                     .iter()
