@@ -95,25 +95,6 @@ fn node_attributes_onnx_runtime_refuses_are_refused() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
-/// `n` copies of `bytes` with one to three bytes changed each, from a fixed-seed LCG.
-fn mutants(bytes: &[u8], seed: u64, n: usize) -> impl Iterator<Item = Vec<u8>> + '_ {
-    let mut state = seed;
-    let mut next = move || {
-        state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (state >> 33) as usize
-    };
-    (0..n).map(move |_| {
-        let mut m = bytes.to_vec();
-        for _ in 0..1 + next() % 3 {
-            let i = next() % m.len();
-            m[i] = next() as u8;
-        }
-        m
-    })
-}
-
 /// Damaged copies of the fixtures that both readers take compute the same in both: a weight,
 /// a shape or an attribute read one way by Nimbus and another by ONNX Runtime would be two
 /// backends rendering two images. (Of 4 500 such copies 2 were taken by the reader alone: an
@@ -121,9 +102,11 @@ fn mutants(bytes: &[u8], seed: u64, n: usize) -> impl Iterator<Item = Vec<u8>> +
 /// changes what the reader computes.)
 #[test]
 fn damaged_models_that_both_readers_take_compute_the_same() {
+    use proptest::prelude::*;
+    use proptest::test_runner::{Config, FileFailurePersistence, RngAlgorithm, TestRng};
     let dir = std::env::temp_dir().join(format!("nimbus-damaged-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let mut both = 0;
+    let both = std::cell::Cell::new(0);
     for (f, file) in ["rpnn-micro.onnx", "rpnn-tiny.onnx", "rpnn-tiny-sky.onnx"]
         .into_iter()
         .enumerate()
@@ -138,35 +121,52 @@ fn damaged_models_that_both_readers_take_compute_the_same() {
                 (state >> 40) as f32 / (1u64 << 24) as f32
             })
             .collect();
-        for (k, m) in mutants(&bytes, 0x5eed + f as u64, 300).enumerate() {
-            let Ok(model) = Rpnn::from_bytes(&m) else {
-                continue;
-            };
-            let path = dir.join(format!("{k}-{file}"));
-            std::fs::write(&path, &m).unwrap();
-            let Ok(mut ort) = OrtModel::load(&path, 1) else {
-                continue;
-            };
-            let got = ort.predict(&xs, 8).unwrap();
-            let per = model.outputs_per_query();
-            for q in 0..8 {
-                let cpu = model.forward(&xs[q * width..(q + 1) * width]);
-                for (a, b) in cpu.iter().zip(&got[q * per..(q + 1) * per]) {
-                    // Two float32 evaluations of the same layers in another order: 1e-5 of
-                    // the O(1) output scale, as for the undamaged model.
-                    assert!(
-                        (a - b).abs() <= 1e-5 * a.abs().max(1.0),
-                        "{file} copy {k}: reader {a}, ONNX Runtime {b}"
-                    );
+        // One to three bytes replaced anywhere; fixed seed, no failure files.
+        let config = Config {
+            cases: 300,
+            failure_persistence: Some(Box::new(FileFailurePersistence::Off)),
+            ..Config::default()
+        };
+        let rng = TestRng::from_seed(RngAlgorithm::ChaCha, &[f as u8 + 1; 32]);
+        let damage = prop::collection::vec((0..bytes.len(), any::<u8>()), 1..=3);
+        proptest::test_runner::TestRunner::new_with_rng(config, rng)
+            .run(&damage, |changes| {
+                let mut m = bytes.clone();
+                for (i, v) in changes {
+                    m[i] = v;
                 }
-            }
-            both += 1;
-            std::fs::remove_file(&path).ok();
-        }
+                let Ok(model) = Rpnn::from_bytes(&m) else {
+                    return Ok(());
+                };
+                let path = dir.join(file);
+                std::fs::write(&path, &m).unwrap();
+                let Ok(mut ort) = OrtModel::load(&path, 1) else {
+                    return Ok(());
+                };
+                let got = ort.predict(&xs, 8).unwrap();
+                let per = model.outputs_per_query();
+                for q in 0..8 {
+                    let cpu = model.forward(&xs[q * width..(q + 1) * width]);
+                    for (a, b) in cpu.iter().zip(&got[q * per..(q + 1) * per]) {
+                        // Two float32 evaluations of the same layers in another order: 1e-5
+                        // of the O(1) output scale, as for the undamaged model.
+                        prop_assert!(
+                            (a - b).abs() <= 1e-5 * a.abs().max(1.0),
+                            "reader {}, ONNX Runtime {}",
+                            a,
+                            b
+                        );
+                    }
+                }
+                both.set(both.get() + 1);
+                Ok(())
+            })
+            .unwrap_or_else(|e| panic!("{file}: {e}"));
     }
     // In the two tiny models most damage lands in the weights, which both take (bounded and
-    // finite): about two thirds of their copies; in the 3.6 kB micro model, a few. 396 of the
-    // 900 here: the comparison ran on many graphs, not on a few survivors.
+    // finite): about two thirds of their copies; in the 3.6 kB micro model, a few. 432 of
+    // the 900 here: the comparison ran on many graphs, not on a few survivors.
+    let both = both.get();
     assert!(both > 300, "{both}");
     std::fs::remove_dir_all(&dir).ok();
 }
