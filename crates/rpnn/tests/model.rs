@@ -75,6 +75,28 @@ fn parameter_count_matches_the_training_script() {
     assert_eq!(m.parameters(), expected);
 }
 
+/// Writes `bytes` edited by `edit` to `dir/file.onnx` and checks that [`Rpnn::load`] refuses
+/// it, naming the file and saying `says`; returns the path.
+pub(crate) fn refused_edit(
+    bytes: &[u8],
+    dir: &Path,
+    file: &str,
+    edit: fn(&mut onnx_protobuf::ModelProto),
+    says: &str,
+) -> PathBuf {
+    use protobuf::Message;
+    let mut m = onnx_protobuf::ModelProto::parse_from_bytes(bytes).unwrap();
+    edit(&mut m);
+    let path = dir.join(format!("{file}.onnx"));
+    std::fs::write(&path, m.write_to_bytes().unwrap()).unwrap();
+    let e = Rpnn::load(&path).unwrap_err().to_string();
+    assert!(
+        e.contains(&format!("{file}.onnx")) && e.contains(says),
+        "{file}: {e}"
+    );
+    path
+}
+
 #[test]
 fn other_graphs_and_bad_files_are_refused() {
     let e = Rpnn::load(&data("not-rpnn.onnx")).unwrap_err().to_string();
@@ -225,15 +247,7 @@ fn other_graphs_and_bad_files_are_refused() {
     ];
     for (source, file, edit, says) in edits {
         let bytes = std::fs::read(data(source)).unwrap();
-        let mut m = onnx_protobuf::ModelProto::parse_from_bytes(&bytes).unwrap();
-        edit(&mut m);
-        let path = dir.join(format!("{file}.onnx"));
-        std::fs::write(&path, m.write_to_bytes().unwrap()).unwrap();
-        let e = Rpnn::load(&path).unwrap_err().to_string();
-        assert!(
-            e.contains(&format!("{file}.onnx")) && e.contains(says),
-            "{file}: {e}"
-        );
+        refused_edit(&bytes, &dir, file, edit, says);
     }
     // The same entries, stated rightly, are read.
     let mut m = onnx_protobuf::ModelProto::parse_from_bytes(&bytes).unwrap();

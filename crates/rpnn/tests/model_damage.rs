@@ -4,7 +4,7 @@
 use nimbus_rpnn::model::Rpnn;
 use nimbus_rpnn::ort_backend::OrtModel;
 
-use crate::model::data;
+use crate::model::{data, refused_edit};
 
 /// Node attributes outside the operator's schema: ONNX Runtime refuses such a graph, and so must
 /// the reader behind the WGSL network. Found by loading 4 500 damaged copies of the fixtures
@@ -13,7 +13,7 @@ use crate::model::data;
 #[test]
 fn node_attributes_onnx_runtime_refuses_are_refused() {
     use onnx_protobuf::attribute_proto::AttributeType;
-    use protobuf::{EnumOrUnknown, Message};
+    use protobuf::EnumOrUnknown;
     let bytes = std::fs::read(data("rpnn-micro.onnx")).unwrap();
     let dir = std::env::temp_dir().join(format!("nimbus-attrs-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
@@ -75,15 +75,7 @@ fn node_attributes_onnx_runtime_refuses_are_refused() {
         ),
     ];
     for (file, edit, says) in edits {
-        let mut m = onnx_protobuf::ModelProto::parse_from_bytes(&bytes).unwrap();
-        edit(&mut m);
-        let path = dir.join(format!("{file}.onnx"));
-        std::fs::write(&path, m.write_to_bytes().unwrap()).unwrap();
-        let e = Rpnn::load(&path).unwrap_err().to_string();
-        assert!(
-            e.contains(&format!("{file}.onnx")) && e.contains(says),
-            "{file}: {e}"
-        );
+        let path = refused_edit(&bytes, &dir, file, edit, says);
         assert!(
             OrtModel::load(&path, 1).is_err(),
             "{file}: ONNX Runtime took it"
