@@ -28,6 +28,7 @@ pub mod contain;
 pub mod downsample;
 pub mod error;
 pub mod frame;
+pub mod fsio;
 pub mod generate;
 pub mod grid;
 pub mod image;
