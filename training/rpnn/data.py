@@ -16,7 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from . import safe_io
 from .model import DESCRIPTOR_LEN
+from .safe_io import InputError
 
 FORMAT = "nimbus-rpnn-records/2"
 # Version 1 (13 meta columns, no validation split) reads the same way.
@@ -29,7 +31,7 @@ FORMATS = ("nimbus-rpnn-records/1", FORMAT)
 MAX_TARGET = 1e6
 
 
-class DataError(ValueError):
+class DataError(InputError):
     """A record set that cannot be used; the message names the file and the field."""
 
 
@@ -53,7 +55,7 @@ def gamma_of(meta: np.ndarray) -> np.ndarray:
 
 
 def manifest_hash(root: Path) -> str:
-    return hashlib.sha256((Path(root) / "manifest.json").read_bytes()).hexdigest()
+    return hashlib.sha256(safe_io.read_bytes(Path(root) / "manifest.json")).hexdigest()
 
 
 def set_identity(root: Path) -> str:
@@ -72,13 +74,12 @@ def read_manifest(root: Path) -> dict:
     if Path(root).exists() and not Path(root).is_dir():
         raise DataError(f"{root}: not a folder (a `nimbus datagen --out` folder is expected)")
     try:
-        m = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise DataError(f"{path}: not found (run `nimbus datagen --out {root}` first)") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise DataError(f"{path}: not valid JSON ({e})") from None
-    except OSError as e:
-        raise DataError(f"{path}: cannot be read ({e})") from None
+        m = safe_io.load_json(path, what="the set's manifest (a JSON file)")
+    except InputError as e:
+        if e.missing:
+            raise DataError(f"{path}: not found (run `nimbus datagen --out {root}` first)") \
+                from None
+        raise DataError(str(e)) from None
     if not isinstance(m, dict):
         raise DataError(f"{path}: expected a JSON object, got {type(m).__name__}")
     if m.get("format") not in FORMATS:
@@ -100,6 +101,12 @@ def read_manifest(root: Path) -> dict:
                 # A shard is a file name inside the set's folder: not a path that leaves it.
                 raise DataError(f"{path}: shards[{i}].{key} is {f!r}, expected a file name in "
                                 f"the set's folder")
+        sums = sh.get("sha256")
+        if "sha256" in sh and not (isinstance(sums, list) and len(sums) == 3 and all(
+                isinstance(h, str) and len(h) == 64 and all(c in "0123456789abcdef" for c in h)
+                for h in sums)):
+            raise DataError(f"{path}: shards[{i}].sha256 is {sums!r:.120}, expected the hex "
+                            f"SHA-256 of the x, y and meta files (3 strings of 64 digits)")
         if "records" in sh and not (isinstance(sh["records"], int)
                                     and not isinstance(sh["records"], bool)
                                     and sh["records"] >= 0):
@@ -108,13 +115,45 @@ def read_manifest(root: Path) -> dict:
     return m
 
 
-def _load(path: Path, shape_tail: tuple, dtypes=(np.float32,)) -> np.ndarray:
+class _Sums:
+    """The manifest's SHA-256 of one shard's files (none for sets written before there were
+    any): each file is hashed from the bytes it is read from and compared."""
+
+    def __init__(self, manifest: Path, i: int, entry: dict, check: bool):
+        self.manifest, self.i = manifest, i
+        self.want = entry.get("sha256") if check else None
+
+    def verify(self, path: Path, which: int, have: str | None) -> None:
+        if self.want is None or have is None:
+            return
+        want = self.want[which]
+        if have != want:
+            raise DataError(f"{path}: SHA-256 {have[:16]}… differs from the manifest's "
+                            f"shards[{self.i}].sha256[{which}] ({want[:16]}…) in "
+                            f"{self.manifest}: the file is damaged or was changed after datagen "
+                            f"wrote it (rerunning the `nimbus datagen` command that wrote the set "
+                            f"recomputes it)")
+
+
+def _read_npy(path: Path, sums: _Sums | None = None, which: int = 0) -> np.ndarray:
+    """A memory-mapped .npy array (DataError naming the file when unreadable or when its
+    SHA-256 is not the manifest's)."""
+    digest = sums is not None and sums.want is not None
     try:
-        a = np.load(path, mmap_mode="r", allow_pickle=False)
-    except FileNotFoundError:
-        raise DataError(f"{path}: not found (the manifest lists it)") from None
-    except (ValueError, EOFError, OverflowError, OSError) as e:
-        raise DataError(f"{path}: not a readable .npy file ({e})") from None
+        got = safe_io.load_npy(path, mmap=True, digest=digest)
+    except InputError as e:
+        if e.missing:
+            raise DataError(f"{path}: not found (the manifest lists it)") from None
+        raise DataError(str(e)) from None
+    if digest:
+        got, have = got
+        sums.verify(path, which, have)
+    return got
+
+
+def _load(path: Path, shape_tail: tuple, dtypes=(np.float32,), sums: _Sums | None = None,
+          which: int = 0) -> np.ndarray:
+    a = _read_npy(path, sums, which)
     if not isinstance(a, np.ndarray) or a.ndim == 0:
         raise DataError(f"{path}: not an array")
     if a.dtype not in dtypes or a.shape[1:] != shape_tail:
@@ -124,14 +163,9 @@ def _load(path: Path, shape_tail: tuple, dtypes=(np.float32,)) -> np.ndarray:
     return a
 
 
-def _load_any(path: Path) -> np.ndarray:
+def _load_any(path: Path, sums: _Sums | None = None, which: int = 2) -> np.ndarray:
     """A memory-mapped .npy array of any shape (DataError naming the file when unreadable)."""
-    try:
-        return np.load(path, mmap_mode="r", allow_pickle=False)
-    except FileNotFoundError:
-        raise DataError(f"{path}: not found (the manifest lists it)") from None
-    except (ValueError, EOFError, OverflowError, OSError) as e:
-        raise DataError(f"{path}: not a readable .npy file ({e})") from None
+    return _read_npy(path, sums, which)
 
 
 def advise_random(a: np.ndarray) -> None:
@@ -145,7 +179,11 @@ def advise_random(a: np.ndarray) -> None:
 
 
 def load_shards(root: Path, split: str, check: bool = True) -> list[Shard]:
-    """The shards of ``split`` ("train", "val" or "test"), checked for shape and finite values."""
+    """The shards of ``split`` ("train", "val" or "test"), checked for shape and finite values
+    and, where the manifest lists them (field ``shards[i].sha256``), against the SHA-256 of
+    their x, y and meta files. ``check=False`` (``train.py --no-check``) trusts the set: neither
+    the values nor the sums are checked, so a set larger than the page cache is not read in
+    full at the start."""
     root = Path(root)
     m = read_manifest(root)
     shards = []
@@ -155,14 +193,20 @@ def load_shards(root: Path, split: str, check: bool = True) -> list[Shard]:
         for key in ("x", "y", "records"):
             if key not in s:
                 raise DataError(f"{root / 'manifest.json'}: shards[{i}] has no field '{key}'")
-        x = _load(root / s["x"], (DESCRIPTOR_LEN,), (np.float32, np.float16))
-        y = _load(root / s["y"], ())
+        sums = _Sums(root / "manifest.json", i, s, check)
+        if sums.want is not None and "meta" not in s:
+            raise DataError(f"{root / 'manifest.json'}: shards[{i}] has field 'sha256' but no "
+                            f"field 'meta'")
+        x = _load(root / s["x"], (DESCRIPTOR_LEN,), (np.float32, np.float16), sums, 0)
+        y = _load(root / s["y"], (), sums=sums, which=1)
+        meta = _load_any(root / s["meta"], sums, 2) if sums.want is not None else None
         gamma = None
         if x.dtype == np.float16:
             if "meta" not in s:
                 raise DataError(f"{root / 'manifest.json'}: shards[{i}] has float16 descriptors "
                                 f"but no field 'meta' (gamma is taken from it)")
-            meta = _load_any(root / s["meta"])
+            if meta is None:
+                meta = _load_any(root / s["meta"])
             if meta.ndim != 2 or meta.shape[0] != len(x) or meta.shape[1] < 10:
                 raise DataError(f"{root / s['meta']}: expected [n >= {len(x)}, >= 10] meta, "
                                 f"got {list(meta.shape)}")
@@ -221,14 +265,14 @@ def _split_meta(root: Path, split: str):
     """(shard entry, its meta array memory-mapped or None) for each shard of `split`."""
     for s in read_manifest(root).get("shards", []):
         if s.get("split") == split:
-            yield s, (np.load(root / s["meta"], mmap_mode="r") if s.get("meta") else None)
+            yield s, (_load_any(root / s["meta"]) if s.get("meta") else None)
 
 
 def label_noise(root: Path, split: str) -> np.ndarray:
     """Relative standard deviation of every label of `split` (NaN where unknown)."""
     out = []
     for s, meta in _split_meta(root, split):
-        y = np.load(root / s["y"], mmap_mode="r").astype(np.float64)
+        y = _load_any(root / s["y"]).astype(np.float64)
         if meta is None or meta.ndim != 2 or meta.shape[1] <= 13:  # no label variance
             out.append(np.full(len(y), np.nan))
             continue

@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from . import safe_io
+
 INPUT_NAME = "descriptor"
 OUTPUT_NAME = "radiance"
 OPSET = 17
@@ -68,7 +70,7 @@ def _export_onnx(model: torch.nn.Module, path: Path, extra_metadata: dict | None
             do_constant_folding=True,
             dynamo=False,
         )
-    m = onnx.load(str(path))
+    m = onnx.load_from_string(safe_io.read_bytes(path, what="an ONNX model"))
     meta = {"nimbus.rpnn.config": json.dumps(model.config())}
     meta.update({k: json.dumps(v) if not isinstance(v, str) else v for k, v in (extra_metadata or {}).items()})
     for k, v in meta.items():
@@ -79,12 +81,16 @@ def _export_onnx(model: torch.nn.Module, path: Path, extra_metadata: dict | None
     onnx.save(m, str(path))
 
 
-def onnx_predict(path: Path, x: np.ndarray) -> np.ndarray:
+def onnx_predict(path: Path, x: np.ndarray, data: bytes | None = None) -> np.ndarray:
+    """onnxruntime's output for rows ``x``: of the model ``data`` (its bytes, already read) or
+    else of the file at ``path`` (read through :mod:`rpnn.safe_io`)."""
     import onnxruntime as ort
 
+    if data is None:
+        data = safe_io.read_bytes(path, what="an ONNX model")
     opts = ort.SessionOptions()
     opts.log_severity_level = 3
-    sess = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+    sess = ort.InferenceSession(data, opts, providers=["CPUExecutionProvider"])
     return sess.run([OUTPUT_NAME], {INPUT_NAME: np.ascontiguousarray(x, dtype=np.float32)})[0]
 
 
@@ -96,32 +102,36 @@ def max_relative_difference(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.max(np.abs(a - b) / np.maximum(np.abs(b), floor)))
 
 
-def verify(model: torch.nn.Module, path: Path, x: np.ndarray) -> dict:
-    """Runs torch and onnxruntime on the same rows; returns the comparison."""
+def verify(model: torch.nn.Module, path: Path, x: np.ndarray, data: bytes | None = None) -> dict:
+    """Runs torch and onnxruntime on the same rows; returns the comparison. ``data``: the ONNX
+    file's bytes when already read."""
     model = model.eval().cpu()
     with torch.no_grad():
         ref = model(torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))).numpy()
-    got = onnx_predict(path, x)
+    got = onnx_predict(path, x, data)
     if got.shape != ref.shape:
         raise RuntimeError(f"{path}: onnxruntime output shape {got.shape} != torch {ref.shape}")
     d = max_relative_difference(got, ref)
     return {"rows": int(len(x)), "max_relative_difference": d, "passed": bool(d < 1e-5)}
 
 
-def import_onnx(model: torch.nn.Module, path: Path) -> None:
+def import_onnx(model: torch.nn.Module, path: Path, data: bytes | None = None) -> None:
     """Loads the weights of an ONNX file written by :func:`export_onnx` into ``model`` (same
     architecture): initialisers named like the state dict are copied; the bias-free W1 layers,
     which the exporter writes as a MatMul with the transposed weight under a generated name,
     are found through their node (``/blocks.K/W1/MatMul``). Checked against onnxruntime on
-    random rows; raises ``ValueError`` naming the file on any mismatch."""
+    random rows; raises ``ValueError`` naming the file on any mismatch (``safe_io.InputError``
+    when the file cannot be read). ``data``: the file's bytes when already read."""
     import re
 
     import onnx
     from onnx import numpy_helper
 
     path = Path(path)
+    if data is None:
+        data = safe_io.read_bytes(path, what="an ONNX model")
     try:
-        graph = onnx.load(str(path)).graph
+        graph = onnx.load_from_string(data).graph
     except Exception as e:  # noqa: BLE001 - any parse failure is reported with the file
         raise ValueError(f"{path}: not a readable ONNX file ({e})") from None
     inits = {i.name: numpy_helper.to_array(i) for i in graph.initializer}
@@ -142,7 +152,7 @@ def import_onnx(model: torch.nn.Module, path: Path) -> None:
     model.load_state_dict({k: torch.from_numpy(np.array(v, dtype=np.float32)) for k, v in
                            weights.items()})
     x = np.random.default_rng(0).random((64, model.input_len), dtype=np.float32)
-    check = verify(model, path, x)
+    check = verify(model, path, x, data)
     # Random rows are no cloud's descriptor: the network's outputs there are near 0 (0 … 0.01
     # against ≈ 0.05 on real records), left by cancellation, where fp32 summation order alone
     # moves them by up to ≈ 2e-5 relative (seen on a weight-space blend); a weight imported

@@ -2,6 +2,7 @@
 throughput benchmark (`bench/train_throughput.py`): the network's cost does not depend on the
 values, and the tests need a smooth target the network can learn."""
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -19,8 +20,11 @@ def synthetic_target(x: np.ndarray) -> np.ndarray:
     return (0.3 * np.exp(-near) * (1.2 + np.cos(gamma)) + 0.1 * far).astype(np.float32)
 
 
-def write_set(root: Path, n_train: int, n_test: int, seed: int = 0, shard: int = 100) -> Path:
-    """A record set in the `nimbus datagen` layout with synthetic descriptors and targets."""
+def write_set(root: Path, n_train: int, n_test: int, seed: int = 0, shard: int = 100,
+              sha256: bool = False) -> Path:
+    """A record set in the `nimbus datagen` layout with synthetic descriptors and targets.
+    ``sha256``: the manifest lists each shard file's SHA-256 (field ``shards[i].sha256``, as
+    `nimbus datagen` writes it)."""
     rng = np.random.default_rng(seed)
     root.mkdir(parents=True, exist_ok=True)
     shards = []
@@ -37,7 +41,11 @@ def write_set(root: Path, n_train: int, n_test: int, seed: int = 0, shard: int =
             np.save(root / names["x"], x)
             np.save(root / names["y"], y)
             np.save(root / names["meta"], np.zeros((m, 13), np.float32))
-            shards.append({"split": split, "index": k, "records": m, "converged": m, **names})
+            entry = {"split": split, "index": k, "records": m, "converged": m, **names}
+            if sha256:
+                entry["sha256"] = [hashlib.sha256((root / names[w]).read_bytes()).hexdigest()
+                                   for w in ("x", "y", "meta")]
+            shards.append(entry)
     manifest = {
         "format": "nimbus-rpnn-records/1",
         "descriptor_len": DESCRIPTOR_LEN,
