@@ -26,12 +26,19 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from rpnn import data as rdata  # noqa: E402
 from rpnn import export as rexport  # noqa: E402
+from rpnn import safe_io  # noqa: E402
 from rpnn.model import RPNN  # noqa: E402
 
 import train  # noqa: E402
 
 
 def main(argv=None) -> dict:
+    # A set or file that cannot be used (the message names it): one line, exit status 2.
+    with safe_io.reporting_input_errors():
+        return _main(argv)
+
+
+def _main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--data", required=True, type=Path)
     p.add_argument("--model", required=True, type=Path, help="an ONNX file written by train.py")
@@ -46,17 +53,23 @@ def main(argv=None) -> dict:
                         "as a further held-out set, replacing an entry for the same set: the "
                         "card then shows held-out clouds beyond its own test set (e.g. sets no "
                         "stage selected on)")
+    p.add_argument("--max-memory", metavar="SIZE",
+                   help="memory budget (6G, 512M, bytes): no file larger is read (default: "
+                        "NIMBUS_MAX_MEMORY, else 3/4 of the physical memory or of the cgroup's "
+                        "limit)")
     args = p.parse_args(argv)
+    try:
+        safe_io.set_budget(None if args.max_memory is None else
+                           safe_io.parse_size(args.max_memory))
+    except ValueError as e:
+        p.error(f"--max-memory {e}")
     if args.card:
         if args.split and args.split != ["test"]:
             p.error("--card records the test split only (drop --split or give --split test)")
         args.split = ["test"]
         card, model_sha = card_entry(args.model, args.data)
     model, meta = load_model(args.model)
-    try:
-        manifest = rdata.read_manifest(args.data)
-    except rdata.DataError as e:
-        raise SystemExit(f"error: {e}") from None
+    manifest = rdata.read_manifest(args.data)
     # A model scored on records of another medium measures nothing (the renderer warns too).
     st = manifest.get("settings", {})
     for key in ("phase", "albedo"):
@@ -77,10 +90,7 @@ def main(argv=None) -> dict:
     names = {"val": "validation", "test": "test", "train": "training"}
     for split in args.split or ["val", "test"]:
         name = names[split]
-        try:
-            recs = rdata.Records(rdata.load_shards(args.data, split))
-        except rdata.DataError as e:
-            raise SystemExit(f"error: {e}") from None
+        recs = rdata.Records(rdata.load_shards(args.data, split))
         if not len(recs):
             if args.split:
                 # Asked for by name: say so rather than print nothing.
@@ -119,16 +129,22 @@ def load_model(path: Path) -> tuple[RPNN, dict]:
     import onnx
     from google.protobuf.message import DecodeError
 
-    if not path.is_file():
-        raise SystemExit(f"error: {path}: {'a folder' if path.is_dir() else 'no such file'}"
-                         f" (--model names an ONNX file written by train.py)")
     try:
-        meta = {m.key: m.value for m in onnx.load(str(path)).metadata_props}
+        data = safe_io.read_bytes(path, what="an ONNX file written by train.py (--model)")
+    except safe_io.InputError as e:
+        if e.missing:
+            raise safe_io.InputError(f"{e} (--model names an ONNX file written by train.py)",
+                                     missing=True) from None
+        raise
+    try:
+        meta = {m.key: m.value for m in onnx.load_from_string(data).metadata_props}
         config = json.loads(meta.get("nimbus.rpnn.config", "{}")) or {}
         if not isinstance(config, dict):
             raise ValueError("metadata field `nimbus.rpnn.config` is not a JSON object")
         model = RPNN(**config)
-        rexport.import_onnx(model, path)
+        rexport.import_onnx(model, path, data=data)
+    except safe_io.InputError:
+        raise
     except (DecodeError, OSError, json.JSONDecodeError) as e:
         raise SystemExit(f"error: {path}: not a readable RPNN model ({e})") from None
     except (ValueError, TypeError) as e:
@@ -145,23 +161,22 @@ def card_entry(model: Path, root: Path) -> tuple[dict, str]:
     check). Returns the card's entry for ``root`` without the errors, and the model file's
     sha256."""
     card_path = model.with_suffix(".json")
-    if not card_path.exists():
-        raise SystemExit(f"error: {card_path}: no model card next to {model} (--card)")
     try:
-        card = json.loads(card_path.read_text())
-        if not isinstance(card, dict) or not isinstance(card.get("data", {}), dict):
-            raise ValueError("expected a JSON object with a `data` object")
-    except (ValueError, OSError) as e:
-        raise SystemExit(f"error: {card_path}: not a model card ({e})") from None
-    sha = hashlib.sha256(model.read_bytes()).hexdigest()
+        card = safe_io.load_json(card_path, what="a model card (JSON)")
+    except safe_io.InputError as e:
+        if e.missing:
+            raise safe_io.InputError(f"{card_path}: no model card next to {model} (--card)",
+                                     missing=True) from None
+        raise
+    if not isinstance(card, dict) or not isinstance(card.get("data", {}), dict):
+        raise safe_io.InputError(f"{card_path}: not a model card (expected a JSON object with "
+                                 f"a `data` object)")
+    sha = hashlib.sha256(safe_io.read_bytes(model, what="an ONNX file (--model)")).hexdigest()
     if card.get("model_sha256", sha) != sha:
         raise SystemExit(f"error: {card_path} describes another file (sha256 "
                          f"{card['model_sha256'][:16]}…) than {model} ({sha[:16]}…): --card "
                          f"would attach these errors to the wrong model")
-    try:
-        m = rdata.read_manifest(root)
-    except rdata.DataError as e:
-        raise SystemExit(f"error: {e}") from None
+    m = rdata.read_manifest(root)
     h = rdata.manifest_hash(root)
     own = [str(card["data"].get("manifest_sha256") or ""),
            str((card["data"].get("test_set") or {}).get("manifest_sha256") or "")]
@@ -182,7 +197,7 @@ def add_to_card(model: Path, model_sha: str, entry: dict, err: dict) -> None:
     named by its folder, manifest hash, seed and label settings; the same set (manifest hash)
     replaces its earlier entry in place."""
     card_path = model.with_suffix(".json")
-    card = json.loads(card_path.read_text())
+    card = safe_io.load_json(card_path, what="a model card (JSON)")
     # A card written before cards named their file: it describes this one from now on.
     card.setdefault("model_sha256", model_sha)
     new = {**entry, "errors": err}

@@ -29,6 +29,10 @@ from pathlib import Path
 import numpy as np
 import onnx
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from rpnn import safe_io  # noqa: E402
+
 INT8_OF = "nimbus.rpnn.int8_of"
 INT8_HOW = "nimbus.rpnn.int8"
 HOW = "dynamic: int8 weights per output channel, u8 activations per batch; heads in f32"
@@ -40,7 +44,7 @@ def int8_path(model: Path) -> Path:
 
 
 def sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+    return hashlib.sha256(safe_io.read_bytes(path, what="an ONNX model")).hexdigest()
 
 
 def head_layers(model: onnx.ModelProto) -> list[str]:
@@ -60,8 +64,9 @@ def quantize(src: Path, dst: Path | None = None) -> Path:
     from onnxruntime.quantization import QuantType, quantize_dynamic
 
     dst = dst or int8_path(src)
+    data = safe_io.read_bytes(src, what="an ONNX model")
     try:
-        model = onnx.load(str(src))
+        model = onnx.load_from_string(data)
     except Exception as e:  # noqa: BLE001 - any unreadable file gets the same message
         raise SystemExit(f"{src}: not an ONNX model ({e})")
     heads = head_layers(model)
@@ -70,15 +75,15 @@ def quantize(src: Path, dst: Path | None = None) -> Path:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "q.onnx"
         quantize_dynamic(
-            str(src),
+            onnx.load_from_string(data),  # the bytes read and checked above, not the path again
             str(out),
             weight_type=QuantType.QInt8,
             per_channel=True,
             nodes_to_exclude=heads,
         )
-        q = onnx.load(str(out))
+        q = onnx.load_from_string(safe_io.read_bytes(out, what="an ONNX model"))
     meta = {p.key: p.value for p in model.metadata_props}
-    meta[INT8_OF] = sha256(src)
+    meta[INT8_OF] = hashlib.sha256(data).hexdigest()
     meta[INT8_HOW] = HOW
     del q.metadata_props[:]
     for k, v in sorted(meta.items()):
@@ -92,7 +97,8 @@ def session(path: Path, threads: int = 2):
 
     o = ort.SessionOptions()
     o.intra_op_num_threads = threads
-    return ort.InferenceSession(str(path), o, providers=["CPUExecutionProvider"])
+    return ort.InferenceSession(safe_io.read_bytes(path, what="an ONNX model"), o,
+                                providers=["CPUExecutionProvider"])
 
 
 def predict(sess, x: np.ndarray, batch: int) -> np.ndarray:
@@ -107,19 +113,15 @@ def predict(sess, x: np.ndarray, batch: int) -> np.ndarray:
 def compare(src: Path, dst: Path, records: Path, n: int, batch: int) -> dict:
     """Both models on the first `n` records of the set's test split, else its validation split
     (never training records), `batch` rows per run."""
-    sys.path.insert(0, str(Path(__file__).parent))
     from rpnn import data as rdata
 
-    try:
-        for split in ("test", "val"):
-            shards = rdata.load_shards(records, split, check=False)
-            if shards and sum(len(s.y) for s in shards) > 0:
-                break
-        else:
-            raise SystemExit(f"{records}: no test or validation records to compare on")
-        identity = rdata.set_identity(records)
-    except rdata.DataError as e:
-        raise SystemExit(str(e))
+    for split in ("test", "val"):
+        shards = rdata.load_shards(records, split, check=False)
+        if shards and sum(len(s.y) for s in shards) > 0:
+            break
+    else:
+        raise SystemExit(f"{records}: no test or validation records to compare on")
+    identity = rdata.set_identity(records)
     recs = rdata.Records(shards)
     x, y = recs.gather(np.arange(min(n, len(recs))))
     x = np.asarray(x, dtype=np.float32)
@@ -156,6 +158,12 @@ def compare(src: Path, dst: Path, records: Path, n: int, batch: int) -> dict:
 
 
 def main(argv=None) -> int:
+    # A set or file that cannot be used (the message names it): one line, exit status 2.
+    with safe_io.reporting_input_errors():
+        return _main(argv)
+
+
+def _main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("model", type=Path, help="an exported RPNN (.onnx)")
     ap.add_argument("-o", "--out", type=Path, help="default: <model>.int8.onnx beside it")
@@ -163,8 +171,12 @@ def main(argv=None) -> int:
     ap.add_argument("--rows", type=int, default=3000, help="records compared (also one batch)")
     ap.add_argument("--batch", type=int, default=2048, help="rows per run (a render's sample)")
     a = ap.parse_args(argv)
-    if not a.model.is_file():
-        raise SystemExit(f"{a.model}: no such model")
+    try:
+        safe_io.check_regular(a.model, what="an ONNX model")
+    except safe_io.InputError as e:
+        if e.missing:
+            raise safe_io.InputError(f"{a.model}: no such model", missing=True) from None
+        raise
     if a.rows < 1 or a.batch < 1:
         raise SystemExit(f"--rows {a.rows} and --batch {a.batch} must be at least 1")
     dst = quantize(a.model, a.out)

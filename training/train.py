@@ -63,6 +63,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from rpnn import data as rdata  # noqa: E402
 from rpnn import export as rexport  # noqa: E402
+from rpnn import safe_io  # noqa: E402
 from rpnn.metrics import record_errors, with_label_noise  # noqa: E402,F401
 from rpnn.model import (  # noqa: E402
     LOSSES,
@@ -133,6 +134,10 @@ def parse_args(argv=None):
                    help="copy the records into memory (GPU memory on CUDA) instead of reading "
                         "memory-mapped shards per batch; auto: when they take < 4 GiB")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+    p.add_argument("--max-memory", metavar="SIZE",
+                   help="memory budget (6G, 512M, bytes): no file larger is read, and records "
+                        "are preloaded only within it (default: NIMBUS_MAX_MEMORY, else 3/4 of "
+                        "the physical memory or of the cgroup's limit)")
     p.add_argument("--export", type=Path, help="write the best model as ONNX (+ card) here")
     p.add_argument("--reproduce", default="", help="the command recorded in the model card")
     p.add_argument("--check", action=argparse.BooleanOptionalAction, default=True,
@@ -151,8 +156,17 @@ def parse_args(argv=None):
         p.error(f"--ema must lie in [0, 1), got {args.ema}")
     if not (args.rel_eps > 0 and np.isfinite(args.rel_eps)):
         p.error(f"--rel-eps must be positive, got {args.rel_eps}")
-    if args.init is not None and not args.init.is_file():
-        p.error(f"--init {args.init}: no such file")
+    try:
+        safe_io.set_budget(None if args.max_memory is None else
+                           safe_io.parse_size(args.max_memory))
+    except ValueError as e:
+        p.error(f"--max-memory {e}")
+    if args.init is not None:
+        with safe_io.reporting_input_errors():
+            try:
+                safe_io.check_regular(args.init, what="a model (.pt checkpoint or .onnx file)")
+            except safe_io.InputError as e:
+                raise safe_io.InputError(f"--init {e}") from None
     if not 0.0 <= args.blend_init <= 1.0:
         p.error(f"--blend-init must lie in [0, 1], got {args.blend_init}")
     if args.threads < 0 or args.seed < 0:
@@ -370,20 +384,30 @@ def build_model(args) -> RPNN:
 
 def load_init(model: RPNN, path: Path) -> dict:
     """Loads the starting weights of a fine-tuning stage; returns what the card records."""
+    data = safe_io.read_bytes(path, what="a model (.pt checkpoint or .onnx file)")
     if path.suffix == ".onnx":
-        rexport.import_onnx(model, path)
+        rexport.import_onnx(model, path, data=data)
     else:
-        ck = torch.load(path, map_location="cpu", weights_only=False)
+        ck = safe_io.torch_load(path, data=data)
+        if not isinstance(ck, dict) or "model" not in ck:
+            raise ValueError("not a checkpoint of this script (no `model` entry)")
         if ck.get("config") != model.config():
             raise SystemExit(f"{path}: checkpoint architecture {ck.get('config')} differs from "
                              f"the requested {model.config()}")
         model.load_state_dict(ck["model"])
         st = ck.get("state") or {}
-    info = {"path": str(path), "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
-    card = path.with_suffix(".json")
-    if path.suffix == ".onnx" and card.is_file():
+    info = {"path": str(path), "sha256": hashlib.sha256(data).hexdigest()}
+    card = None
+    if path.suffix == ".onnx":
+        try:
+            card = safe_io.load_json(path.with_suffix(".json"), what="a model card (JSON)")
+        except safe_io.InputError as e:
+            if not e.missing:
+                raise
+    if isinstance(card, dict):
         # The stage before this one, as its own card describes it.
-        t = json.loads(card.read_text()).get("training", {})
+        t = card.get("training", {})
+        t = t if isinstance(t, dict) else {}
         info["before"] = {k: t.get(k) for k in ("loss", "rel_eps", "epochs", "steps", "seconds",
                                                 "lr", "schedule", "init")}
     elif path.suffix != ".onnx" and st.get("epoch"):
@@ -447,9 +471,16 @@ def _train(args, dist: Dist, device) -> dict:
         fit_idx, val_idx = rdata.split_indices(len(train_recs), args.val_fraction, args.seed)
         val_source = train_recs
     total_bytes = (len(train_recs) + len(val_recs) + len(test_recs)) * rdata.DESCRIPTOR_LEN * 4
-    # Every rank on one machine would hold its own copy: the 4 GiB are shared among them.
+    # Every rank on one machine would hold its own copy: the 4 GiB (and the memory budget) are
+    # shared among them.
+    budget = safe_io.budget()
+    if args.preload == "yes" and total_bytes * dist.world > budget:
+        raise SystemExit(f"error: --preload yes: the records take "
+                         f"{safe_io.human(total_bytes * dist.world)}, more than the memory budget "
+                         f"of {safe_io.human(budget)} (--max-memory or {safe_io.ENV}); use "
+                         f"--preload auto or no")
     preload = args.preload == "yes" or (args.preload == "auto"
-                                        and total_bytes * dist.world < 4 << 30)
+                                        and total_bytes * dist.world < min(4 << 30, budget))
     fit = Batches(train_recs, fit_idx, device, preload)
     val = Batches(val_source, val_idx, device, preload)
     test = Batches(test_recs, np.arange(len(test_recs)), device, preload)
@@ -467,7 +498,7 @@ def _train(args, dist: Dist, device) -> dict:
     if args.init is not None and not (args.resume and (args.run / "last.pt").exists()):
         try:
             init = load_init(model, args.init)
-        except SystemExit:
+        except (SystemExit, safe_io.InputError):
             raise
         except Exception as e:  # a file that is not a model of this architecture
             raise SystemExit(f"error: --init {args.init}: cannot start from it "
@@ -498,9 +529,11 @@ def _train(args, dist: Dist, device) -> dict:
              "ema_steps": 0, "run_settings": run_settings}
     if args.resume and last.exists():
         try:
-            ck = torch.load(last, map_location=device, weights_only=False)
+            ck = safe_io.torch_load(last, map_location=device)
             if not (isinstance(ck, dict) and {"config", "state", "model", "optimizer"} <= set(ck)):
                 raise ValueError("not a checkpoint of this script")
+        except safe_io.InputError:
+            raise  # a pipe, a device, a link to nothing, a file over the budget: said as such
         except Exception as e:  # torch raises many kinds on a damaged file
             raise SystemExit(f"error: {last}: cannot resume from it ({type(e).__name__}: {e}); "
                              f"remove it to start over, or use a new --run") from None
@@ -659,7 +692,7 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
     best = args.run / "best.pt"
     if not best.exists():
         raise SystemExit(f"{best}: no checkpoint to export (train at least one epoch)")
-    ck = torch.load(best, map_location="cpu", weights_only=False)
+    ck = safe_io.torch_load(best)
     model = RPNN(**ck["config"])
     model.load_state_dict(ck["model"])
     if args.blend_init < 1.0:
@@ -747,7 +780,7 @@ def export(args, result, val_source, val_idx, test_recs, device) -> dict:
         "record_errors": errors,
         "export_check": check,
         # The file this card describes (evaluate.py --card refuses a card whose file changed).
-        "model_sha256": hashlib.sha256(Path(args.export).read_bytes()).hexdigest(),
+        "model_sha256": safe_io.sha256_file(args.export),
         "reproduce": args.reproduce or " ".join(["python"] + sys.argv),
     }
     rexport.write_card(args.export, card)
@@ -773,16 +806,18 @@ def check_writable(path: Path, flag: str, folder: bool) -> None:
 
 
 def main(argv=None):
-    args = parse_args(argv)
-    if Dist().rank == 0:
-        check_writable(args.run, "--run", True)
-        if args.export:
-            check_writable(args.export, "--export", False)
-    try:
-        train(args)
-    except (rdata.DataError, OSError, EOFError) as e:
-        # A set that cannot be used, a folder that cannot be written (the messages name them).
-        raise SystemExit(f"error: {e}") from None
+    # A set or file that cannot be used (the message names it): one line, exit status 2.
+    with safe_io.reporting_input_errors():
+        args = parse_args(argv)
+        if Dist().rank == 0:
+            check_writable(args.run, "--run", True)
+            if args.export:
+                check_writable(args.export, "--export", False)
+        try:
+            train(args)
+        except (OSError, EOFError) as e:
+            # A folder that cannot be written (the messages name it).
+            raise SystemExit(f"error: {e}") from None
     if Dist().on:
         # A rank of a torchrun launch leaves without the interpreter's teardown: every file is
         # written and closed and the process group left, and the C++ destructors that would run

@@ -35,6 +35,7 @@ from torch import nn
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from rpnn import data as rdata  # noqa: E402
 from rpnn import export as rexport  # noqa: E402
+from rpnn import safe_io  # noqa: E402
 from rpnn.model import RPNN  # noqa: E402
 
 SH_COEFFS = 25
@@ -104,12 +105,15 @@ class SkyRPNN(nn.Module):
         return torch.cat([s, self.head(sky_in)], dim=1)
 
 
-def sun_config(path: Path) -> dict:
-    """The sun model's architecture from its ONNX metadata (`nimbus.rpnn.config`)."""
+def sun_config(path: Path, data: bytes | None = None) -> dict:
+    """The sun model's architecture from its ONNX metadata (`nimbus.rpnn.config`); ``data``: the
+    file's bytes when already read."""
     import onnx
 
+    if data is None:
+        data = safe_io.read_bytes(path, what="an ONNX model")
     try:
-        meta = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
+        meta = {p.key: p.value for p in onnx.load_from_string(data).metadata_props}
         c = json.loads(meta["nimbus.rpnn.config"])
         return {k: int(c[k]) for k in ("levels", "points", "width", "head_layers", "outputs")}
     except Exception as e:  # noqa: BLE001 (any failure: not a model train.py wrote)
@@ -129,7 +133,10 @@ def load_set(root: Path, split: str):
                          f"(make the set with `nimbus datagen --sky-transfer`)")
     xs, ts = [], []
     for s, info in zip(shards, [s for s in m["shards"] if s["split"] == split]):
-        meta = np.load(root / info["meta"], mmap_mode="r")
+        meta = safe_io.load_npy(root / info["meta"], mmap=True)
+        if meta.ndim != 2 or meta.shape[0] != len(s.x) or meta.shape[1] < 15 + SH_COEFFS:
+            raise safe_io.InputError(f"{root / info['meta']}: expected [{len(s.x)}, >= "
+                                     f"{15 + SH_COEFFS}] meta, got {list(meta.shape)}")
         x = np.asarray(s.x, dtype=np.float32)
         if s.gamma is not None:
             x = x.copy()
@@ -172,6 +179,12 @@ def relative_errors(pred: np.ndarray, t: np.ndarray) -> dict:
 
 
 def main(argv=None) -> dict:
+    # A set or file that cannot be used (the message names it): one line, exit status 2.
+    with safe_io.reporting_input_errors():
+        return _main(argv)
+
+
+def _main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--init", required=True, type=Path, help="the sun model (ONNX)")
     p.add_argument("--data", required=True, type=Path, help="a --sky-transfer record set")
@@ -193,14 +206,16 @@ def main(argv=None) -> dict:
     p.add_argument("--export", type=Path)
     p.add_argument("--reproduce", default="")
     args = p.parse_args(argv)
-    for f in (args.init, args.data):
-        if not f.exists():
-            raise SystemExit(f"{f}: not found")
+    if not args.data.exists():
+        raise SystemExit(f"{args.data}: not found")
+    init_bytes = safe_io.read_bytes(args.init, what="an ONNX model (--init)")
     torch.manual_seed(args.seed)
     t0 = time.time()
-    sun = RPNN(**sun_config(args.init))
+    sun = RPNN(**sun_config(args.init, init_bytes))
     try:
-        rexport.import_onnx(sun, args.init)
+        rexport.import_onnx(sun, args.init, data=init_bytes)
+    except safe_io.InputError:
+        raise
     except ValueError as e:
         raise SystemExit(str(e)) from None
     for q in sun.parameters():
@@ -267,8 +282,13 @@ def main(argv=None) -> dict:
     print(json.dumps({k: v for k, v in result.items() if k != "log"}), flush=True)
     (args.run / "sky_log.json").write_text(json.dumps(result, indent=1))
     if args.export:
-        card = json.loads(args.init.with_suffix(".json").read_text()) \
-            if args.init.with_suffix(".json").is_file() else {}
+        try:
+            card = safe_io.load_json(args.init.with_suffix(".json"), what="a model card (JSON)")
+        except safe_io.InputError as e:
+            if not e.missing:
+                raise
+            card = {}
+        card = card if isinstance(card, dict) else {}
         meta = {"nimbus.rpnn.phase": card.get("data", {}).get("phase", "hg"),
                 "nimbus.rpnn.albedo": str(card.get("data", {}).get("albedo", 1.0)),
                 "nimbus.rpnn.sky": "sh4"}
@@ -283,13 +303,13 @@ def main(argv=None) -> dict:
         if not check["passed"]:
             raise SystemExit(f"{args.export}: onnxruntime disagrees with torch: {check}")
         # The sun column is the sun model's, unchanged.
-        sun_out = rexport.onnx_predict(args.init, x[:256])[:, 0]
+        sun_out = rexport.onnx_predict(args.init, x[:256], init_bytes)[:, 0]
         both = rexport.onnx_predict(args.export, x[:256])
         d = float(np.max(np.abs(both[:, 0] - sun_out) / np.maximum(np.abs(sun_out), 1e-6)))
         if d > 1e-5:
             raise SystemExit(f"{args.export}: the sun column moved by {d} from {args.init}")
         info = {"init": {"path": str(args.init),
-                         "sha256": hashlib.sha256(args.init.read_bytes()).hexdigest()},
+                         "sha256": hashlib.sha256(init_bytes).hexdigest()},
                 "data": {"path": str(args.data),
                          "manifest_sha256": rdata.manifest_hash(args.data)},
                 "test_data": ({"path": str(args.test_data),

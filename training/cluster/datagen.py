@@ -57,8 +57,14 @@ def parse_args(argv=None):
             p.error(f"{bad} is set by this script; leave it out of the datagen arguments")
     if a.parts < 1 or a.cpus_per_part < 1 or a.retries < 0:
         p.error("--parts and --cpus-per-part must be >= 1, --retries >= 0")
-    if not a.nimbus.is_file():
-        p.error(f"--nimbus {a.nimbus}: not found (cargo build --release)")
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from rpnn import safe_io
+
+    try:
+        # A program, not read into memory: no size bound.
+        safe_io.check_regular(a.nimbus, max_bytes=1 << 62, what="the nimbus binary")
+    except safe_io.InputError as e:
+        p.error(f"--nimbus {e}{' (cargo build --release)' if e.missing else ''}")
     return a
 
 
