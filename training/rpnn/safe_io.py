@@ -164,6 +164,13 @@ def _os_error(path: Path, e: OSError) -> InputError:
         except OSError:
             pass
         return InputError(f"{path}: no such file", missing=True)
+    try:
+        # e.g. ENXIO: a socket cannot be opened at all; say what it is.
+        mode = os.stat(path).st_mode
+        if not stat.S_ISREG(mode):
+            return InputError(f"{path}: {_kind(mode)}, expected a file to read")
+    except OSError:
+        pass
     return InputError(f"{path}: cannot be read ({e.strerror or e})")
 
 
