@@ -118,7 +118,8 @@ def _main(argv=None) -> dict:
         add_to_card(args.model, model_sha, card, result["test"])
     if args.json:
         try:
-            args.json.write_text(json.dumps(result, indent=1))
+            rexport.replace_atomically(
+                args.json, lambda t: t.write_text(json.dumps(result, indent=1)))
         except OSError as e:
             raise SystemExit(f"error: --json {args.json}: {e}") from None
     return result

@@ -88,8 +88,17 @@ def quantize(src: Path, dst: Path | None = None) -> Path:
     del q.metadata_props[:]
     for k, v in sorted(meta.items()):
         q.metadata_props.add(key=k, value=v)
-    onnx.save(q, str(dst))
+    # Whole or absent, and never written through a pipe or link left at the path.
+    from rpnn.export import replace_atomically
+
+    replace_atomically(dst, lambda t: onnx.save(q, str(t), format="protobuf"))
     return dst
+
+
+def replace_atomically_json(path: Path, value) -> None:
+    from rpnn.export import replace_atomically
+
+    replace_atomically(path, lambda t: t.write_text(json.dumps(value, indent=2) + "\n"))
 
 
 def session(path: Path, threads: int = 2):
@@ -188,7 +197,7 @@ def _main(argv=None) -> int:
             c = compare(a.model, dst, a.records, a.rows, batch)
             report[f"batch_{c['batch']}"] = c
         js = dst.with_suffix(".json")
-        js.write_text(json.dumps(report, indent=2) + "\n")
+        replace_atomically_json(js, report)
         print(json.dumps(report, indent=2))
     return 0
 

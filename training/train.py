@@ -178,7 +178,7 @@ def parse_args(argv=None):
                 f"the records hold {rdata.DESCRIPTOR_LEN} (10 levels of 5x5x9 densities and gamma)")
     if not 0.0 < args.val_fraction < 1.0:
         p.error(f"--val-fraction must lie in (0, 1), got {args.val_fraction}")
-    seen = [d.resolve() for d in args.data]
+    seen = [os.path.realpath(d) for d in args.data]  # (a link loop: refused when read)
     if len(set(seen)) != len(seen):
         p.error("--data names a folder twice (its records would count twice)")
     return args
@@ -320,7 +320,8 @@ def plot(log_rows: list[dict], path: Path) -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path)
+    # Whole or absent, and never written through a pipe or link left at the path.
+    rexport.replace_atomically(path, lambda t: fig.savefig(t, format="png"))
     plt.close(fig)
 
 
@@ -653,10 +654,13 @@ def _train(args, dist: Dist, device) -> dict:
                 {"model": model.state_dict(), "optimizer": opt.state_dict(),
                  "config": model.config(), "state": state,
                  **({"ema": ema.state_dict()} if ema is not None else {})}, t))
-            with open(args.run / "log.csv", "w", newline="") as f:
-                w = csv.DictWriter(f, fieldnames=list(row))
-                w.writeheader()
-                w.writerows(state["log"])
+            def write_log(t, log=state["log"], fields=list(row)):
+                with open(t, "w", newline="") as f:
+                    w = csv.DictWriter(f, fieldnames=fields)
+                    w.writeheader()
+                    w.writerows(log)
+
+            rexport.replace_atomically(args.run / "log.csv", write_log)
             plot(state["log"], args.run / "curves.png")
         te_s = "" if te is None else f", test {te:.5g}"
         say(f"epoch {epoch}: train {row['train_loss']:.5g}, validation {vl:.5g}{te_s} ({dt:.1f} s)")

@@ -280,7 +280,8 @@ def _main(argv=None) -> dict:
         with torch.no_grad():
             result["test"] = relative_errors(head(features(model, xt)).numpy(), tt)
     print(json.dumps({k: v for k, v in result.items() if k != "log"}), flush=True)
-    (args.run / "sky_log.json").write_text(json.dumps(result, indent=1))
+    rexport.replace_atomically(args.run / "sky_log.json",
+                               lambda t: t.write_text(json.dumps(result, indent=1)))
     if args.export:
         try:
             card = safe_io.load_json(args.init.with_suffix(".json"), what="a model card (JSON)")
@@ -319,7 +320,8 @@ def _main(argv=None) -> dict:
                 "onnx_check": check, "sun_column_max_relative_change": d,
                 "reproduce": args.reproduce,
                 **{k: v for k, v in result.items() if k != "log"}}
-        args.export.with_suffix(".json").write_text(json.dumps(info, indent=1) + "\n")
+        rexport.replace_atomically(args.export.with_suffix(".json"),
+                                   lambda t: t.write_text(json.dumps(info, indent=1) + "\n"))
     return result
 
 

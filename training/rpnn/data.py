@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import mmap
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -71,6 +72,12 @@ def set_identity(root: Path) -> str:
 
 def read_manifest(root: Path) -> dict:
     path = Path(root) / "manifest.json"
+    try:
+        os.stat(root)
+    except OSError as e:
+        err = safe_io.os_error(root, e)
+        if not err.missing:  # a link loop or a link to nothing, said as such
+            raise DataError(str(err)) from None
     if Path(root).exists() and not Path(root).is_dir():
         raise DataError(f"{root}: not a folder (a `nimbus datagen --out` folder is expected)")
     try:

@@ -150,7 +150,9 @@ def _kind(mode: int) -> str:
     return "not a regular file"
 
 
-def _os_error(path: Path, e: OSError) -> InputError:
+def os_error(path, e: OSError) -> InputError:
+    """An OSError of ``path`` as an InputError, with the cases users meet said in words."""
+    path = Path(path)
     if e.errno == errno.ELOOP:
         return InputError(f"{path}: a symbolic link that loops (too many levels of links)")
     if e.errno in (errno.ENOENT, errno.ENOTDIR):
@@ -183,7 +185,7 @@ def open_regular(path, max_bytes: int | None = None, what: str = "a file to read
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | getattr(os, "O_CLOEXEC", 0))
     except OSError as e:
-        raise _os_error(path, e) from None
+        raise os_error(path, e) from None
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):

@@ -248,3 +248,16 @@ def test_a_model_card_that_is_a_pipe_is_refused(small_set, tmp_path):
     os.mkfifo(tmp_path / "m.json")
     rc, err = script("evaluate.py", "--data", small_set, "--model", model, "--card")
     assert_refused(rc, err, tmp_path / "m.json", "named pipe")
+
+
+def test_outputs_replace_a_pipe_left_at_their_path(small_set, tmp_path):
+    """The run's log and plot are written beside and renamed over their path: a pipe there is
+    replaced, never opened (opening it for writing would wait for a reader)."""
+    run = tmp_path / "r"
+    run.mkdir()
+    for name in ("log.csv", "curves.png"):
+        os.mkfifo(run / name)
+    with alarm():
+        train.train(train.parse_args(train_args(small_set, run)))
+    assert (run / "log.csv").is_file() and (run / "curves.png").is_file()
+    assert (run / "log.csv").read_text().startswith("epoch,")
