@@ -38,6 +38,7 @@ pub mod medium;
 pub mod memory;
 pub mod phase;
 pub mod scene;
+pub mod scene_paths;
 pub mod tau;
 pub mod volume;
 
