@@ -21,6 +21,7 @@ macro_rules! say {
 mod args;
 mod datagen;
 mod eval;
+mod interrupt;
 mod rpnn;
 mod view;
 
@@ -214,6 +215,8 @@ enum Command {
 }
 
 fn main() {
+    // First, while this is the only thread (it may set an environment variable).
+    nimbus_gpu::quiet_headless_vulkan();
     // `nimbus stress` starts this executable as its child (nimbus_eval::stress::CHILD_ENV).
     if let Some(code) = nimbus_eval::stress::serve_child_if_requested() {
         std::process::exit(code);
@@ -226,6 +229,10 @@ fn main() {
         eprintln!("{w}");
     }
     if let Err(e) = run(cli) {
+        if nimbus_render::is_cancelled(&e) {
+            eprintln!("cancelled: nothing was written");
+            std::process::exit(interrupt::EXIT);
+        }
         eprintln!("error: {e:#}");
         std::process::exit(1);
     }
@@ -327,7 +334,7 @@ fn run(cli: Cli) -> Result<()> {
             for w in &estimator.warnings {
                 say!("{w}");
             }
-            let r = estimator.render(budget, opts.seed)?;
+            let r = estimator.render_with(budget, opts.seed, &interrupt::token())?;
             r.image.write_exr(&exr, r.variance.as_deref())?;
             say!("{}: {}", scene.display(), r.summary);
             if timings {

@@ -7,5 +7,6 @@ mod cli;
 mod common;
 mod device;
 mod eval;
+mod interface;
 mod view;
 mod volumes;

@@ -95,6 +95,29 @@ pub fn adapter_hint(info: &wgpu::AdapterInfo) -> Option<String> {
     })
 }
 
+/// Keeps a headless process's output to what a user needs. Without a Wayland session (no
+/// valid `XDG_RUNTIME_DIR`), Mesa's device-selection layer (`VK_LAYER_MESA_device_select`, an
+/// implicit Vulkan layer installed with Mesa's drivers) asks libwayland for a display when a
+/// Vulkan instance is made, and libwayland prints "error: XDG_RUNTIME_DIR is invalid or not set
+/// in the environment." although nothing failed. The layer only reorders the devices the
+/// loader lists, and wgpu chooses its adapter itself ([`Gpu::new`]), so such a process turns
+/// the layer off with the switch its manifest declares (`NODEVICE_SELECT=1`) — unless the user
+/// set that switch or chose a device through the layer (`MESA_VK_DEVICE_SELECT`).
+///
+/// It sets an environment variable: call it first in `main` (or a module's initialisation),
+/// before other threads start. Returns whether it turned the layer off.
+pub fn quiet_headless_vulkan() -> bool {
+    let env = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty());
+    let session = env("XDG_RUNTIME_DIR").is_some_and(|d| std::path::Path::new(&d).is_dir());
+    if session || env("NODEVICE_SELECT").is_some() || env("MESA_VK_DEVICE_SELECT").is_some() {
+        return false;
+    }
+    // SAFETY: called before other threads run (the documented contract), so no other thread
+    // reads the environment while it is changed.
+    unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
+    true
+}
+
 /// Every adapter wgpu sees, best first (the first is the one [`Gpu::new`] opens), as
 /// "name (type, backend)" lines.
 pub fn list_adapters() -> Vec<String> {

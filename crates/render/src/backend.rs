@@ -1,7 +1,7 @@
 //! Where the GPU estimators and the RPNN network run: the one place that opens the GPU and
 //! chooses the network's backend.
 
-use std::cell::OnceCell;
+use std::sync::OnceLock;
 
 use anyhow::{Context, Result};
 use nimbus_gpu::Gpu;
@@ -38,16 +38,19 @@ impl NetBackend {
 }
 
 /// A GPU opened on first use and shared by every estimator of one program run (the
-/// evaluation renders several methods on one device).
+/// evaluation renders several methods on one device). `Sync`: a `static` slot gives a
+/// process one device that every estimator, on any thread, borrows (`Estimator<'static>`).
 #[derive(Default)]
 pub struct GpuSlot {
-    gpu: OnceCell<Gpu>,
+    gpu: OnceLock<Gpu>,
 }
 
 impl GpuSlot {
     /// An empty slot: no adapter is opened until a method needs one.
-    pub fn new() -> Self {
-        Self::default()
+    pub const fn new() -> Self {
+        Self {
+            gpu: OnceLock::new(),
+        }
     }
 
     /// A slot holding an already opened GPU (the viewer owns its device and surface).

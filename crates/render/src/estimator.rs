@@ -17,7 +17,7 @@ use nimbus_rpnn::ort_backend::{Cores, OrtModel};
 use nimbus_rpnn::render::Backend;
 use nimbus_rpnn::{Pyramid, model::Rpnn};
 use nimbus_scene::volume::Volume;
-use nimbus_scene::{Camera, Image, Scene};
+use nimbus_scene::{Camera, Cancel, Cancelled, Image, Scene};
 
 use crate::engine::{self, Engine};
 use crate::{GpuSlot, Method, NetBackend};
@@ -169,7 +169,7 @@ pub struct Estimator<'g> {
     pub device: String,
     /// Warnings for the user (an RPNN model trained for another medium).
     pub warnings: Vec<String>,
-    engine: Box<dyn Engine + 'g>,
+    engine: Box<dyn Engine + Send + 'g>,
     /// Seed of the progressive images and how many restarts drew from it.
     seed: u64,
     restarts: u64,
@@ -302,7 +302,7 @@ pub fn prepare<'g>(
     if method != Method::Pt {
         check_f32_scale(scene, method)?;
     }
-    let (engine, device): (Box<dyn Engine + 'g>, String) = match method {
+    let (engine, device): (Box<dyn Engine + Send + 'g>, String) = match method {
         Method::Pt => (
             Box::new(engine::pt::PtEngine::new(scene, opts.progress)),
             format!("cpu ({} threads)", rayon::current_num_threads()),
@@ -454,6 +454,11 @@ pub fn prepare<'g>(
     })
 }
 
+/// Whether `err` comes from a cancelled call ([`Estimator::render_with`]).
+pub fn is_cancelled(err: &anyhow::Error) -> bool {
+    err.chain().any(|e| e.downcast_ref::<Cancelled>().is_some())
+}
+
 /// RPNN's network backend: WGSL on `adapter` or ONNX Runtime, as `choice` and the adapter
 /// say ([`NetBackend::uses_wgpu`]); returns it with a description of where it runs. The one
 /// place that makes this choice (the estimator and the viewer call it).
@@ -528,9 +533,25 @@ impl<'g> Estimator<'g> {
     /// Renders with `budget` samples per pixel (Monte Carlo methods and the final gathering)
     /// or a ring of `budget` frames (the ray-marched photon maps), from `seed`, from scratch.
     pub fn render(&mut self, budget: u32, seed: u64) -> Result<Rendered> {
+        self.render_with(budget, seed, &Cancel::never())
+    }
+
+    /// [`Self::render`], stopped when `cancel` is set: the path tracer checks it before each
+    /// pixel, the GPU path tracer after each dispatch, the photon map after each generation
+    /// and gather dispatch, RPNN after each sample. A cancelled call returns an error for
+    /// which [`is_cancelled`] holds, and the estimator stays usable (the next render starts
+    /// from scratch). The image is the same with any token.
+    pub fn render_with(&mut self, budget: u32, seed: u64, cancel: &Cancel) -> Result<Rendered> {
         let label = self.scene.source.display().to_string();
         self.engine
-            .render(&self.scene, &self.device, self.prepare_s, budget, seed)
+            .render(
+                &self.scene,
+                &self.device,
+                self.prepare_s,
+                budget,
+                seed,
+                cancel,
+            )
             .with_context(|| format!("{label}: {}", self.method))
     }
 
@@ -560,7 +581,14 @@ impl<'g> Estimator<'g> {
     /// Adds `n` samples per pixel to the progressive image (ray-marched photon maps: traces up
     /// to `n` generations where the ring needs them, then ray marches or re-projects).
     pub fn accumulate(&mut self, n: u32) -> Result<Step> {
-        self.engine.accumulate(&self.scene, n)
+        self.accumulate_with(n, &Cancel::never())
+    }
+
+    /// [`Self::accumulate`], stopped when `cancel` is set (as [`Self::render_with`]); the
+    /// samples added before the cancel stay in the image, which remains consistent with
+    /// [`Self::samples`].
+    pub fn accumulate_with(&mut self, n: u32, cancel: &Cancel) -> Result<Step> {
+        self.engine.accumulate(&self.scene, n, cancel)
     }
 
     /// The progressive image so far.

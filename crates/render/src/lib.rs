@@ -17,7 +17,8 @@ pub mod method;
 
 pub use backend::{GpuSlot, NetBackend};
 pub use estimator::{
-    Change, Estimator, GpuSource, Options, Rendered, RpnnSettings, Step, check_f32_scale, prepare,
-    rpnn_backend, rpnn_model_path,
+    Change, Estimator, GpuSource, Options, Rendered, RpnnSettings, Step, check_f32_scale,
+    is_cancelled, prepare, rpnn_backend, rpnn_model_path,
 };
+pub use nimbus_scene::{Cancel, Cancelled};
 pub use method::Method;

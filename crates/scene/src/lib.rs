@@ -23,6 +23,7 @@ pub mod atmosphere;
 pub mod brick;
 pub mod build;
 pub mod camera;
+pub mod cancel;
 pub mod compare;
 pub mod contain;
 pub mod downsample;
@@ -43,6 +44,7 @@ pub mod tau;
 pub mod volume;
 
 pub use camera::Camera;
+pub use cancel::{Cancel, Cancelled};
 pub use error::{Error, FieldError, Result};
 pub use generate::CloudKind;
 pub use grid::DensityGrid;

@@ -52,7 +52,7 @@ pub enum GpuPtError {
 }
 
 /// Samples per invocation per dispatch (keeps each dispatch short enough for any driver).
-const SPP_PER_DISPATCH: u32 = 4;
+pub const SPP_PER_DISPATCH: u32 = 4;
 
 fn f3(v: DVec3) -> [f32; 3] {
     v.as_vec3().to_array()

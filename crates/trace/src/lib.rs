@@ -15,5 +15,8 @@ pub mod rng;
 pub mod tracking;
 
 pub use integrator::PathTracer;
-pub use render::{RenderOptions, RenderOutput, RenderStats, Sums, accumulate, render, render_with};
+pub use render::{
+    RenderOptions, RenderOutput, RenderStats, Sums, accumulate, accumulate_cancellable, render,
+    render_with,
+};
 pub use rng::Pcg32;

@@ -5,7 +5,7 @@
 use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use nimbus_scene::{Image, Scene};
+use nimbus_scene::{Cancel, Cancelled, Image, Scene};
 use rayon::prelude::*;
 
 use crate::integrator::{PathStats, PathTracer};
@@ -124,6 +124,17 @@ pub fn render_with(tracer: &PathTracer, opts: &RenderOptions) -> RenderOutput {
 /// sample `sums.samples + s` of its stream, so accumulating in steps gives the image one call
 /// gives.
 pub fn accumulate(tracer: &PathTracer, opts: &RenderOptions, sums: &mut Sums) -> RenderStats {
+    accumulate_cancellable(tracer, opts, sums, &Cancel::never()).expect("never cancelled")
+}
+
+/// [`accumulate`], checking `cancel` before each pixel: once it is set the call returns
+/// [`Cancelled`] and `sums` are left as they were (no sample of this call is added).
+pub fn accumulate_cancellable(
+    tracer: &PathTracer,
+    opts: &RenderOptions,
+    sums: &mut Sums,
+    cancel: &Cancel,
+) -> Result<RenderStats, Cancelled> {
     let cam = &tracer.scene.camera;
     let (w, h) = (cam.width, cam.height);
     assert_eq!(
@@ -154,6 +165,9 @@ pub fn accumulate(tracer: &PathTracer, opts: &RenderOptions, sums: &mut Sums) ->
             let mut scat = 0u64;
             for y in y0..(y0 + TILE).min(h) {
                 for x in x0..(x0 + TILE).min(w) {
+                    if cancel.is_cancelled() {
+                        return (out, scat);
+                    }
                     let pixel = (y * w + x) as u64;
                     let mut sum = [0.0f64; 3];
                     let (mut ls, mut ls2) = (0.0f64, 0.0f64);
@@ -179,6 +193,7 @@ pub fn accumulate(tracer: &PathTracer, opts: &RenderOptions, sums: &mut Sums) ->
         })
         .collect();
     bar.finish_and_clear();
+    cancel.check()?;
     let mut stats = RenderStats {
         paths: (w * h) as u64 * spp as u64,
         ..Default::default()
@@ -195,5 +210,5 @@ pub fn accumulate(tracer: &PathTracer, opts: &RenderOptions, sums: &mut Sums) ->
     }
     sums.samples += spp as u64;
     stats.seconds = start.elapsed().as_secs_f64();
-    stats
+    Ok(stats)
 }

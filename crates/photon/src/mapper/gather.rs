@@ -253,6 +253,7 @@ impl PhotonMapper<'_> {
                 self.upsample();
                 let _ = self.gpu.device.poll(wgpu::PollType::wait_indefinitely());
                 ring_s += t.elapsed().as_secs_f64();
+                self.cancel.check()?;
             }
         }
         Ok(ring_s)
@@ -337,6 +338,10 @@ impl PhotonMapper<'_> {
             g.weight = g.weight * decay as f32 as f64 + count as f64;
             g.stream = g.stream.wrapping_add(count);
             left -= count;
+            if self.cancel.is_live() {
+                let _ = self.gpu.device.poll(wgpu::PollType::wait_indefinitely());
+                self.cancel.check()?;
+            }
         }
         Ok(())
     }

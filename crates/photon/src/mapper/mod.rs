@@ -39,6 +39,9 @@ pub use crate::cache_layout::{
 pub enum PmError {
     #[error(transparent)]
     Gpu(#[from] GpuError),
+    /// The work was cancelled through the token given to [`PhotonMapper::set_cancel`].
+    #[error("cancelled")]
+    Cancelled(#[from] nimbus_scene::Cancelled),
     #[error("{0}")]
     Unsupported(String),
     #[error("setting `{field}`: {msg}")]
@@ -71,6 +74,8 @@ pub type StageTimes = Vec<(&'static str, f64)>;
 /// The photon mapper for one scene on one device.
 pub struct PhotonMapper<'g> {
     gpu: &'g Gpu,
+    /// Checked between generations and gather dispatches ([`Self::set_cancel`]).
+    cancel: nimbus_scene::Cancel,
     pub params: VolumeParams,
     pub settings: PmSettings,
     cells: u32,
@@ -431,7 +436,16 @@ impl<'g> PhotonMapper<'g> {
             slot_view: vec![None; settings.ring as usize],
             j_view: None,
             settings,
+            cancel: nimbus_scene::Cancel::never(),
         })
+    }
+
+    /// The token that long calls ([`Self::converge`], the gathers) check between generations
+    /// and dispatches; with a live token they wait for the device after each, so that a cancel
+    /// stops the work within one of them ([`PmError::Cancelled`]). The default never cancels
+    /// and changes nothing.
+    pub fn set_cancel(&mut self, cancel: nimbus_scene::Cancel) {
+        self.cancel = cancel;
     }
 
     /// Empties the ring and the total cache.
@@ -535,6 +549,7 @@ impl<'g> PhotonMapper<'g> {
     /// the whole ring (on a very dense medium one generation can take tens of seconds).
     pub fn converge(&mut self) -> Result<(), PmError> {
         while !self.ring_full() || self.view_pending() {
+            self.cancel.check()?;
             self.trace_frame(None);
             self.check_overflow()?;
         }

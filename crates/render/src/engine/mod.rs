@@ -3,7 +3,7 @@
 //! pipelines, photon map, density pyramid and network) and a progressive image.
 
 use anyhow::Result;
-use nimbus_scene::Scene;
+use nimbus_scene::{Cancel, Scene};
 
 use crate::estimator::{Change, Rendered, Step};
 
@@ -14,7 +14,10 @@ pub(crate) mod pt_gpu;
 pub(crate) mod rpnn;
 
 /// One estimator. `scene` is always the estimator's current scene (changes already in it).
-pub(crate) trait Engine {
+/// `Send`: an estimator moves to another thread (a Python call that releases the GIL). The
+/// long calls check `cancel` between chunks of their work and then return
+/// [`nimbus_scene::Cancelled`], leaving the engine usable.
+pub(crate) trait Engine: Send {
     /// An image of `budget` from `seed`, from scratch: what `render`, `compare` and
     /// `bench-suite` time. `device` and `prepare_s` describe the preparation for the summary.
     fn render(
@@ -24,6 +27,7 @@ pub(crate) trait Engine {
         prepare_s: f64,
         budget: u32,
         seed: u64,
+        cancel: &Cancel,
     ) -> Result<Rendered>;
 
     /// Starts the progressive image again; its samples are drawn from `seed`.
@@ -34,7 +38,7 @@ pub(crate) trait Engine {
 
     /// Adds `n` samples per pixel to the progressive image (or `n` frames of a live photon
     /// map).
-    fn accumulate(&mut self, scene: &Scene, n: u32) -> Result<Step>;
+    fn accumulate(&mut self, scene: &Scene, n: u32, cancel: &Cancel) -> Result<Step>;
 
     /// The progressive image so far.
     fn image(&mut self, scene: &Scene, device: &str) -> Result<Rendered>;

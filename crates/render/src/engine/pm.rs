@@ -10,7 +10,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use nimbus_gpu::Gpu;
 use nimbus_photon::{GatherSettings, PhotonMapper, PmSettings};
-use nimbus_scene::{Scene, Sky};
+use nimbus_scene::{Cancel, Scene, Sky};
 
 use super::{Engine, ms_since, stage_sum};
 use crate::estimator::{Change, Options, Rendered, Step};
@@ -165,12 +165,14 @@ impl Engine for GatherEngine<'_> {
         _prepare_s: f64,
         budget: u32,
         seed: u64,
+        cancel: &Cancel,
     ) -> Result<Rendered> {
         let t0 = Instant::now();
         let gather = self.gather;
         self.settings.seed = seed as u32;
         self.mapper = None;
         let pm = self.mapper(scene)?;
+        pm.set_cancel(cancel.clone());
         let setup_s = t0.elapsed().as_secs_f64();
         let t1 = Instant::now();
         pm.converge()?;
@@ -180,6 +182,7 @@ impl Engine for GatherEngine<'_> {
         let t2 = Instant::now();
         let refresh_s = pm.gather_refreshing(&scene.camera, &gather, budget)?;
         gpu_ms += stage_sum(&pm.last_times);
+        pm.set_cancel(Cancel::never());
         let (image, variance) = pm.gather_image()?;
         self.ring_s = ring_s + refresh_s;
         self.gather_s = t2.elapsed().as_secs_f64() - refresh_s;
@@ -211,12 +214,13 @@ impl Engine for GatherEngine<'_> {
         Ok(())
     }
 
-    fn accumulate(&mut self, scene: &Scene, n: u32) -> Result<Step> {
+    fn accumulate(&mut self, scene: &Scene, n: u32, cancel: &Cancel) -> Result<Step> {
         let gather = self.gather;
         let gpu = self.gpu;
         let mut step = Step::default();
         self.mapper(scene)?;
         for _ in 0..n {
+            cancel.check()?;
             let stale = self.stale;
             let pm = self.mapper.as_mut().expect("made above");
             let trace = stale > 0 || !pm.ring_full() || pm.view_pending();

@@ -14,7 +14,7 @@ use anyhow::{Context, Result};
 use nimbus_gpu::Gpu;
 use nimbus_photon::impostor::{ImpostorState, Refresh};
 use nimbus_photon::{PhotonMapper, PmSettings, PmVariant};
-use nimbus_scene::{Camera, Image, Scene};
+use nimbus_scene::{Camera, Cancel, Image, Scene};
 
 use super::{Engine, ms_since, stage_sum};
 use crate::Method;
@@ -184,6 +184,7 @@ impl Engine for MarchEngine<'_> {
         _prepare_s: f64,
         budget: u32,
         seed: u64,
+        cancel: &Cancel,
     ) -> Result<Rendered> {
         let cam = &scene.camera;
         let t0 = Instant::now();
@@ -198,9 +199,14 @@ impl Engine for MarchEngine<'_> {
         let t1 = Instant::now();
         let mut gpu_ms = 0.0;
         while !pm.ring_full() {
+            cancel.check()?;
             pm.trace_frame(None);
             gpu_ms += stage_sum(&pm.last_times);
+            if cancel.is_live() {
+                let _ = self.gpu.device.poll(wgpu::PollType::wait_indefinitely());
+            }
         }
+        cancel.check()?;
         pm.upsample();
         gpu_ms += stage_sum(&pm.last_times);
         let image = if self.half_res {
@@ -281,10 +287,11 @@ impl Engine for MarchEngine<'_> {
         Ok(())
     }
 
-    fn accumulate(&mut self, scene: &Scene, n: u32) -> Result<Step> {
+    fn accumulate(&mut self, scene: &Scene, n: u32, cancel: &Cancel) -> Result<Step> {
         let t = Instant::now();
         let mut step = Step::default();
         for _ in 0..n.max(1) {
+            cancel.check()?;
             step = self.frame(scene)?;
         }
         self.seconds += t.elapsed().as_secs_f64();

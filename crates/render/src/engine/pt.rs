@@ -2,8 +2,8 @@
 //! the image is a running sum of samples.
 
 use anyhow::Result;
-use nimbus_scene::Scene;
 use nimbus_scene::volume::MajorantGrid;
+use nimbus_scene::{Cancel, Scene};
 use nimbus_trace::{PathTracer, RenderOptions, RenderStats, Sums};
 
 use super::{Engine, ms_since};
@@ -32,17 +32,18 @@ impl PtEngine {
         }
     }
 
-    fn add(&mut self, scene: &Scene, spp: u32) {
+    fn add(&mut self, scene: &Scene, spp: u32, cancel: &Cancel) -> Result<()> {
         let tracer = PathTracer::borrowing(scene, &self.majorants);
         let opts = RenderOptions {
             spp,
             seed: self.seed,
             progress: self.progress,
         };
-        let st = nimbus_trace::accumulate(&tracer, &opts, &mut self.sums);
+        let st = nimbus_trace::accumulate_cancellable(&tracer, &opts, &mut self.sums, cancel)?;
         self.stats.paths += st.paths;
         self.stats.scatterings += st.scatterings;
         self.stats.seconds += st.seconds;
+        Ok(())
     }
 }
 
@@ -54,9 +55,10 @@ impl Engine for PtEngine {
         _prepare_s: f64,
         budget: u32,
         seed: u64,
+        cancel: &Cancel,
     ) -> Result<Rendered> {
         self.restart(scene, seed)?;
-        self.add(scene, budget);
+        self.add(scene, budget, cancel)?;
         self.image(scene, device)
     }
 
@@ -75,9 +77,9 @@ impl Engine for PtEngine {
         Ok(())
     }
 
-    fn accumulate(&mut self, scene: &Scene, n: u32) -> Result<Step> {
+    fn accumulate(&mut self, scene: &Scene, n: u32, cancel: &Cancel) -> Result<Step> {
         let t = std::time::Instant::now();
-        self.add(scene, n);
+        self.add(scene, n, cancel)?;
         Ok(Step {
             stages: vec![("path tracing (CPU)", ms_since(t))],
             spp: self.samples(),

@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use nimbus_gpu::Gpu;
-use nimbus_scene::Scene;
+use nimbus_scene::{Cancel, Scene};
 use nimbus_trace::gpu::GpuPathTracer;
 
 use super::{Engine, ms_since};
@@ -28,6 +28,24 @@ impl<'g> PtGpuEngine<'g> {
             seconds: 0.0,
         })
     }
+
+    /// Adds `spp` samples; with a live `cancel`, one dispatch's worth at a time, waiting for
+    /// the device after each so that a cancel is seen within one (the same dispatches, the
+    /// same pixels).
+    fn add(&mut self, spp: u32, cancel: &Cancel) -> Result<()> {
+        if !cancel.is_live() {
+            return Ok(self.tracer.add(spp)?);
+        }
+        let mut left = spp;
+        while left > 0 {
+            cancel.check()?;
+            let n = left.min(nimbus_trace::gpu::SPP_PER_DISPATCH);
+            self.tracer.add(n)?;
+            let _ = self.gpu.device.poll(wgpu::PollType::wait_indefinitely());
+            left -= n;
+        }
+        Ok(cancel.check()?)
+    }
 }
 
 impl Engine for PtGpuEngine<'_> {
@@ -38,10 +56,11 @@ impl Engine for PtGpuEngine<'_> {
         prepare_s: f64,
         budget: u32,
         seed: u64,
+        cancel: &Cancel,
     ) -> Result<Rendered> {
         let t0 = Instant::now();
         self.tracer.reset(seed)?;
-        self.tracer.add(budget)?;
+        self.add(budget, cancel)?;
         let (image, variance) = self.tracer.image()?;
         let seconds = t0.elapsed().as_secs_f64();
         self.seconds = seconds;
@@ -81,9 +100,9 @@ impl Engine for PtGpuEngine<'_> {
         Ok(())
     }
 
-    fn accumulate(&mut self, _scene: &Scene, n: u32) -> Result<Step> {
+    fn accumulate(&mut self, _scene: &Scene, n: u32, cancel: &Cancel) -> Result<Step> {
         let t = Instant::now();
-        self.tracer.add(n)?;
+        self.add(n, cancel)?;
         let _ = self.gpu.device.poll(wgpu::PollType::wait_indefinitely());
         let ms = ms_since(t);
         self.seconds += ms / 1e3;

@@ -14,8 +14,8 @@ use nimbus_rpnn::gpu_mlp::{NetOptions, Precision, Tiles};
 use nimbus_rpnn::gpu_sample::GpuSampler;
 use nimbus_rpnn::model::Rpnn;
 use nimbus_rpnn::render::{Backend, RpnnOptions, RpnnSums, SkySh, StageTimes};
-use nimbus_scene::Scene;
 use nimbus_scene::volume::MajorantGrid;
+use nimbus_scene::{Cancel, Scene};
 
 use super::Engine;
 use crate::estimator::{Change, Rendered, RpnnSettings, Step};
@@ -170,6 +170,23 @@ impl<'g> RpnnEngine<'g> {
         }
     }
 
+    /// Adds `spp` samples; with a live `cancel`, one sample at a time (the samples are
+    /// independent and summed one by one either way: the same pixels), checking it between
+    /// them and waiting for the device after each.
+    fn add_cancellable(&mut self, scene: &Scene, spp: u32, cancel: &Cancel) -> Result<()> {
+        if !cancel.is_live() {
+            return self.add(scene, spp);
+        }
+        for _ in 0..spp {
+            cancel.check()?;
+            self.add(scene, 1)?;
+            if let Some(g) = self.adapter {
+                let _ = g.device.poll(wgpu::PollType::wait_indefinitely());
+            }
+        }
+        Ok(cancel.check()?)
+    }
+
     fn add(&mut self, scene: &Scene, spp: u32) -> Result<()> {
         let backend = match &mut self.runner {
             Runner::Gpu(g) => {
@@ -270,9 +287,10 @@ impl Engine for RpnnEngine<'_> {
         _prepare_s: f64,
         budget: u32,
         seed: u64,
+        cancel: &Cancel,
     ) -> Result<Rendered> {
         self.restart(scene, seed)?;
-        self.add(scene, budget)?;
+        self.add_cancellable(scene, budget, cancel)?;
         self.image(scene, device)
     }
 
@@ -313,9 +331,9 @@ impl Engine for RpnnEngine<'_> {
         Ok(())
     }
 
-    fn accumulate(&mut self, scene: &Scene, n: u32) -> Result<Step> {
+    fn accumulate(&mut self, scene: &Scene, n: u32, cancel: &Cancel) -> Result<Step> {
         let before = self.stages();
-        self.add(scene, n)?;
+        self.add_cancellable(scene, n, cancel)?;
         let stages = self
             .stages()
             .into_iter()
