@@ -19,3 +19,14 @@ pub mod sky;
 
 pub use descriptor::{Config, DESCRIPTOR_LEN, LEVELS, POINTS, descriptor, descriptors};
 pub use pyramid::{Pyramid, PyramidError};
+
+/// Reads an optional text file (a model card, a data set's `settings.json` or `manifest.json`):
+/// `Ok(None)` only when nothing at all is at `path`. Anything that is there — a pipe, a device,
+/// a folder, a dangling or looping link, a file over the memory budget — is an error naming it
+/// ([`nimbus_scene::fsio::read_to_string`]), never taken for an absent file.
+pub(crate) fn read_optional_text(path: &std::path::Path) -> nimbus_scene::Result<Option<String>> {
+    match std::fs::symlink_metadata(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        _ => nimbus_scene::fsio::read_to_string(path).map(Some),
+    }
+}

@@ -241,6 +241,23 @@ pub enum DatagenError {
     Set { what: String, msg: String },
 }
 
+/// A file error ([`nimbus_scene::fsio`]) as the error of the data-set file it names.
+impl From<nimbus_scene::Error> for DatagenError {
+    fn from(e: nimbus_scene::Error) -> Self {
+        let (path, msg) = match e {
+            nimbus_scene::Error::Io { path, err } => (path, err.to_string()),
+            nimbus_scene::Error::Invalid { path, field, msg } => {
+                (path, format!("field `{field}`: {msg}"))
+            }
+            nimbus_scene::Error::Parse { path, msg } => (path, msg),
+        };
+        DatagenError::Set {
+            what: path.display().to_string(),
+            msg,
+        }
+    }
+}
+
 /// A cloud prepared for data generation: the path tracer's scene and the descriptor pyramid.
 pub struct CloudData {
     pub name: String,

@@ -223,11 +223,13 @@ fn check_settings(
     let want_text = serde_json::to_string_pretty(&settings_json(clouds, opts)).expect("json");
     // Compared as text: a parsed f64 need not round-trip bit for bit through serde_json.
     let want: serde_json::Value = serde_json::from_str(&want_text).expect("json");
-    let found = match std::fs::read_to_string(&path) {
-        Ok(text) => Some(text),
+    // Only a missing settings.json is absent: a pipe, a device, a dangling or looping link at
+    // its name is an error naming it.
+    let found = match crate::read_optional_text(&path) {
+        Ok(Some(text)) => Some(text),
         // Records without the settings that made them cannot be resumed under new ones (they
         // would keep their old labels under the new settings' name).
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+        Ok(None) => {
             let holds_records = std::fs::read_dir(out).is_ok_and(|d| {
                 d.filter_map(|e| e.ok()).any(|e| {
                     // Shard files (`train_00000_x.npy`, …) or a manifest: not any .npy.
@@ -249,9 +251,12 @@ fn check_settings(
             None
         }
         Err(e) => {
-            return Err(DatagenError::Set {
-                what: path.display().to_string(),
-                msg: format!("cannot be read ({e}); remove the folder or use a new --out"),
+            return Err(match DatagenError::from(e) {
+                DatagenError::Set { what, msg } => DatagenError::Set {
+                    what,
+                    msg: format!("cannot be read ({msg}); remove the folder or use a new --out"),
+                },
+                other => other,
             });
         }
     };
@@ -432,9 +437,11 @@ pub fn run(
     };
     // The shards an earlier run's manifest lists, with their checksums: a shard whose checksum
     // file is gone is still checked against them.
+    // A manifest that is not valid JSON is rewritten; one that cannot be read as a file (a pipe,
+    // a device, a dangling or looping link) is an error naming it.
     let recorded: std::collections::HashMap<String, ShardInfo> =
-        std::fs::read_to_string(out.join("manifest.json"))
-            .ok()
+        crate::read_optional_text(&out.join("manifest.json"))
+            .map_err(DatagenError::from)?
             .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
             .and_then(|v| serde_json::from_value::<Vec<ShardInfo>>(v["shards"].clone()).ok())
             .unwrap_or_default()
@@ -524,7 +531,7 @@ pub fn run(
             };
             let sidecar = out.join(format!("{split}_{k:05}.sha256"));
             let listed = recorded.get(&name("x")).filter(|r| r.y == name("y"));
-            match verify_shard([&px, &py, &pm], &sidecar, listed.map(|r| &r.sha256), n) {
+            match verify_shard([&px, &py, &pm], &sidecar, listed.map(|r| &r.sha256), n)? {
                 Ok(Some((sums, conv))) => {
                     converged += conv;
                     total += n as usize;
@@ -685,7 +692,7 @@ fn same_set<S: Serialize>(m: &Manifest<S>, out: &Path) -> bool {
         }
         v
     };
-    let Ok(text) = std::fs::read_to_string(out.join("manifest.json")) else {
+    let Ok(Some(text)) = crate::read_optional_text(&out.join("manifest.json")) else {
         return false;
     };
     let Ok(old) = serde_json::from_str::<serde_json::Value>(&text) else {

@@ -17,7 +17,7 @@ use serde_json::Value;
 
 use crate::data::datagen::DatagenError;
 use crate::data::dataset::{CloudSpec, Manifest, Part, SPLITS, ShardInfo};
-use crate::data::shard_files::{lock_out, rows_of, sha256_file, write_text};
+use crate::data::shard_files::{lock_out, present, rows_of, sha256_file, write_text};
 
 /// What [`merge`] assembled.
 #[derive(Debug, Clone, PartialEq)]
@@ -37,13 +37,37 @@ fn fail(what: impl std::fmt::Display, msg: impl Into<String>) -> DatagenError {
 }
 
 fn read_json(path: &Path) -> Result<Value, DatagenError> {
-    let text = std::fs::read_to_string(path).map_err(|e| {
-        fail(
-            path.display(),
-            format!("{e} (is this a `nimbus datagen --out` folder?)"),
-        )
-    })?;
+    let text =
+        nimbus_scene::fsio::read_to_string(path).map_err(|e| match DatagenError::from(e) {
+            DatagenError::Set { what, msg } => DatagenError::Set {
+                what,
+                msg: format!("{msg} (is this a `nimbus datagen --out` folder?)"),
+            },
+            other => other,
+        })?;
     serde_json::from_str(&text).map_err(|e| fail(path.display(), format!("not valid JSON ({e})")))
+}
+
+/// Copies `src` (a regular file, streamed) to `dst` whole or not at all
+/// ([`nimbus_scene::fsio::write_atomically`]).
+fn copy(src: &Path, dst: &Path) -> Result<(), DatagenError> {
+    use nimbus_scene::fsio;
+    use std::io::Read;
+    let (mut from, len) = fsio::open(src, fsio::Hold::Streamed)?;
+    fsio::write_atomically(dst, |tmp| {
+        let mut to = std::fs::File::create(tmp).map_err(|e| nimbus_scene::Error::io(dst, e))?;
+        let copied = std::io::copy(&mut (&mut from).take(len), &mut to).map_err(|e| {
+            nimbus_scene::Error::parse(dst, format!("copying {}: {e}", src.display()))
+        })?;
+        if copied != len {
+            return Err(nimbus_scene::Error::parse(
+                dst,
+                format!("copying {}: {copied} of {len} bytes read", src.display()),
+            ));
+        }
+        Ok(())
+    })?;
+    Ok(())
 }
 
 /// One part folder, read and checked on its own.
@@ -164,8 +188,10 @@ pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeSummary, DatagenError
     // is not overwritten (a plain datagen run into it would be refused); one holding this
     // merge's earlier, interrupted run is completed.
     let text = serde_json::to_string_pretty(&first.settings).expect("json");
-    if out.join("manifest.json").exists() || out.join("settings.json").exists() {
-        let same = std::fs::read_to_string(out.join("settings.json")).is_ok_and(|t| t == text);
+    if present(&out.join("manifest.json")) || present(&out.join("settings.json")) {
+        let same = crate::read_optional_text(&out.join("settings.json"))
+            .map_err(DatagenError::from)?
+            .is_some_and(|t| t == text);
         if !same {
             return Err(fail(
                 out.display(),
@@ -334,11 +360,11 @@ pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeSummary, DatagenError
                     format!("shard file name `{file}` is not a plain file name"),
                 ));
             }
-            if rows_of(&path) != Some(s.records as u64) {
+            if rows_of(&path)? != Some(s.records as u64) {
                 return Err(fail(
                     path.display(),
                     format!(
-                        "missing, unreadable or not {} rows as manifest.json says",
+                        "not an .npy file of {} rows as manifest.json says",
                         s.records
                     ),
                 ));
@@ -374,10 +400,7 @@ pub fn merge(parts: &[PathBuf], out: &Path) -> Result<MergeSummary, DatagenError
             if std::fs::hard_link(&src, &dst).is_ok() {
                 linked += 1;
             } else {
-                let tmp = out.join(format!(".{file}.tmp"));
-                std::fs::copy(&src, &tmp)
-                    .and_then(|_| std::fs::rename(&tmp, &dst))
-                    .map_err(|e| fail(dst.display(), format!("copying {}: {e}", src.display())))?;
+                copy(&src, &dst)?;
             }
         }
     }
