@@ -223,7 +223,7 @@ pub struct OrtModel {
 
 fn session(
     env: &ort::environment::Environment,
-    path: &Path,
+    model: &[u8],
     intra: usize,
 ) -> Result<ort::session::Session, String> {
     let mut b = ort::session::Session::builder(env).map_err(|e| e.to_string())?;
@@ -239,7 +239,7 @@ fn session(
     if intra > 0 {
         b = b.with_intra_threads(intra).map_err(|e| e.to_string())?;
     }
-    b.commit_from_file(path).map_err(|e| e.to_string())
+    b.commit_from_memory(model).map_err(|e| e.to_string())
 }
 
 impl OrtModel {
@@ -261,9 +261,13 @@ impl OrtModel {
             file: path.display().to_string(),
             msg: e,
         };
-        if !path.is_file() {
+        if matches!(std::fs::symlink_metadata(path), Err(e) if e.kind() == std::io::ErrorKind::NotFound)
+        {
             return Err(err("model not found".into()));
         }
+        // Read once, as every input is (a regular file within the memory budget: never a
+        // pipe waited on or a device read without end), and given to every session.
+        let model = crate::model::read_bytes(path).map_err(err)?;
         let (count, intra) = match cores {
             Cores::Pool(t) => (1, t),
             Cores::Workers(0) => (rayon::current_num_threads().max(1), 1),
@@ -274,11 +278,11 @@ impl OrtModel {
                 )));
             }
         };
-        let first = session(env, path, intra).map_err(err)?;
+        let first = session(env, &model, intra).map_err(err)?;
         check(&first)?;
         let rest = (1..count)
             .into_par_iter()
-            .map(|_| session(env, path, intra))
+            .map(|_| session(env, &model, intra))
             .collect::<Result<Vec<_>, _>>()
             .map_err(err)?;
         let mut sessions = vec![first];

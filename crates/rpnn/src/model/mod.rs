@@ -52,9 +52,20 @@ pub fn sky_model_path_for(phase_desc: &str) -> Option<std::path::PathBuf> {
     p.is_file().then_some(p)
 }
 
-/// `rel` in the working directory or the executable's folder, or one of their ancestors.
+/// The folder of the shipped models when they are installed elsewhere than `models/` above the
+/// working directory or the executable (the Python package sets it to the models it ships).
+pub const MODELS_ENV: &str = "NIMBUS_MODELS";
+
+/// `rel`'s file in the folder [`MODELS_ENV`] names, else `rel` in the working directory or the
+/// executable's folder, or one of their ancestors.
 fn find_model(rel: &str) -> std::path::PathBuf {
     let rel = Path::new(rel);
+    if let (Some(dir), Some(name)) = (std::env::var_os(MODELS_ENV), rel.file_name()) {
+        let p = Path::new(&dir).join(name);
+        if p.is_file() {
+            return p;
+        }
+    }
     let starts = [std::env::current_dir().ok(), std::env::current_exe().ok()];
     for s in starts.into_iter().flatten() {
         for dir in s.ancestors() {
@@ -269,7 +280,8 @@ impl Rpnn {
             file: path.display().to_string(),
             msg,
         };
-        if !path.exists() {
+        if matches!(std::fs::symlink_metadata(path), Err(e) if e.kind() == std::io::ErrorKind::NotFound)
+        {
             return Err(err(
                 "model not found (train one with training/train.py, or use the \
                             shipped models/rpnn-hg.onnx)"
@@ -280,12 +292,81 @@ impl Rpnn {
         let mut m = Self::from_bytes(&bytes).map_err(err)?;
         if m.albedo.is_none() {
             // Models exported before the albedo entered the metadata: read the card.
-            m.albedo = std::fs::read_to_string(path.with_extension("json"))
-                .ok()
-                .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-                .and_then(|v| v["data"]["albedo"].as_f64());
+            m.albedo = m.read_card(&path.with_extension("json"))?;
         }
         Ok(m)
+    }
+
+    /// Reads the model card `card` (`<model>.json`, optional) and checks it as the metadata is
+    /// checked: its `data.albedo` must be an albedo (a number in [0, 1]) and its shape
+    /// (`architecture` or `config`: levels, points, width, outputs, head layers, sky
+    /// coefficients) the graph's. Returns the card's albedo. Every error names the card and
+    /// the field; a card that is there but not a readable file (a pipe, a device, a dangling
+    /// or looping link, over the memory budget) is an error too, never skipped.
+    fn read_card(&self, card: &Path) -> Result<Option<f64>, ModelError> {
+        let err = |msg: String| ModelError {
+            file: card.display().to_string(),
+            msg,
+        };
+        let Some(text) = crate::read_optional_text(card).map_err(|e| err(without_path(e)))? else {
+            return Ok(None);
+        };
+        let v: serde_json::Value = serde_json::from_str(&text)
+            .map_err(|e| err(format!("not valid JSON ({e}): a model card")))?;
+        if !v.is_object() {
+            return Err(err("not a model card (a JSON object)".into()));
+        }
+        for section in ["architecture", "config"] {
+            if let Some(c) = v.get(section)
+                && let Err((key, msg)) = self.check_config(c)
+            {
+                return Err(err(format!("field `{section}.{key}`: {msg}")));
+            }
+        }
+        match v.get("data").and_then(|d| d.get("albedo")) {
+            None => Ok(None),
+            Some(a) => match a.as_f64() {
+                Some(x) if (0.0..=1.0).contains(&x) => Ok(Some(x)),
+                _ => Err(err(format!(
+                    "field `data.albedo` = {a}: not an albedo (a number in [0, 1])"
+                ))),
+            },
+        }
+    }
+
+    /// The shape a model states of itself (the metadata's `nimbus.rpnn.config`, a card's
+    /// `architecture` or `config`) against the graph's: `Err((key, why))` at the first
+    /// difference. The five shape keys must be there; `sky_sh_coeffs` is checked when given.
+    fn check_config(&self, v: &serde_json::Value) -> Result<(), (String, String)> {
+        for (key, have) in [
+            ("levels", self.levels),
+            ("points", self.points),
+            ("width", self.width),
+            ("outputs", self.outputs),
+            ("head_layers", self.head.len()),
+        ] {
+            if v.get(key).and_then(|x| x.as_u64()) != Some(have as u64) {
+                return Err((
+                    key.into(),
+                    format!(
+                        "says {key} = {}, the graph has {have}",
+                        v.get(key).map_or("nothing".into(), |x| x.to_string())
+                    ),
+                ));
+            }
+        }
+        if let Some(n) = v.get("sky_sh_coeffs")
+            && n.as_u64() != Some(self.sky_coeffs() as u64)
+        {
+            return Err((
+                "sky_sh_coeffs".into(),
+                format!(
+                    "says sky_sh_coeffs = {n}, the graph's sky head has {}",
+                    self.sky_coeffs()
+                ),
+            ));
+        }
+        Ok(())
     }
 
     /// Parses ONNX bytes (errors without the file name).
@@ -400,29 +481,8 @@ impl Rpnn {
         if let Some(cfg) = meta.get("nimbus.rpnn.config") {
             let v: serde_json::Value = serde_json::from_str(cfg)
                 .map_err(|e| format!("metadata nimbus.rpnn.config: {e}"))?;
-            for (key, have) in [
-                ("levels", rpnn.levels),
-                ("points", rpnn.points),
-                ("width", rpnn.width),
-                ("outputs", rpnn.outputs),
-                ("head_layers", rpnn.head.len()),
-            ] {
-                if v.get(key).and_then(|x| x.as_u64()) != Some(have as u64) {
-                    return Err(format!(
-                        "metadata nimbus.rpnn.config says {key} = {}, the graph has {have}",
-                        v.get(key).map_or("nothing".into(), |x| x.to_string())
-                    ));
-                }
-            }
-            if let Some(n) = v.get("sky_sh_coeffs")
-                && n.as_u64() != Some(rpnn.sky_coeffs() as u64)
-            {
-                return Err(format!(
-                    "metadata nimbus.rpnn.config says sky_sh_coeffs = {n}, the graph's sky head \
-                     has {}",
-                    rpnn.sky_coeffs()
-                ));
-            }
+            rpnn.check_config(&v)
+                .map_err(|(_, msg)| format!("metadata nimbus.rpnn.config {msg}"))?;
         }
         // The renderers contract the sky head's outputs with the sky's coefficients to degree
         // 4 (`crate::sky`); a head of another size would be misread or cut short.
@@ -443,12 +503,16 @@ impl Rpnn {
 /// is read whole (a 6 GiB file named as a model was once read to the end before the protobuf
 /// parser refused it). Errors without the file name.
 pub(crate) fn read_bytes(path: &Path) -> Result<Vec<u8>, String> {
-    nimbus_scene::memory::check_file(path, 1).map_err(|e| {
-        let t = e.to_string();
-        let prefix = format!("{}: ", path.display());
-        t.strip_prefix(&prefix).unwrap_or(&t).to_string()
-    })?;
-    std::fs::read(path).map_err(|e| e.to_string())
+    nimbus_scene::fsio::read(path).map_err(without_path)
+}
+
+/// A file error's message without the path it names (the caller's error names it).
+fn without_path(e: nimbus_scene::Error) -> String {
+    match e {
+        nimbus_scene::Error::Io { err, .. } => err.to_string(),
+        nimbus_scene::Error::Invalid { field, msg, .. } => format!("field `{field}`: {msg}"),
+        nimbus_scene::Error::Parse { msg, .. } => msg,
+    }
 }
 
 /// The second dimension of a graph input's declared shape, where it is a number.
