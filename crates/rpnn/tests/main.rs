@@ -3,6 +3,7 @@
 
 mod datagen;
 mod descriptor;
+mod files;
 mod gpu_sample;
 mod model;
 mod model_damage;
