@@ -411,8 +411,11 @@ impl<'g> Viewer<'g> {
         }
     }
 
-    /// Writes the scene with the current camera and sun to `path` (TOML). Relative file paths of
-    /// the original are made absolute so the copy works from any folder.
+    /// Writes the scene with the current camera and sun to `path` (TOML), atomically
+    /// ([`nimbus_scene::fsio::write_bytes`]). Every file path of the original
+    /// ([`nimbus_scene::scene_paths::PATH_FIELDS`]) is rewritten for `path`'s folder
+    /// ([`nimbus_scene::scene_paths::rebase_paths`]: relative under it, absolute elsewhere), so
+    /// the copy reads the same files wherever it is opened from.
     pub fn save_scene(&self, path: &Path) -> Result<(), ViewerError> {
         let perr = |msg: String| ViewerError::File {
             path: path.display().to_string(),
@@ -441,22 +444,19 @@ impl<'g> Viewer<'g> {
         if let (Some(sun), Some(toml::Value::Table(t))) = (&self.scene.sun, doc.get_mut("sun")) {
             t.insert("direction".into(), arr(sun.dir));
         }
-        for (table, key) in [("volume", "file"), ("sky", "file")] {
-            if let Some(toml::Value::Table(t)) = doc.get_mut(table)
-                && let Some(toml::Value::String(p)) = t.get_mut(key)
-                && Path::new(p.as_str()).is_relative()
-            {
-                *p = dir.join(p.as_str()).display().to_string();
-            }
+        if let Some(d) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(d).map_err(|e| perr(e.to_string()))?;
         }
+        // Every path field, for the folder saved into (after it exists: a file under it is
+        // recognised through links too).
+        let scene_err = |e: nimbus_scene::Error| ViewerError::Other(e.to_string());
+        nimbus_scene::scene_paths::rebase_paths(&mut doc, &dir, path).map_err(scene_err)?;
         let out = format!(
             "# Saved by `nimbus view` (camera and sun as last shown).\n{}",
             toml::to_string(&doc).map_err(|e| perr(e.to_string()))?
         );
-        if let Some(d) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(d).map_err(|e| perr(e.to_string()))?;
-        }
-        std::fs::write(path, out).map_err(|e| perr(e.to_string()))
+        // Whole or not at all: a full disk leaves an existing file as it was.
+        nimbus_scene::fsio::write_bytes(path, out.as_bytes()).map_err(scene_err)
     }
 
     /// Advances the simulation by `dt` seconds and renders one frame.

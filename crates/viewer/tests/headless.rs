@@ -490,3 +490,220 @@ fn converged_gather_agrees_with_a_render() {
         s2.sqrt()
     );
 }
+
+/// A scene in folder `a` that names a file in every path field of the format
+/// (`nimbus_scene::scene_paths::PATH_FIELDS`): a `.vol` volume beside it and an env-map sky in
+/// `a/sub`. Decoys of the same names (another cloud, another sky) wait where a path left
+/// relative to the wrong folder would find them.
+fn scene_with_files(a: &Path, b: &Path) -> (String, std::path::PathBuf) {
+    use nimbus_scene::generate::generate;
+    let bounds = (
+        glam::DVec3::new(-1.0, -0.75, -1.0),
+        glam::DVec3::new(1.0, 0.75, 1.0),
+    );
+    let cloud = |seed, path: &Path| {
+        let g = generate(nimbus_scene::CloudKind::Cumulus, seed, [20, 15, 20]).unwrap();
+        nimbus_scene::io::write_grid(path, &g, bounds).unwrap();
+    };
+    let sky = |tint: f32, path: &Path| {
+        let mut img = Image::new(16, 8);
+        for (i, p) in img.pixels.iter_mut().enumerate() {
+            let (x, y) = ((i % 16) as f32, (i / 16) as f32);
+            *p = [tint * (0.2 + 0.05 * x), 0.3 + 0.1 * y, tint];
+        }
+        img.write_exr(path, None).unwrap();
+    };
+    for d in [a.join("sub/sub"), b.join("sub")] {
+        std::fs::create_dir_all(d).unwrap();
+    }
+    cloud(3, &a.join("cloud.vol"));
+    sky(0.4, &a.join("sub/sky.exr"));
+    for d in [b.to_path_buf(), a.join("sub")] {
+        cloud(11, &d.join("cloud.vol"));
+        sky(2.0, &d.join("sub/sky.exr"));
+    }
+    let text = r#"[volume]
+file = "cloud.vol"
+density_scale = 20.0
+phase = { kind = "hg", g = 0.6 }
+[sun]
+direction = [-0.5, 0.6, -0.6]
+irradiance = 2.0
+[sky]
+envmap = "sub/sky.exr"
+scale = 1.5
+[camera]
+origin = [0.3, 0.3, 3.2]
+target = [0.0, 0.05, 0.0]
+vfov_deg = 32.0
+width = 12
+height = 8
+[render]
+seed = 5
+"#;
+    let path = a.join("scene.toml");
+    std::fs::write(&path, text).unwrap();
+    (text.to_string(), path)
+}
+
+/// Four samples per pixel of the CPU path tracer, seed 7 (deterministic: the same scene gives
+/// the same pixels, bit for bit).
+fn tiny_pt(gpu: &nimbus_gpu::Gpu, scene: &Scene) -> Image {
+    let mut est = nimbus_render::prepare(
+        scene,
+        nimbus_render::Method::Pt,
+        &nimbus_render::Options::default(),
+        gpu,
+    )
+    .unwrap();
+    est.render(4, 7).unwrap().image
+}
+
+fn volume_file(s: &Scene) -> std::path::PathBuf {
+    match &s.volume_source {
+        nimbus_scene::VolumeSource::File(p) => p.canonicalize().unwrap(),
+        other => panic!("{other:?}"),
+    }
+}
+
+/// A scene saved by the viewer into a folder outside its own and into a subfolder of its own
+/// names the same volume and env map, whatever the current folder: its path fields are
+/// relative to the new file where the file lies under its folder, else absolute; and it
+/// renders the same pixels. (Before, `sky.envmap` stayed relative and the copy read the decoy
+/// sky beside it.)
+#[test]
+fn saved_scene_reads_the_same_files_from_any_folder() {
+    let Some(gpu) =
+        nimbus_gpu::testing::gpu("headless::saved_scene_reads_the_same_files_from_any_folder")
+    else {
+        return;
+    };
+    let root = std::env::temp_dir().join(format!("nimbus-viewer-paths-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let (a, b) = (root.join("a"), root.join("b"));
+    let (text, original_path) = scene_with_files(&a, &b);
+    let original = Scene::load(&original_path).unwrap();
+    let expected = tiny_pt(&gpu, &original);
+    let mut v = Viewer::new(&gpu, original.clone(), Some((text, a.clone())), options()).unwrap();
+    let sky_file = a.join("sub/sky.exr").canonicalize().unwrap();
+    for (saved, volume_field, envmap_field) in [
+        (b.join("saved.toml"), None, None),
+        (a.join("sub/saved.toml"), None, Some("sky.exr")),
+        (a.join("copy.toml"), Some("cloud.vol"), Some("sub/sky.exr")),
+    ] {
+        v.apply(&Action::SaveScene(saved.clone())).unwrap();
+        let doc: toml::Table = std::fs::read_to_string(&saved).unwrap().parse().unwrap();
+        let dir = saved.parent().unwrap();
+        for (value, relative) in [
+            (doc["volume"]["file"].as_str().unwrap(), volume_field),
+            (doc["sky"]["envmap"].as_str().unwrap(), envmap_field),
+        ] {
+            // Relative exactly where the file lies under the new folder, else absolute.
+            match relative {
+                Some(r) => assert_eq!(value, r, "{}", saved.display()),
+                None => assert!(Path::new(value).is_absolute(), "{value}"),
+            }
+        }
+        let envmap = dir.join(doc["sky"]["envmap"].as_str().unwrap());
+        assert_eq!(envmap.canonicalize().unwrap(), sky_file);
+        // The loader's rule (relative to the scene file) finds the same files: the resolved
+        // paths depend on the saved file's folder only, never on the current folder.
+        let reopened = Scene::load(&saved).unwrap();
+        assert_eq!(volume_file(&reopened), volume_file(&original));
+        let image = tiny_pt(&gpu, &reopened);
+        assert_eq!(image.pixels, expected.pixels, "{}", saved.display());
+    }
+    // The decoys differ: a path resolved in the wrong folder would change the pixels.
+    let mut decoy = Scene::load(&original_path).unwrap();
+    let wrong = Scene::from_toml_str(
+        &std::fs::read_to_string(&original_path).unwrap(),
+        &b,
+        Path::new("decoy.toml"),
+    )
+    .unwrap();
+    decoy.sky = wrong.sky;
+    assert_ne!(tiny_pt(&gpu, &decoy).pixels, expected.pixels);
+    std::fs::remove_dir_all(&root).ok();
+}
+
+/// A tmpfs of 16 KiB mounted on `dir` for the life of the value (root only).
+struct SmallDisk(std::path::PathBuf);
+
+impl SmallDisk {
+    fn mount(dir: &Path) -> Option<Self> {
+        std::fs::create_dir_all(dir).unwrap();
+        let ok = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", "size=16k", "tmpfs"])
+            .arg(dir)
+            .stderr(std::process::Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success());
+        ok.then(|| Self(dir.to_path_buf()))
+    }
+}
+
+impl Drop for SmallDisk {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount").arg(&self.0).status();
+    }
+}
+
+/// Saving onto a full disk fails with an error naming the file and leaves the scene file
+/// already there as it was (before, it was truncated to 0 bytes). Needs root to mount a small
+/// tmpfs; skipped with a line otherwise.
+#[test]
+fn save_scene_on_a_full_disk_keeps_the_old_file() {
+    let Some(gpu) =
+        nimbus_gpu::testing::gpu("headless::save_scene_on_a_full_disk_keeps_the_old_file")
+    else {
+        return;
+    };
+    let root = std::env::temp_dir().join(format!("nimbus-viewer-full-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let Some(disk) = SmallDisk::mount(&root.join("disk")) else {
+        println!(
+            "skipped headless::save_scene_on_a_full_disk_keeps_the_old_file: cannot mount a \
+             tmpfs (needs root)"
+        );
+        return;
+    };
+    let saved = disk.0.join("saved.toml");
+    let old = "# an earlier save\n".repeat(20);
+    std::fs::write(&saved, &old).unwrap();
+    // Fill the rest of the disk.
+    {
+        use std::io::Write;
+        let mut f = std::fs::File::create(disk.0.join("filler")).unwrap();
+        while f.write_all(&[7u8; 512]).is_ok() {}
+        while f.write_all(&[7u8]).is_ok() {}
+    }
+    let mut v = Viewer::new(
+        &gpu,
+        scene(),
+        Some((SCENE.to_string(), root.clone())),
+        options(),
+    )
+    .unwrap();
+    let err = v
+        .apply(&Action::SaveScene(saved.clone()))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains(&*saved.to_string_lossy()) && err.contains("No space left"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read_to_string(&saved).unwrap(), old);
+    // No temporary file is left behind.
+    let mut names: Vec<_> = std::fs::read_dir(&disk.0)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    names.sort();
+    assert_eq!(names, ["filler", "saved.toml"]);
+    // With room again the save goes through.
+    std::fs::remove_file(disk.0.join("filler")).unwrap();
+    v.apply(&Action::SaveScene(saved.clone())).unwrap();
+    assert!(Scene::load(&saved).is_ok());
+    drop(disk);
+    std::fs::remove_dir_all(&root).ok();
+}
