@@ -50,7 +50,7 @@ fn write_npy_as<T: npyz::AutoSerialize>(
     use npyz::WriterBuilder;
     fsio::write_atomically(path, |tmp| {
         let io = |e: std::io::Error| nimbus_scene::Error::io(path, e);
-        let mut f = std::io::BufWriter::new(std::fs::File::create(tmp).map_err(io)?);
+        let mut f = std::io::BufWriter::new(fsio::create(tmp)?);
         {
             let mut w = npyz::WriteOptions::<T>::new()
                 .default_dtype()

@@ -55,7 +55,7 @@ fn copy(src: &Path, dst: &Path) -> Result<(), DatagenError> {
     use std::io::Read;
     let (mut from, len) = fsio::open(src, fsio::Hold::Streamed)?;
     fsio::write_atomically(dst, |tmp| {
-        let mut to = std::fs::File::create(tmp).map_err(|e| nimbus_scene::Error::io(dst, e))?;
+        let mut to = fsio::create(tmp)?;
         let copied = std::io::copy(&mut (&mut from).take(len), &mut to).map_err(|e| {
             nimbus_scene::Error::parse(dst, format!("copying {}: {e}", src.display()))
         })?;
