@@ -7,6 +7,7 @@ mod cli;
 mod common;
 mod device;
 mod eval;
+mod secondary_rpnn;
 mod interface;
 mod view;
 mod volumes;
