@@ -98,8 +98,7 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
     let (mut s, source) = match &scene {
         Some(p) => {
             let s = Scene::load(p)?;
-            let text = std::fs::read_to_string(p)
-                .with_context(|| format!("cannot read {}", p.display()))?;
+            let text = nimbus_scene::fsio::read_to_string(p)?;
             let dir = p.parent().map(|d| d.to_path_buf()).unwrap_or_default();
             let dir = std::fs::canonicalize(if dir.as_os_str().is_empty() {
                 Path::new(".")

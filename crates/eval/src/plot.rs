@@ -51,7 +51,7 @@ fn ensure_font() -> Result<()> {
     static FONT: OnceLock<Result<PathBuf, String>> = OnceLock::new();
     FONT.get_or_init(|| {
         for p in font_candidates() {
-            if let Ok(bytes) = std::fs::read(&p) {
+            if let Ok(bytes) = nimbus_scene::fsio::read(&p) {
                 // plotters keeps fonts for the life of the process: leak one copy.
                 let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
                 if plotters::style::register_font("sans-serif", FontStyle::Normal, bytes).is_ok() {
@@ -103,22 +103,32 @@ pub fn error_vs_time(
     let range = (x0 / 1.5, x1 * 1.5, y0 / 1.5, y1 * 1.5);
     let png = stem.with_extension("png");
     let svg = stem.with_extension("svg");
-    draw(
-        BitMapBackend::new(&png, (800, 560)).into_drawing_area(),
-        title,
-        y_label,
-        series,
-        floor,
-        range,
-    )?;
-    draw(
-        SVGBackend::new(&svg, (800, 560)).into_drawing_area(),
-        title,
-        y_label,
-        series,
-        floor,
-        range,
-    )?;
+    // Each written whole or not at all (a temporary beside it, same extension, renamed).
+    fn failed(p: &Path) -> impl Fn(anyhow::Error) -> nimbus_scene::Error + '_ {
+        move |e| nimbus_scene::Error::parse(p, format!("{e:#}"))
+    }
+    nimbus_scene::fsio::write_atomically(&png, |tmp| {
+        draw(
+            BitMapBackend::new(tmp, (800, 560)).into_drawing_area(),
+            title,
+            y_label,
+            series,
+            floor,
+            range,
+        )
+        .map_err(failed(&png))
+    })?;
+    nimbus_scene::fsio::write_atomically(&svg, |tmp| {
+        draw(
+            SVGBackend::new(tmp, (800, 560)).into_drawing_area(),
+            title,
+            y_label,
+            series,
+            floor,
+            range,
+        )
+        .map_err(failed(&svg))
+    })?;
     Ok((png, svg))
 }
 

@@ -178,7 +178,7 @@ pub fn require_cached(
     let mut missing = Vec::new();
     for s in scenes {
         let (_, key, files) = cache_entry(s, settings, gpu)?;
-        if !files.is_some_and(|f| f.3.exists()) {
+        if !files.is_some_and(|f| present(&f.3)) {
             missing.push(format!("{} (key {}…)", s.source.display(), &key[..16]));
         }
     }
@@ -210,7 +210,7 @@ pub fn reference(
     let estimator = if use_gpu { "pt-gpu" } else { "pt" };
     let (w, h) = (scene.camera.width, scene.camera.height);
     if let Some((exr, diff, tau, json)) = &files
-        && json.exists()
+        && present(json)
     {
         match load([exr, diff, tau, json], &key, w, h) {
             Ok(mut r) => {
@@ -371,10 +371,7 @@ pub fn reference(
                 time_s,
             };
             // The JSON last: an entry without it is never read.
-            let tmp = json.with_extension("json.tmp");
-            std::fs::write(&tmp, serde_json::to_string_pretty(&meta)?)
-                .and_then(|_| std::fs::rename(&tmp, json))
-                .with_context(|| format!("cannot write {}", json.display()))?;
+            nimbus_scene::fsio::write_bytes(json, serde_json::to_string_pretty(&meta)?.as_bytes())?;
             Ok(())
         };
         match store() {
@@ -419,9 +416,15 @@ pub fn block_noise(a: &[f64], b: &[f64], mask: &[bool], w: usize, h: usize) -> f
     (crate::blocks::block_mean_square(|i| a[i] - b[i], &blocks) / 4.0).sqrt() / mean_cloud
 }
 
+/// `true` when something is at `path`, whatever it is: a cache entry that is a dangling link, a
+/// loop or a pipe is read (and refused, naming it), not taken for a missing one.
+fn present(path: &std::path::Path) -> bool {
+    std::fs::symlink_metadata(path).is_ok()
+}
+
 fn load(files: [&PathBuf; 4], key: &str, w: usize, h: usize) -> Result<Reference> {
     let [exr, diff, tau, json] = files;
-    let text = std::fs::read_to_string(json).with_context(|| json.display().to_string())?;
+    let text = nimbus_scene::fsio::read_to_string(json)?;
     let meta: Meta =
         serde_json::from_str(&text).with_context(|| format!("{}: bad JSON", json.display()))?;
     if meta.key != key {

@@ -213,7 +213,7 @@ pub fn write(
     let mut written = Vec::new();
     let mut put = |name: &str, text: String| -> Result<()> {
         let p = dir.join(name);
-        std::fs::write(&p, text).with_context(|| format!("cannot write {}", p.display()))?;
+        nimbus_scene::fsio::write_bytes(&p, text.as_bytes())?;
         written.push(p);
         Ok(())
     };

@@ -276,7 +276,7 @@ pub fn write_case(c: &Case, dir: &Path) -> Result<PathBuf> {
         c.camera.1.z,
     );
     let p = dir.join(format!("{}.toml", c.id));
-    std::fs::write(&p, text).with_context(|| format!("cannot write {}", p.display()))?;
+    nimbus_scene::fsio::write_bytes(&p, text.as_bytes())?;
     Ok(p)
 }
 
@@ -614,9 +614,7 @@ pub fn write_markdown(
     );
     let md = markdown(outcomes, methods, limit, &machine);
     let p = out.join("stability.md");
-    io::write_atomically(&p, |tmp| {
-        std::fs::write(tmp, &md).map_err(|e| nimbus_scene::Error::io(tmp, e))
-    })?;
+    nimbus_scene::fsio::write_bytes(&p, md.as_bytes())?;
     Ok(p)
 }
 

@@ -250,8 +250,7 @@ pub fn run(opts: &SuiteOptions, out: &Path, log: &mut dyn FnMut(String)) -> Resu
                 )?;
                 let toml_path = opts.work_dir.join("scenes").join(format!("{name}.toml"));
                 std::fs::create_dir_all(toml_path.parent().expect("has a parent"))?;
-                std::fs::write(&toml_path, &text)
-                    .with_context(|| format!("cannot write {}", toml_path.display()))?;
+                nimbus_scene::fsio::write_bytes(&toml_path, text.as_bytes())?;
                 let scene = Scene::load(&toml_path)?;
                 // An environment map is left to the methods that take one.
                 let mut compare = opts.compare.clone();
@@ -294,7 +293,7 @@ pub fn run(opts: &SuiteOptions, out: &Path, log: &mut dyn FnMut(String)) -> Resu
         Err(e) => log(format!("plot skipped: {e:#}")),
     }
     let p = out.join("results.md");
-    std::fs::write(&p, md).with_context(|| format!("cannot write {}", p.display()))?;
+    nimbus_scene::fsio::write_bytes(&p, md.as_bytes())?;
     log(format!("wrote {}", p.display()));
     Ok(rows)
 }

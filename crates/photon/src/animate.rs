@@ -295,10 +295,7 @@ pub fn animate_to_dir(
         Ok(())
     })?;
     let csv_path = out.join("timings.csv");
-    nimbus_scene::io::write_atomically(&csv_path, |tmp| {
-        std::fs::write(tmp, &csv).map_err(|e| nimbus_scene::Error::io(tmp, e))
-    })
-    .map_err(io_err)?;
+    nimbus_scene::fsio::write_bytes(&csv_path, csv.as_bytes()).map_err(io_err)?;
     Ok(csv_path)
 }
 

@@ -101,7 +101,13 @@ pub fn read_to_string_if_exists(path: &Path) -> Result<Option<String>> {
         Ok(_) => {}
     }
     match read_to_string(path) {
-        Err(Error::Io { err, .. }) if err.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        // Gone since, or a link to nothing (said as a dangling link by `io_error`).
+        Err(_)
+            if std::fs::metadata(path)
+                .is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound) =>
+        {
+            Ok(None)
+        }
         other => other.map(Some),
     }
 }
@@ -216,7 +222,8 @@ pub fn write_atomically(path: &Path, write: impl FnOnce(&Path) -> Result<()>) ->
                 .unwrap_or_else(|| std::io::Error::other("cannot create a temporary file"));
             Error::io(path, e)
         })?;
-    let result = write(&tmp).and_then(|()| {
+    // An error of `write` that names the temporary names `path`: the file the user asked for.
+    let result = write(&tmp).map_err(|e| renamed(e, &tmp, path)).and_then(|()| {
         File::open(&tmp)
             .and_then(|f| f.sync_all())
             .and_then(|()| std::fs::rename(&tmp, path))
@@ -229,6 +236,16 @@ pub fn write_atomically(path: &Path, write: impl FnOnce(&Path) -> Result<()>) ->
     }
     drop(lock);
     result
+}
+
+/// `e`, naming `to` where it named `from`.
+fn renamed(e: Error, from: &Path, to: &Path) -> Error {
+    match e {
+        Error::Io { path, err } if path == from => Error::io(to, err),
+        Error::Invalid { path, field, msg } if path == from => Error::invalid(to, field, msg),
+        Error::Parse { path, msg } if path == from => Error::parse(to, msg),
+        e => e,
+    }
 }
 
 /// Writes `bytes` to `path` atomically ([`write_atomically`]).

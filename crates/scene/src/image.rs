@@ -99,8 +99,8 @@ impl Image {
     /// file without them (Y or alpha alone) or with integer ones is an error naming what it has.
     pub fn read_exr(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        crate::memory::regular_file(path)?;
-        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+        // The data window is checked against the budget before the pixels are allocated.
+        let (file, _) = crate::fsio::open(path, crate::fsio::Hold::Streamed)?;
         Self::parse_exr(std::io::BufReader::new(file), path)
     }
 

@@ -137,37 +137,6 @@ pub fn filled<T: Clone>(n: usize, value: T, field: &str, what: &str) -> Result<V
     Ok(v)
 }
 
-/// The size of `path` if it is a regular file (a symbolic link to one counts): a named pipe, a
-/// device or a folder is an error here, before anything opens it (opening a pipe waits for a
-/// writer that may never come).
-pub fn regular_file(path: &std::path::Path) -> Result<u64, crate::Error> {
-    let meta = std::fs::metadata(path).map_err(|e| crate::Error::io(path, e))?;
-    if !meta.is_file() {
-        let kind = if meta.is_dir() {
-            "a folder"
-        } else {
-            "not a regular file (a pipe, socket or device)"
-        };
-        return Err(crate::Error::parse(
-            path,
-            format!("{kind}: expected a file to read"),
-        ));
-    }
-    Ok(meta.len())
-}
-
-/// Checks a file about to be read whole (`factor` × its size is held at once): a regular file
-/// ([`regular_file`]) whose bytes fit the budget.
-pub fn check_file(path: &std::path::Path, factor: u128) -> Result<(), crate::Error> {
-    let len = regular_file(path)?;
-    check(
-        len as u128 * factor,
-        "file",
-        &format!("reading this {} file", human(len as u128)),
-    )
-    .map_err(|e| e.at(path))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

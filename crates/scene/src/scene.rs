@@ -378,7 +378,7 @@ impl Scene {
     /// Reads a scene file (at most [`MAX_SCENE_BYTES`]).
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let len = crate::memory::regular_file(path)?;
+        let (_, len) = crate::fsio::open(path, crate::fsio::Hold::Streamed)?;
         if len > MAX_SCENE_BYTES {
             return Err(Error::parse(
                 path,
@@ -390,7 +390,8 @@ impl Scene {
                 ),
             ));
         }
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        // Read at most the size it has now (a file that grew since is cut there).
+        let text = crate::fsio::read_to_string(path)?;
         let base = path.parent().unwrap_or(Path::new("."));
         Self::from_toml_str(&text, base, path)
     }

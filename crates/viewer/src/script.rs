@@ -140,7 +140,8 @@ pub struct Script {
 
 impl Script {
     pub fn load(path: &Path) -> Result<Self, ScriptError> {
-        let text = std::fs::read_to_string(path).map_err(|e| ScriptError {
+        // A pipe, a device, a folder or a bad link is refused at once (never waited on).
+        let text = nimbus_scene::fsio::read_to_string(path).map_err(|e| ScriptError {
             file: path.display().to_string(),
             line: 0,
             msg: e.to_string(),

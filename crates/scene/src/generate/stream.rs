@@ -58,7 +58,7 @@ pub fn generate_vol(
         &format!("the slab buffers of a {nx}×{ny}×{nz} cloud being written"),
     )
     .map_err(|e| e.at(path))?;
-    let file = SlabFile::create(path, res, bounds).map_err(|e| Error::io(path, e))?;
+    let file = SlabFile::create(path, res, bounds)?;
     let (max, sum, nonzero) = write_raw(kind, seed, res, &file).map_err(|e| Error::io(path, e))?;
     if max <= 0.0 {
         return Err(FieldError::new(

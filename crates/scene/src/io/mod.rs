@@ -51,7 +51,8 @@ pub fn read_grid_named(path: impl AsRef<Path>, grid: Option<&str>) -> Result<Gri
             "only .vdb and .nvdb files hold named grids",
         ));
     }
-    crate::memory::regular_file(path)?;
+    // A pipe, device, folder or bad link is refused here, whatever the extension says.
+    crate::fsio::open(path, crate::fsio::Hold::Streamed)?;
     match ext.as_deref() {
         Some("vol") => vol::read(path),
         Some("npy") => npy::read(path).map(|grid| GridFile { grid, bounds: None }),
@@ -64,38 +65,12 @@ pub fn read_grid_named(path: impl AsRef<Path>, grid: Option<&str>) -> Result<Gri
     }
 }
 
-/// Writes `path` whole or not at all: `write` fills a temporary file beside it (same
-/// extension, so format choices by extension still work), which is flushed to disk and then
-/// renamed over `path`. On any failure (a full disk, a closed pipe, a bad path) the temporary
-/// file is removed and the error names `path`; nothing claims a file that is not there.
+/// Writes `path` whole or not at all: [`crate::fsio::write_atomically`].
 pub fn write_atomically(
     path: impl AsRef<Path>,
     write: impl FnOnce(&Path) -> Result<()>,
 ) -> Result<()> {
-    let path = path.as_ref();
-    let name = path
-        .file_name()
-        .ok_or_else(|| Error::parse(path, "not a file path"))?
-        .to_string_lossy();
-    let tmp = path.with_file_name(match path.extension() {
-        Some(ext) => format!(
-            ".{}.partial-{}.{}",
-            name,
-            std::process::id(),
-            ext.to_string_lossy()
-        ),
-        None => format!(".{}.partial-{}", name, std::process::id()),
-    });
-    let result = write(&tmp).and_then(|()| {
-        std::fs::File::open(&tmp)
-            .and_then(|f| f.sync_all())
-            .and_then(|()| std::fs::rename(&tmp, path))
-            .map_err(|e| Error::io(path, e))
-    });
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
+    crate::fsio::write_atomically(path.as_ref(), write)
 }
 
 /// Checks, before long work, that `path` can be written: its folder exists (it is created
@@ -111,7 +86,10 @@ pub fn check_writable(path: impl AsRef<Path>) -> Result<()> {
         .unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir).map_err(|e| Error::io(path, e))?;
     let probe = dir.join(format!(".nimbus-write-probe-{}", std::process::id()));
-    std::fs::File::create(&probe).map_err(|e| Error::io(path, e))?;
+    crate::fsio::create(&probe).map_err(|e| match e {
+        Error::Io { err, .. } => Error::io(path, err),
+        e => e,
+    })?;
     let _ = std::fs::remove_file(&probe);
     Ok(())
 }

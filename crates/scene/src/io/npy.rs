@@ -166,8 +166,7 @@ pub fn parse(bytes: &[u8], path: &Path) -> Result<DensityGrid> {
 /// Reads any little-endian float32/float64 C-order array as (shape, f32 values) — used for
 /// auxiliary arrays such as the references' optical-depth masks.
 pub fn read_array(path: &Path) -> Result<(Vec<usize>, Vec<f32>)> {
-    crate::memory::check_file(path, 2)?;
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = crate::fsio::read_held(path, 2)?;
     let (shape, data) = parse_array(&bytes, path)?;
     Ok((shape.into_iter().map(|v| v as usize).collect(), data))
 }
@@ -178,8 +177,8 @@ pub fn read_array(path: &Path) -> Result<(Vec<usize>, Vec<f32>)> {
 pub fn read(path: &Path) -> Result<DensityGrid> {
     use std::io::Read;
     let io = |e| Error::io(path, e);
-    let mut f = std::fs::File::open(path).map_err(io)?;
-    let len = f.metadata().map_err(io)?.len();
+    // Streamed: the grid's allocation is checked against the budget from the header.
+    let (mut f, len) = crate::fsio::open(path, crate::fsio::Hold::Streamed)?;
     // Magic (6), version (2), header length (2 in version 1, 4 later), then the header.
     let mut pre = vec![0u8; 12.min(len as usize)];
     f.read_exact(&mut pre).map_err(io)?;
@@ -261,13 +260,13 @@ pub fn write_array(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
             .expect("writing to memory cannot fail");
         w.finish().expect("writing to memory cannot fail");
     }
-    std::fs::write(path, out).map_err(|e| Error::io(path, e))
+    crate::fsio::write_bytes(path, &out)
 }
 
 pub fn write(path: &Path, grid: &DensityGrid) -> Result<()> {
     // Streamed: no second copy of the grid in memory.
     let r = grid.res();
-    let f = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
+    let f = crate::fsio::create(path)?;
     let mut buf = std::io::BufWriter::new(f);
     let io = |e: std::io::Error| Error::io(path, e);
     {

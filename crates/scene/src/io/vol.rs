@@ -119,8 +119,8 @@ pub fn read(path: &Path) -> Result<GridFile> {
 fn read_with(path: &Path, sparse_above: usize) -> Result<GridFile> {
     use std::io::Read;
     let io = |e| Error::io(path, e);
-    let mut f = std::fs::File::open(path).map_err(io)?;
-    let len = f.metadata().map_err(io)?.len();
+    // Streamed: the grid's allocation is checked against the budget from the header.
+    let (mut f, len) = crate::fsio::open(path, crate::fsio::Hold::Streamed)?;
     let mut head = vec![0u8; HEADER_LEN.min(len as usize)];
     f.read_exact(&mut head).map_err(io)?;
     let (res, bounds) = parse_header(&head, path)?;
@@ -349,16 +349,12 @@ pub struct SlabFile {
 
 #[cfg(unix)]
 impl SlabFile {
-    pub fn create(path: &Path, res: [usize; 3], bounds: (DVec3, DVec3)) -> std::io::Result<Self> {
+    pub fn create(path: &Path, res: [usize; 3], bounds: (DVec3, DVec3)) -> Result<Self> {
         use std::os::unix::fs::FileExt;
-        let file = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(true)
-            .open(path)?;
-        file.set_len((HEADER_LEN + 4 * res[0] * res[1] * res[2]) as u64)?;
-        file.write_all_at(&header(res, bounds), 0)?;
+        let file = crate::fsio::create(path)?;
+        file.set_len((HEADER_LEN + 4 * res[0] * res[1] * res[2]) as u64)
+            .and_then(|()| file.write_all_at(&header(res, bounds), 0))
+            .map_err(|e| Error::io(path, e))?;
         Ok(Self { file, res })
     }
 
@@ -408,7 +404,7 @@ impl SlabFile {
 }
 
 pub fn write(path: &Path, grid: &DensityGrid, bounds: (DVec3, DVec3)) -> Result<()> {
-    let f = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
+    let f = crate::fsio::create(path)?;
     #[cfg(unix)]
     {
         write_file(&f, grid, bounds).map_err(|e| Error::io(path, e))

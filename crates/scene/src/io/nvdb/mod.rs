@@ -35,7 +35,7 @@ mod checksum;
 use super::GridFile;
 use super::vdb::bytes::{Cursor, Fail, PResult, bit, count_on};
 use super::vdb::{Leaf, SparseGrid, Tile, Tree};
-use crate::error::{Error, Result};
+use crate::error::Result;
 
 /// The grid name looked up unless another is named.
 pub const GRID_NAME: &str = "density";
@@ -94,8 +94,7 @@ pub fn read(path: &Path) -> Result<GridFile> {
 
 /// Reads the grid called `name`.
 pub fn read_named(path: &Path, name: &str) -> Result<GridFile> {
-    crate::memory::check_file(path, 2)?;
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = crate::fsio::read_held(path, 2)?;
     parse_named(&bytes, path, name)
 }
 

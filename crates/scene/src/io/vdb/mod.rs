@@ -250,7 +250,6 @@ pub fn read(path: &Path) -> Result<GridFile> {
 pub fn read_named(path: &Path, name: &str) -> Result<GridFile> {
     // The file's bytes and the grid are held at once (leaves, tiles and bricks are bounded by
     // a small multiple of the file size and checked separately).
-    crate::memory::check_file(path, 2)?;
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = crate::fsio::read_held(path, 2)?;
     parse_named(&bytes, path, name)
 }
