@@ -9,5 +9,6 @@ mod device;
 mod eval;
 mod secondary_rpnn;
 mod interface;
+mod secondary_files;
 mod view;
 mod volumes;
