@@ -7,6 +7,7 @@ mod cli;
 mod common;
 mod device;
 mod eval;
+mod flags;
 mod secondary_rpnn;
 mod interface;
 mod secondary_files;
