@@ -14,6 +14,7 @@ pub mod backend;
 mod engine;
 pub mod estimator;
 pub mod method;
+pub mod settings;
 
 pub use backend::{GpuSlot, NetBackend};
 pub use estimator::{

@@ -5,6 +5,7 @@
 //! against the memory budget.
 
 use std::borrow::Cow;
+use std::sync::Arc;
 
 use crate::brick::{Bricks, Content};
 use crate::error::FieldError;
@@ -22,10 +23,13 @@ pub struct DensityGrid {
     storage: Storage,
 }
 
+/// Shared by clones: a grid given to several volumes (another density scale or box, the
+/// Python module's scenes over one numpy array) is held once.
 #[derive(Debug, Clone, PartialEq)]
 enum Storage {
-    Dense(Vec<f32>),
-    Sparse(Box<Bricks>),
+    // Arc<Vec>, not Arc<[f32]>: a Vec moves in without a copy.
+    Dense(Arc<Vec<f32>>),
+    Sparse(Arc<Bricks>),
 }
 
 /// Summary statistics of a grid.
@@ -92,7 +96,7 @@ impl DensityGrid {
         }
         Ok(Self {
             res,
-            storage: Storage::Dense(data),
+            storage: Storage::Dense(Arc::new(data)),
         })
     }
 
@@ -100,7 +104,7 @@ impl DensityGrid {
     pub fn from_bricks(bricks: Bricks) -> Self {
         Self {
             res: bricks.res(),
-            storage: Storage::Sparse(Box::new(bricks)),
+            storage: Storage::Sparse(Arc::new(bricks)),
         }
     }
 
@@ -120,7 +124,7 @@ impl DensityGrid {
     /// The values, x fastest, when the grid is stored densely.
     pub fn as_dense(&self) -> Option<&[f32]> {
         match &self.storage {
-            Storage::Dense(d) => Some(d),
+            Storage::Dense(d) => Some(&d[..]),
             Storage::Sparse(_) => None,
         }
     }
@@ -137,7 +141,7 @@ impl DensityGrid {
     /// one (checked against the memory budget; the error names field `volume`).
     pub fn dense(&self) -> Result<Cow<'_, [f32]>, FieldError> {
         match &self.storage {
-            Storage::Dense(d) => Ok(Cow::Borrowed(d)),
+            Storage::Dense(d) => Ok(Cow::Borrowed(&d[..])),
             Storage::Sparse(b) => b.to_dense("volume").map(Cow::Owned),
         }
     }
@@ -233,7 +237,7 @@ impl DensityGrid {
     pub fn hash_into(&self, mut h: impl FnMut(&[u8])) {
         match &self.storage {
             Storage::Dense(d) => {
-                for v in d {
+                for v in d.iter() {
                     h(&v.to_le_bytes());
                 }
             }
@@ -312,7 +316,7 @@ impl DensityGrid {
         let mut nonzero = 0usize;
         match &self.storage {
             Storage::Dense(d) => {
-                for &v in d {
+                for &v in d.iter() {
                     min = min.min(v);
                     max = max.max(v);
                     sum += v as f64;

@@ -48,6 +48,7 @@ use serde::Deserialize;
 use crate::camera::Camera;
 use crate::error::{Error, FieldError, Result};
 use crate::generate::{self, CloudKind};
+use crate::grid::DensityGrid;
 use crate::io;
 use crate::light::{EnvMap, Sky, Sun};
 use crate::medium::Medium;
@@ -151,6 +152,17 @@ impl Scene {
             }
         }
     }
+}
+
+/// What a scene built in code holds in memory instead of in files
+/// ([`Scene::from_toml_in_memory`]).
+#[derive(Debug, Clone, Default)]
+pub struct InMemory {
+    /// The density grid, with the box its source gives (`None`: `aabb_min` and `aabb_max`
+    /// are required).
+    pub grid: Option<(DensityGrid, Option<(DVec3, DVec3)>)>,
+    /// A latitude–longitude environment map (linear RGB, row 0 the zenith).
+    pub envmap: Option<crate::Image>,
 }
 
 #[derive(Deserialize)]
@@ -399,6 +411,19 @@ impl Scene {
     /// Parses scene text; relative paths resolve against `base_dir`; `label` names the source in
     /// errors.
     pub fn from_toml_str(text: &str, base_dir: &Path, label: &Path) -> Result<Self> {
+        Self::from_toml_in_memory(text, base_dir, label, InMemory::default())
+    }
+
+    /// [`Scene::from_toml_str`] with data held in memory instead of files (the Python module's
+    /// numpy arrays): `memory.grid` is the volume of a `[volume]` that names neither `file`
+    /// nor `generator`, `memory.envmap` the map of a `[sky]` that gives neither `radiance` nor
+    /// `envmap`. Every other field is read and checked as a scene file's.
+    pub fn from_toml_in_memory(
+        text: &str,
+        base_dir: &Path,
+        label: &Path,
+        memory: InMemory,
+    ) -> Result<Self> {
         let raw: RawScene = toml::from_str(text).map_err(|e| {
             Error::parse(
                 label,
@@ -416,13 +441,16 @@ impl Scene {
                     "give either `file` or `generator`, not both",
                 ));
             }
-            (None, None) => {
-                return Err(Error::invalid(
-                    label,
-                    "volume",
-                    "needs `file = \"...\"` or `generator = { kind, seed, resolution }`",
-                ));
-            }
+            (None, None) => match memory.grid {
+                Some((grid, bounds)) => (grid, bounds, VolumeSource::Memory),
+                None => {
+                    return Err(Error::invalid(
+                        label,
+                        "volume",
+                        "needs `file = \"...\"` or `generator = { kind, seed, resolution }`",
+                    ));
+                }
+            },
             (Some(f), None) => {
                 if f.as_os_str().is_empty() {
                     return Err(Error::invalid(
@@ -521,7 +549,7 @@ impl Scene {
                         "give either `radiance` or `envmap`, not both",
                     ));
                 }
-                (None, None) => {
+                (None, None) if memory.envmap.is_none() => {
                     return Err(Error::invalid(label, "sky", "needs `radiance` or `envmap`"));
                 }
                 // The scale is the scene's, for either kind of sky: checked here (an env map's
@@ -557,6 +585,10 @@ impl Scene {
                     }
                     Some(Sky::Constant(c))
                 }
+                (None, None) => Some(Sky::Env(
+                    EnvMap::new(memory.envmap.expect("checked above"), s.scale)
+                        .map_err(|e| e.at(label))?,
+                )),
                 (None, Some(e)) => Some(Sky::Env(
                     EnvMap::load(&base_dir.join(e), s.scale).map_err(|err| match err {
                         // A file that cannot be read or parsed: name the scene's field too.
