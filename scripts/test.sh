@@ -2,7 +2,8 @@
 # All of Nimbus' tests, on a fresh Debian machine with a Rust toolchain and Python 3:
 #
 #   bash scripts/test.sh            check (and, as root, install) the system packages, then
-#                                   training/setup.sh, the Rust tests and the pytest suite
+#                                   training/setup.sh, the Rust tests and the pytest suites
+#                                   (training/tests, then python/tests after `pip install ./python`)
 #   bash scripts/test.sh --check    only check/install the system packages
 #
 # The system packages the tests need are checked before anything is compiled. Missing ones are
@@ -125,3 +126,7 @@ fi
 cat "$setup_log"
 cargo test --workspace --release
 training/.venv/bin/python -m pytest -q training/tests
+# The Python module (python/: PyO3, built by maturin) into the same environment, then its tests
+# (they compare with target/release/nimbus, built above).
+training/.venv/bin/pip install -q ./python
+training/.venv/bin/python -m pytest -q python/tests
