@@ -17,7 +17,7 @@ check_only=0
 for arg in "$@"; do
   case "$arg" in
     --check) check_only=1 ;;
-    -h|--help) sed -n '2,12p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,13p' "$0"; exit 0 ;;
     *) echo "scripts/test.sh: unknown argument '$arg' (see --help)" >&2; exit 2 ;;
   esac
 done
