@@ -1,7 +1,7 @@
 //! Argument types and checks shared by several commands: the photon-mapping flags and value
 //! parsers that give flags the same checks as scene keys.
 
-use anyhow::{Result, bail};
+use anyhow::Result;
 use clap::ValueEnum;
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -149,30 +149,30 @@ pub(crate) struct PmArgs {
     #[arg(long, value_enum)]
     pm_in_scatter: Option<InScatterArg>,
     /// Photon mapping: partial caches in the ring (m; default 100, the paper's; with final
-    /// gathering 8).
-    #[arg(long)]
+    /// gathering 8), 1..=4096.
+    #[arg(long, value_parser = crate::flags::int_in(1u32, 4096))]
     pub(crate) ring: Option<u32>,
     /// Photon mapping: cache resolution X,Y,Z (default: ≤ 2400 cells, the grid's proportions).
-    #[arg(long, value_delimiter = ',')]
-    cache_res: Option<Vec<u32>>,
+    #[arg(long, value_parser = crate::flags::u32_triple(1, 1 << 16))]
+    cache_res: Option<[u32; 3]>,
     /// Photon mapping: resolution X,Y,Z of the light volumes (J, T_sun) and of the block-averaged
     /// density the photons trace (default: the grid's, stored only in the 8³ bricks near
     /// density where the whole box's J would not fit one GPU storage binding, or coarser by an
     /// integer factor when even those would not); the ray marcher reads the grid itself.
-    #[arg(long, value_delimiter = ',')]
-    light_res: Option<Vec<u32>>,
+    #[arg(long, value_parser = crate::flags::u32_triple(1, 1 << 16))]
+    light_res: Option<[u32; 3]>,
     /// Photon mapping: ray march at half resolution and upscale.
     #[arg(long)]
     pub(crate) half_res: bool,
-    /// Photon mapping: detail noise amplitude in density voxels (0 = off).
-    #[arg(long, default_value_t = 0.0)]
+    /// Photon mapping: detail noise amplitude in density voxels, in [0, 16] (0 = off).
+    #[arg(long, default_value_t = 0.0, value_parser = crate::flags::f32_in(0.0, 16.0))]
     detail_noise: f32,
     /// Photon mapping: similarity threshold t (switch to σ√(1−g), isotropic, after
     /// log t / log|g| bounces; 0 = never switch); in [0, 1).
     #[arg(long, default_value_t = 0.05, value_parser = unit_interval)]
     similarity: f64,
-    /// Photon mapping: a beam stops after this many scatterings.
-    #[arg(long, default_value_t = 1024)]
+    /// Photon mapping: a beam stops after this many scatterings (0..=65536).
+    #[arg(long, default_value_t = 1024, value_parser = crate::flags::int_in(0u32, 1 << 16))]
     max_order: u32,
 }
 
@@ -194,8 +194,8 @@ impl PmArgs {
             upsample_g_extrapolate: self.pm_upsample_g_extrapolate,
             beams_per_frame: self.beams.unwrap_or(8192),
             ring: self.ring.unwrap_or(100),
-            cache_res: triple(self.cache_res.clone(), "--cache-res")?,
-            light_res: triple(self.light_res.clone(), "--light-res")?,
+            cache_res: self.cache_res,
+            light_res: self.light_res,
             seed,
             detail_noise: self.detail_noise,
             similarity_t: self.similarity,
@@ -205,27 +205,10 @@ impl PmArgs {
     }
 }
 
-/// Three comma-separated values, or none.
-fn triple(v: Option<Vec<u32>>, name: &str) -> Result<Option<[u32; 3]>> {
-    match v {
-        Some(r) if r.len() != 3 => bail!("{name} needs three values X,Y,Z, got {r:?}"),
-        Some(r) => Ok(Some([r[0], r[1], r[2]])),
-        None => Ok(None),
-    }
-}
-
-/// A flag value that must be a finite number > 0 (an exposure of 0, NaN or ∞ writes an all-black
-/// or all-white image).
+/// An exposure: a finite number in (0, 1e30] (one of 0, NaN or ∞, or one that overflows every
+/// pixel, writes an all-black or all-white image).
 pub(crate) fn positive_finite(s: &str) -> std::result::Result<f64, String> {
-    let v: f64 = s
-        .trim()
-        .parse()
-        .map_err(|_| format!("`{s}` is not a number"))?;
-    if v.is_finite() && v > 0.0 {
-        Ok(v)
-    } else {
-        Err(format!("must be a finite number > 0, got {s}"))
-    }
+    crate::flags::f64_above(0.0, crate::flags::MAX_EXPOSURE)(s)
 }
 
 /// A thread count in 1..=1024 (more threads than that only exhaust the system's limits).

@@ -20,14 +20,14 @@ pub struct DatagenArgs {
     /// mixture), or a folder of .vol/.npy/.vdb files.
     #[arg(long, default_value = "gen:40")]
     clouds: String,
-    /// Training records.
-    #[arg(long, required = true)]
+    /// Training records (0..=2⁴⁰).
+    #[arg(long, required = true, value_parser = crate::flags::int_in(0, crate::flags::MAX_RECORDS))]
     records: Option<usize>,
     /// Records from the held-out test clouds (default: a quarter of --records).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::flags::int_in(0, crate::flags::MAX_RECORDS))]
     test_records: Option<usize>,
     /// Records from the validation clouds (default: as many as --test-records).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::flags::int_in(0, crate::flags::MAX_RECORDS))]
     val_records: Option<usize>,
     /// Training labels with exactly N samples each (unbiased, noisy; train with the
     /// relative L2 loss). Default: to ±2 % at 95 % confidence, capped at --max-samples.
@@ -38,16 +38,18 @@ pub struct DatagenArgs {
     eval_samples: Option<u64>,
     /// Precise validation and test labels in two stages: a pilot of --eval-samples samples
     /// sets how many fresh samples reach this relative standard error (capped at
-    /// --max-samples); the label is their mean alone, so it stays unbiased (e.g. 0.025).
-    #[arg(long)]
+    /// --max-samples); the label is their mean alone, so it stays unbiased (e.g. 0.025; in
+    /// [0, 1), 0: off).
+    #[arg(long, value_parser = crate::args::unit_interval)]
     eval_noise: Option<f64>,
     /// Light directions: `sphere` (uniform, Kallweit §5.1) or `uniform-gamma` (the angle
     /// to the view direction uniform in [0, π]).
     #[arg(long, default_value = "sphere")]
     light: String,
-    /// Density scales of generated clouds LO,HI (log-uniform).
-    #[arg(long, value_delimiter = ',', default_values_t = [10.0, 80.0])]
-    density_range: Vec<f64>,
+    /// Density scales of generated clouds LO,HI (log-uniform; 0 < LO <= HI <= 1e30).
+    #[arg(long, default_value = "10,80",
+          value_parser = crate::flags::f64_pair_above(0.0, crate::flags::MAX_DENSITY_SCALE))]
+    density_range: (f64, f64),
     #[arg(long, short, required = true)]
     out: Option<PathBuf>,
     /// Phase function: hg (g = 0.857) or mie (chopped, r_eff 8 µm).
@@ -55,7 +57,8 @@ pub struct DatagenArgs {
     phase: String,
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    #[arg(long, default_value_t = 1000)]
+    /// Records per shard file, 1..=2³⁰.
+    #[arg(long, default_value_t = 1000, value_parser = crate::flags::int_in(1usize, 1 << 30))]
     shard_size: usize,
     /// Write part K of N of the set: the shards whose global index is K − 1 mod N, exactly the
     /// files a single run writes for them (run the N parts on N machines, then
@@ -74,8 +77,9 @@ pub struct DatagenArgs {
     /// Sample cap per record (records that reach it are kept and flagged as not converged).
     #[arg(long, default_value_t = 1 << 18, value_parser = clap::value_parser!(u64).range(1..))]
     max_samples: u64,
-    /// σ_t per unit grid value for clouds read from a folder.
-    #[arg(long, default_value_t = 30.0)]
+    /// σ_t per unit grid value for clouds read from a folder, in (0, 1e30].
+    #[arg(long, default_value_t = 30.0,
+          value_parser = crate::flags::f64_above(0.0, crate::flags::MAX_DENSITY_SCALE))]
     density_scale: f64,
     /// Estimate L_i on the CPU or the GPU (default: the GPU when a hardware adapter is
     /// available and the phase function is HG; a software rasteriser is slower than the CPU
@@ -135,11 +139,8 @@ pub fn datagen(a: DatagenArgs) -> Result<()> {
             if n == 0 {
                 bail!("--clouds gen:N needs N ≥ 1");
             }
-            let d = &a.density_range;
-            if !(d.len() == 2 && d.iter().all(|d| d.is_finite() && *d > 0.0) && d[0] <= d[1]) {
-                bail!("--density-range needs LO,HI with 0 < LO <= HI, got {d:?}");
-            }
-            dataset::generated_set_of(n, a.seed, [d[0], d[1]], &kinds)?
+            let (lo, hi) = a.density_range;
+            dataset::generated_set_of(n, a.seed, [lo, hi], &kinds)?
         }
         None => dataset::folder_set(std::path::Path::new(&a.clouds), a.density_scale)?,
     };
@@ -169,11 +170,6 @@ pub fn datagen(a: DatagenArgs) -> Result<()> {
         );
     }
     let eval_noise = a.eval_noise.unwrap_or(0.0);
-    if !(eval_noise.is_finite() && (0.0..1.0).contains(&eval_noise)) {
-        bail!(
-            "--eval-noise {eval_noise}: expected a relative error in [0, 1), e.g. 0.025 (0: off)"
-        );
-    }
     if eval_noise > 0.0 && a.eval_samples.is_none() {
         bail!("--eval-noise needs --eval-samples N (the pilot's sample count)");
     }

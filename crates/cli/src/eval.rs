@@ -34,15 +34,16 @@ pub(crate) struct EvalArgs {
     #[arg(long)]
     budgets: Vec<String>,
     /// Reference samples per pixel per half and round (rounds repeat until --ref-noise or
-    /// --ref-time-cap).
-    #[arg(long, default_value_t = 512)]
+    /// --ref-time-cap), 1..=1048576.
+    #[arg(long, default_value_t = 512, value_parser = crate::flags::int_in(1u32, 1 << 20))]
     ref_spp: u32,
     /// Reference noise target: relative noise of 4×4 cloud blocks, estimated from two
-    /// independent halves (0: a single round).
-    #[arg(long, default_value_t = 0.01)]
+    /// independent halves, in [0, 1) (0: a single round).
+    #[arg(long, default_value_t = 0.01, value_parser = crate::args::unit_interval)]
     ref_noise: f64,
-    /// Reference time cap in seconds (the noise reached is reported when it stops there).
-    #[arg(long, default_value_t = 600.0)]
+    /// Reference time cap in seconds, in [0, 1e9] (the noise reached is reported when it stops
+    /// there).
+    #[arg(long, default_value_t = 600.0, value_parser = crate::flags::f64_in(0.0, 1e9))]
     ref_time_cap: f64,
     /// Which path tracer renders the reference.
     #[arg(long, value_enum, default_value = "auto")]
@@ -61,12 +62,12 @@ pub(crate) struct EvalArgs {
     #[arg(long)]
     seed: Option<u64>,
     /// Photon mapping: beams per frame (n_g; default 8 192, the paper's; with final gathering
-    /// 65 536).
-    #[arg(long)]
+    /// 65 536), 1..=16777216.
+    #[arg(long, value_parser = crate::flags::int_in(1u32, 1 << 24))]
     beams: Option<u32>,
-    /// Photon mapping with final gathering: the ring's generations m (default 8; the
+    /// Photon mapping with final gathering: the ring's generations m, 1..=4096 (default 8; the
     /// ray-marched methods' budgets are their rings).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::flags::int_in(1u32, 4096))]
     ring: Option<u32>,
     #[command(flatten)]
     gather: crate::args::GatherArgs,
@@ -100,34 +101,6 @@ impl EvalArgs {
                 bail!("--budgets names `{m}`, which --methods does not list");
             }
             budgets.insert(m, list);
-        }
-        if !(1..=1 << 20).contains(&self.ref_spp) {
-            bail!("--ref-spp must lie in 1..=1048576, got {}", self.ref_spp);
-        }
-        if !(self.ref_noise.is_finite() && (0.0..1.0).contains(&self.ref_noise)) {
-            bail!("--ref-noise must lie in [0, 1), got {}", self.ref_noise);
-        }
-        if !(self.ref_time_cap.is_finite() && self.ref_time_cap >= 0.0) {
-            bail!(
-                "--ref-time-cap must be a finite number of seconds ≥ 0, got {}",
-                self.ref_time_cap
-            );
-        }
-        if let Some(b) = self.beams
-            && !(1..=1 << 24).contains(&b)
-        {
-            bail!("--beams must lie in 1..=16777216, got {b}");
-        }
-        if let Some(r) = self.ring
-            && !(1..=4096).contains(&r)
-        {
-            bail!("--ring must lie in 1..=4096, got {r}");
-        }
-        if !(1..=1024).contains(&self.rpnn.sky_dirs) {
-            bail!(
-                "--sky-dirs must lie in 1..=1024, got {}",
-                self.rpnn.sky_dirs
-            );
         }
         let seed = self.seed.unwrap_or(scene_seed);
         Ok(CompareOptions {
@@ -249,7 +222,7 @@ pub(crate) fn compare_scene(scene: &Path, args: &EvalArgs, out: &Path) -> Result
 #[derive(clap::Args)]
 pub(crate) struct SuiteArgs {
     /// Held-out clouds (1..=8: the test split of the 40-cloud training set).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 3, value_parser = crate::flags::int_in(1usize, 8))]
     clouds: usize,
     /// Sun placements: front (behind the camera), side, back (behind the cloud).
     #[arg(long, default_value = "front,side,back")]
@@ -258,9 +231,9 @@ pub(crate) struct SuiteArgs {
     /// map: a clear sky with a ground; photon mapping cannot take one and is left out of it).
     #[arg(long, default_value = "sun,sun+sky")]
     skies: String,
-    /// Image size WxH.
-    #[arg(long, default_value = "128x72")]
-    size: String,
+    /// Image size WxH, each side 4..=4096 (a 4×4 block of cloud pixels at least).
+    #[arg(long, default_value = "128x72", value_parser = crate::flags::image_size(4, 4096))]
+    size: (usize, usize),
     /// Writes OUT/results.md and OUT/results/ (per-scene reports, figure).
     #[arg(long, short, default_value = "docs")]
     out: PathBuf,
@@ -283,22 +256,9 @@ pub(crate) enum Device {
     Gpu,
 }
 
-/// Parses `WxH`.
-fn parse_size(s: &str) -> Result<(usize, usize)> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| anyhow::anyhow!("--size `{s}`: expected WxH, e.g. 128x72"))?;
-    let p = |v: &str| {
-        v.trim()
-            .parse::<usize>()
-            .map_err(|_| anyhow::anyhow!("--size `{s}`: `{v}` is not a whole number"))
-    };
-    Ok((p(w)?, p(h)?))
-}
-
 pub(crate) fn bench_suite(args: &SuiteArgs) -> Result<()> {
     use nimbus_eval::suite::{Lighting, SkyCondition, SuiteOptions, run};
-    let (width, height) = parse_size(&args.size)?;
+    let (width, height) = args.size;
     let lightings = args
         .lights
         .split(',')
@@ -363,8 +323,8 @@ pub(crate) struct StressArgs {
     /// `all`, `subset` (the one stiffest case per axis that the tests run), or case ids.
     #[arg(long, default_value = "all")]
     cases: String,
-    /// Seconds one method may take on one case before it counts as a hang.
-    #[arg(long, default_value_t = 120)]
+    /// Seconds one method may take on one case before it counts as a hang, 1..=86400.
+    #[arg(long, default_value_t = 120, value_parser = crate::flags::int_in(1u64, 86_400))]
     time_limit: u64,
     /// Writes OUT/stability.md and the case scenes to OUT/stability/cases/.
     #[arg(long, short, default_value = "docs")]
@@ -374,12 +334,6 @@ pub(crate) struct StressArgs {
 pub(crate) fn stress(args: &StressArgs) -> Result<()> {
     use nimbus_eval::stress;
     let methods = nimbus_eval::method::parse_methods(&args.methods)?;
-    if !(1..=86_400).contains(&args.time_limit) {
-        bail!(
-            "--time-limit must lie in 1..=86400 s, got {}",
-            args.time_limit
-        );
-    }
     let cases = match args.cases.as_str() {
         "all" => stress::cases(),
         "subset" => stress::subset(),

@@ -21,6 +21,7 @@ macro_rules! say {
 mod args;
 mod datagen;
 mod eval;
+mod flags;
 mod interrupt;
 mod rpnn;
 mod view;
@@ -80,8 +81,8 @@ enum Command {
         /// `--device gpu` with `--method pt` is `--method pt-gpu`.
         #[arg(long, value_enum, default_value = "cpu")]
         device: Device,
-        /// Samples per pixel (default: the scene's `render.spp`).
-        #[arg(long)]
+        /// Samples per pixel, 1..=16777216 as `render.spp` (default: the scene's).
+        #[arg(long, value_parser = flags::int_in(1u32, 1 << 24))]
         spp: Option<u32>,
         /// Random seed (default: the scene's `render.seed`).
         #[arg(long)]
@@ -118,17 +119,20 @@ enum Command {
         /// Frames to render and write (at least 1).
         #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u32).range(1..))]
         frames: u32,
-        /// Sun angular speed about +y, degrees per simulated second.
-        #[arg(long, default_value_t = 0.0)]
+        /// Sun angular speed about +y, degrees per simulated second (|v| ≤ 36000; at most a
+        /// whole turn per frame).
+        #[arg(long, default_value_t = 0.0, allow_negative_numbers = true,
+              value_parser = flags::f64_in(-flags::MAX_SUN_SPEED, flags::MAX_SUN_SPEED))]
         sun_speed: f64,
-        /// Simulated frames per second (the sun moves sun_speed / fps degrees per frame).
-        #[arg(long, default_value_t = 30.0)]
+        /// Simulated frames per second, in (0, 1000] (the sun moves sun_speed / fps degrees per
+        /// frame).
+        #[arg(long, default_value_t = 30.0, value_parser = flags::f64_above(0.0, flags::MAX_FPS))]
         fps: f64,
         /// Folder of volume files, one per frame (same resolution as the scene's volume).
         #[arg(long)]
         density_seq: Option<PathBuf>,
-        /// Morph the scene's generated cloud into the next seed and back over N frames.
-        #[arg(long)]
+        /// Morph the scene's generated cloud into the next seed and back over N ≥ 1 frames.
+        #[arg(long, value_parser = flags::int_in(1u32, u32::MAX))]
         evolve: Option<u32>,
         /// Reuse the last image while Elek's four impostor criteria allow.
         #[arg(long)]
@@ -177,14 +181,15 @@ enum Command {
         /// List the GPU adapters wgpu sees, best first (the first is the one Nimbus opens).
         #[arg(long)]
         gpu: bool,
-        /// σ_t per unit grid value, for the optical depths.
-        #[arg(long, default_value_t = 1.0)]
+        /// σ_t per unit grid value, for the optical depths (finite, in [0, 1e30]).
+        #[arg(long, default_value_t = 1.0,
+              value_parser = flags::f64_in(0.0, flags::MAX_DENSITY_SCALE))]
         density_scale: f64,
         /// World box min corner X,Y,Z (default: the file's header box, or `[0,1]³`).
-        #[arg(long, value_delimiter = ',')]
-        aabb_min: Option<Vec<f64>>,
-        #[arg(long, value_delimiter = ',')]
-        aabb_max: Option<Vec<f64>>,
+        #[arg(long, allow_hyphen_values = true, value_parser = flags::f64_triple(1e15))]
+        aabb_min: Option<[f64; 3]>,
+        #[arg(long, allow_hyphen_values = true, value_parser = flags::f64_triple(1e15))]
+        aabb_max: Option<[f64; 3]>,
         /// The float grid of a .vdb or .nvdb file to read (default: `density`).
         #[arg(long)]
         grid: Option<String>,
@@ -208,8 +213,8 @@ enum Command {
         /// Write the panels reference | test | relative difference (false colour) as PNG.
         #[arg(long)]
         png: Option<PathBuf>,
-        /// Full scale of the difference panel (0.2 = ±20 %).
-        #[arg(long, default_value_t = 0.2)]
+        /// Full scale of the difference panel (0.2 = ±20 %), in (0, 1e6].
+        #[arg(long, default_value_t = 0.2, value_parser = flags::f64_above(0.0, 1e6))]
         range: f64,
     },
 }
@@ -225,6 +230,12 @@ fn main() {
     let matches = cmd.clone().get_matches();
     let cli =
         <Cli as clap::FromArgMatches>::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    if let Err((sub, msg)) = check_flag_combinations(&cli.cmd) {
+        let mut c = (cmd.find_subcommand(sub).cloned())
+            .map_or(cmd.clone(), |c| c.bin_name(format!("nimbus {sub}")));
+        c.error(clap::error::ErrorKind::ArgumentConflict, msg)
+            .exit();
+    }
     for w in args::flags_for_other_methods(&cmd, &matches) {
         eprintln!("{w}");
     }
@@ -235,6 +246,19 @@ fn main() {
         }
         eprintln!("error: {e:#}");
         std::process::exit(1);
+    }
+}
+
+/// The ranges that depend on two flags, checked right after parsing (before any work): the
+/// subcommand and the message, which names both flags.
+fn check_flag_combinations(cmd: &Command) -> Result<(), (&'static str, String)> {
+    match cmd {
+        Command::Animate { sun_speed, fps, .. } => {
+            flags::check_turn_per_frame(*sun_speed, 1.0 / fps, "--sun-speed / --fps")
+                .map_err(|e| ("animate", e))
+        }
+        Command::View(v) => v.check_flag_combinations().map_err(|e| ("view", e)),
+        _ => Ok(()),
     }
 }
 
@@ -272,10 +296,6 @@ fn run(cli: Cli) -> Result<()> {
             let s = Scene::load(&scene)?;
             let mut opts = RenderOptions::from_scene(&s);
             if let Some(v) = spp {
-                // The same range as the scene's `render.spp`.
-                if !(1..=1 << 24).contains(&v) {
-                    bail!("--spp must lie in 1..=16777216 (as render.spp), got {v}");
-                }
                 opts.spp = v;
             }
             if let Some(v) = seed {
@@ -374,9 +394,6 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             use nimbus_photon::animate::AnimateOptions;
             let s = Scene::load(&scene)?;
-            if !(fps.is_finite() && fps > 0.0 && sun_speed.is_finite()) {
-                bail!("--fps must be > 0 and --sun-speed finite");
-            }
             let density = density_sequence(&s, density_seq, evolve)?;
             // The folder is made and checked before any GPU work.
             io::check_writable(out.join("timings.csv"))?;
@@ -471,10 +488,7 @@ fn run(cli: Cli) -> Result<()> {
             };
             let f = io::read_grid_named(&file, grid.as_deref())?;
             let (lo, hi) = match (aabb_min, aabb_max) {
-                (Some(a), Some(b)) if a.len() != 3 || b.len() != 3 => {
-                    bail!("--aabb-min and --aabb-max need three values X,Y,Z")
-                }
-                (Some(a), Some(b)) => (DVec3::new(a[0], a[1], a[2]), DVec3::new(b[0], b[1], b[2])),
+                (Some(a), Some(b)) => (DVec3::from_array(a), DVec3::from_array(b)),
                 (None, None) => f.bounds.unwrap_or((DVec3::ZERO, DVec3::ONE)),
                 _ => bail!("give both --aabb-min and --aabb-max, or neither"),
             };
@@ -550,9 +564,6 @@ fn run(cli: Cli) -> Result<()> {
                 None,
             )?;
             if let Some(out) = png {
-                if !(range.is_finite() && range > 0.0) {
-                    bail!("--range must be > 0");
-                }
                 let t = nimbus_scene::Image::read_exr(&test)?;
                 let r = nimbus_scene::Image::read_exr(&reference)?;
                 let m = match mask_for(&reference, mask) {

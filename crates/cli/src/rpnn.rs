@@ -43,8 +43,8 @@ pub(crate) struct RpnnArgs {
     #[arg(long, value_enum, default_value = "auto")]
     pub(crate) backend: NetBackend,
     /// RPNN: sky directions per shading point and sample (network queries for sky light) of
-    /// the paper's sky (`rpnn-dirs`, or a model without a sky head).
-    #[arg(long, default_value_t = 4)]
+    /// the paper's sky (`rpnn-dirs`, or a model without a sky head), 1..=1024.
+    #[arg(long, default_value_t = 4, value_parser = crate::flags::int_in(1u32, 1024))]
     pub(crate) sky_dirs: u32,
     /// RPNN with a sky head: the spherical-harmonic degree (0 … 4) the sky is contracted with.
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u8).range(0..=4))]

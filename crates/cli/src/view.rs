@@ -2,9 +2,10 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
+use anyhow::Result;
 use nimbus_scene::Scene;
 
+use crate::flags;
 use crate::{PmArgs, density_sequence};
 
 /// Arguments of `nimbus view`.
@@ -15,8 +16,8 @@ pub(crate) struct ViewArgs {
     /// Run without a window for --frames frames (default: the ring size m, i.e. converged).
     #[arg(long)]
     headless: bool,
-    /// Stop after this many frames (windowed: close the window).
-    #[arg(long)]
+    /// Stop after this many frames, at least 1 (windowed: close the window).
+    #[arg(long, value_parser = flags::int_in(1u32, u32::MAX))]
     frames: Option<u32>,
     /// Timed actions, one `FRAME ACTION [ARGS]` per line (see `nimbus_viewer::script`).
     #[arg(long)]
@@ -24,9 +25,9 @@ pub(crate) struct ViewArgs {
     /// Save the last frame here when the viewer stops (`.exr`: linear; else PNG).
     #[arg(long)]
     screenshot: Option<PathBuf>,
-    /// Image size WIDTHxHEIGHT (default: the scene camera's).
-    #[arg(long)]
-    size: Option<String>,
+    /// Image size WIDTHxHEIGHT, each side 1..=32768 (default: the scene camera's).
+    #[arg(long, value_parser = flags::image_size(1, nimbus_scene::camera::MAX_IMAGE_SIDE))]
+    size: Option<(usize, usize)>,
     /// Estimator at start: pm, pm-march, pt, rpnn or rpnn-dirs.
     #[arg(long, default_value = "pm")]
     method: String,
@@ -41,33 +42,48 @@ pub(crate) struct ViewArgs {
     /// Start with the sun moving.
     #[arg(long)]
     play_sun: bool,
-    /// Sun angular speed about +y while playing, degrees per second.
-    #[arg(long, default_value_t = 10.0)]
+    /// Sun angular speed about +y while playing, degrees per second (|v| ≤ 36000; headless, at
+    /// most a whole turn per frame of --dt).
+    #[arg(long, default_value_t = 10.0, allow_negative_numbers = true,
+          value_parser = flags::f64_in(-flags::MAX_SUN_SPEED, flags::MAX_SUN_SPEED))]
     sun_speed: f64,
     /// Folder of volume files, one per frame (same resolution as the scene's volume).
     #[arg(long)]
     density_seq: Option<PathBuf>,
-    /// Morph the scene's generated cloud into the next seed and back over N frames.
-    #[arg(long)]
+    /// Morph the scene's generated cloud into the next seed and back over N ≥ 1 frames.
+    #[arg(long, value_parser = flags::int_in(1u32, u32::MAX))]
     evolve: Option<u32>,
-    /// Density-animation frames per second (the animation starts playing when given).
-    #[arg(long, default_value_t = 10.0)]
+    /// Density-animation frames per second, in (0, 1000] (the animation starts playing when
+    /// given).
+    #[arg(long, default_value_t = 10.0, value_parser = flags::f64_above(0.0, flags::MAX_FPS))]
     density_fps: f64,
     /// Ray march every frame instead of re-projecting the impostor (Elek §4.4).
     #[arg(long)]
     no_impostors: bool,
-    /// Headless: simulated seconds per frame.
-    #[arg(long, default_value_t = 1.0 / 30.0)]
+    /// Headless: simulated seconds per frame, in (0, 3600].
+    #[arg(long, default_value_t = 1.0 / 30.0, value_parser = flags::f64_above(0.0, flags::MAX_DT))]
     dt: f64,
     /// Print every frame's status line (stages, photons, impostor criteria).
     #[arg(long)]
     log: bool,
-    #[arg(long)]
+    /// PNG exposure, a finite number > 0 (default: the first frame's auto exposure).
+    #[arg(long, value_parser = crate::args::positive_finite)]
     exposure: Option<f64>,
     #[command(flatten)]
     pm: PmArgs,
     #[command(flatten)]
     gather: crate::args::GatherArgs,
+}
+
+impl ViewArgs {
+    /// The ranges that depend on two flags: headless, the sun turns --sun-speed × --dt degrees
+    /// per frame (the window's frame time is its own, at most 0.25 s).
+    pub(crate) fn check_flag_combinations(&self) -> Result<(), String> {
+        if self.headless {
+            flags::check_turn_per_frame(self.sun_speed, self.dt, "--sun-speed × --dt")?;
+        }
+        Ok(())
+    }
 }
 
 /// `nimbus view`.
@@ -117,11 +133,7 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
             (s, Some((text.to_string(), std::env::current_dir()?)))
         }
     };
-    if let Some(size) = size {
-        let (w, h) = size
-            .split_once('x')
-            .and_then(|(w, h)| Some((w.parse::<usize>().ok()?, h.parse::<usize>().ok()?)))
-            .with_context(|| format!("--size: expected WIDTHxHEIGHT, got `{size}`"))?;
+    if let Some((w, h)) = size {
         s.camera = s
             .camera
             .with_size(w, h)
@@ -131,17 +143,6 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
     // The viewer's estimators but the CPU path tracer compute in f32 (its switch to pm or RPNN
     // needs the same).
     nimbus_render::check_f32_scale(&s, nimbus_render::Method::Pm)?;
-    if !(sun_speed.is_finite() && density_fps.is_finite() && density_fps > 0.0) {
-        bail!("--sun-speed must be finite and --density-fps positive");
-    }
-    if !(dt.is_finite() && dt >= 0.0) {
-        bail!("--dt must be finite and ≥ 0, got {dt}");
-    }
-    if let Some(e) = exposure
-        && !(e.is_finite() && e > 0.0)
-    {
-        bail!("--exposure must be positive, got {e}");
-    }
     let density = density_sequence(&s, density_seq, evolve)?;
     let animated = !matches!(density, nimbus_photon::animate::DensitySequence::Static);
     let script = match &script {

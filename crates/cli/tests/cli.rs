@@ -608,7 +608,7 @@ fn rpnn_render_and_missing_model() {
     ]);
     assert!(!o.status.success());
     assert!(
-        text(&o).contains("--sky-dirs must lie in 1..=1024"),
+        text(&o).contains("'--sky-dirs <SKY_DIRS>': must lie in 1..=1024"),
         "{}",
         text(&o)
     );
