@@ -13,6 +13,8 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
+pub use crate::model::INT8_OF;
+
 /// Errors of the ONNX Runtime backend.
 #[derive(Debug, thiserror::Error)]
 pub enum OrtError {
@@ -119,9 +121,6 @@ fn environment() -> Result<&'static (ort::environment::Environment, PathBuf), Or
         }),
     }
 }
-
-/// The metadata key of an int8 copy that holds the sha256 of the f32 model it was made from.
-pub const INT8_OF: &str = "nimbus.rpnn.int8_of";
 
 /// Where the int8 copy of the model `path` sits: `x.onnx` → `x.int8.onnx` beside it.
 pub fn int8_path_for(path: &Path) -> PathBuf {

@@ -22,6 +22,10 @@ use protobuf::Message;
 mod graph;
 use graph::{Matcher, structure};
 
+/// The metadata key of an int8 copy that holds the sha256 of the f32 model it was made from
+/// (`training/quantize.py`; [`crate::ort_backend::OrtModel::load_int8`] checks it).
+pub const INT8_OF: &str = "nimbus.rpnn.int8_of";
+
 /// The shipped model, `models/rpnn-hg.onnx`: looked up from the current folder and its parents,
 /// then from the executable's folder and its parents; the plain relative path if not found (the
 /// error then names it).
@@ -378,7 +382,7 @@ impl Rpnn {
             .iter()
             .map(|p| (p.key.as_str(), p.value.as_str()))
             .collect();
-        if meta.contains_key(crate::ort_backend::INT8_OF) {
+        if meta.contains_key(INT8_OF) {
             return Err(
                 "an int8 copy (training/quantize.py), which only ONNX Runtime runs: pass \
                         the f32 model it was made from, with --backend ort-int8 to run this copy"
