@@ -75,6 +75,31 @@ impl GpuSlot {
     }
 }
 
+/// Where an estimator finds its GPU: a [`GpuSlot`] (opened on first use) or an open [`Gpu`]
+/// (the viewer's, which owns the window's surface).
+pub trait GpuSource<'g>: Copy {
+    fn get(self) -> Result<&'g Gpu>;
+    fn try_get(self) -> Option<&'g Gpu>;
+}
+
+impl<'g> GpuSource<'g> for &'g GpuSlot {
+    fn get(self) -> Result<&'g Gpu> {
+        GpuSlot::get(self)
+    }
+    fn try_get(self) -> Option<&'g Gpu> {
+        GpuSlot::try_get(self)
+    }
+}
+
+impl<'g> GpuSource<'g> for &'g Gpu {
+    fn get(self) -> Result<&'g Gpu> {
+        Ok(self)
+    }
+    fn try_get(self) -> Option<&'g Gpu> {
+        Some(self)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

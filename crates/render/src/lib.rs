@@ -16,10 +16,11 @@ pub mod estimator;
 pub mod method;
 pub mod settings;
 
-pub use backend::{GpuSlot, NetBackend};
+pub use backend::{GpuSlot, GpuSource, NetBackend};
 pub use estimator::{
-    Change, Estimator, GpuSource, Options, Rendered, RpnnSettings, Step, check_f32_scale,
-    is_cancelled, prepare, rpnn_backend, rpnn_model_path,
+    Change, Estimator, Options, Rendered, Step, check_f32_scale, is_cancelled, prepare,
 };
-pub use nimbus_scene::{Cancel, Cancelled};
+#[cfg(feature = "rpnn")]
+pub use estimator::{RpnnSettings, rpnn_backend, rpnn_model_path};
 pub use method::Method;
+pub use nimbus_scene::{Cancel, Cancelled};

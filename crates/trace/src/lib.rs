@@ -10,6 +10,7 @@
 
 pub mod gpu;
 pub mod integrator;
+mod progress;
 pub mod render;
 pub mod rng;
 pub mod tracking;

@@ -4,7 +4,6 @@
 
 use std::time::Instant;
 
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use nimbus_scene::{Cancel, Cancelled, Image, Scene};
 use rayon::prelude::*;
 
@@ -146,16 +145,7 @@ pub fn accumulate_cancellable(
     let tiles: Vec<(usize, usize)> = (0..h.div_ceil(TILE))
         .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
         .collect();
-    let bar = if opts.progress {
-        ProgressBar::with_draw_target(Some(tiles.len() as u64), ProgressDrawTarget::stderr())
-    } else {
-        ProgressBar::hidden()
-    };
-    bar.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} tiles, eta {eta}")
-            .unwrap()
-            .progress_chars("=> "),
-    );
+    let bar = crate::progress::Bar::new(tiles.len() as u64, opts.progress);
     let start = Instant::now();
     let spp = opts.spp.max(1);
     let results: Vec<(Vec<PixelSums>, u64)> = tiles
@@ -188,11 +178,11 @@ pub fn accumulate_cancellable(
                     out.push((pixel as usize, sum, ls, ls2));
                 }
             }
-            bar.inc(1);
+            bar.inc();
             (out, scat)
         })
         .collect();
-    bar.finish_and_clear();
+    bar.finish();
     cancel.check()?;
     let mut stats = RenderStats {
         paths: (w * h) as u64 * spp as u64,

@@ -12,8 +12,7 @@ use nimbus_gpu::Gpu;
 use nimbus_photon::{GatherSettings, PhotonMapper, PmSettings};
 use nimbus_scene::{Cancel, Scene, Sky};
 
-use super::{Engine, ms_since, stage_sum};
-use crate::estimator::{Change, Options, Rendered, Step};
+use super::{Change, Engine, Options, Rendered, Step, ms_since, stage_sum};
 
 pub(crate) struct GatherEngine<'g> {
     gpu: &'g Gpu,

@@ -16,9 +16,8 @@ use nimbus_photon::impostor::{ImpostorState, Refresh};
 use nimbus_photon::{PhotonMapper, PmSettings, PmVariant};
 use nimbus_scene::{Camera, Cancel, Image, Scene};
 
-use super::{Engine, ms_since, stage_sum};
+use super::{Change, Engine, Options, Rendered, Step, ms_since, stage_sum};
 use crate::Method;
-use crate::estimator::{Change, Options, Rendered, Step};
 
 pub(crate) struct MarchEngine<'g> {
     gpu: &'g Gpu,

@@ -6,8 +6,7 @@ use nimbus_scene::volume::MajorantGrid;
 use nimbus_scene::{Cancel, Scene};
 use nimbus_trace::{PathTracer, RenderOptions, RenderStats, Sums};
 
-use super::{Engine, ms_since};
-use crate::estimator::{Change, Rendered, Step};
+use super::{Change, Engine, Rendered, Step, ms_since};
 
 pub(crate) struct PtEngine {
     majorants: MajorantGrid,

@@ -8,8 +8,7 @@ use nimbus_gpu::Gpu;
 use nimbus_scene::{Cancel, Scene};
 use nimbus_trace::gpu::GpuPathTracer;
 
-use super::{Engine, ms_since};
-use crate::estimator::{Change, Rendered, Step};
+use super::{Change, Engine, Rendered, Step, ms_since};
 
 pub(crate) struct PtGpuEngine<'g> {
     gpu: &'g Gpu,

@@ -7,19 +7,288 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use nimbus_gpu::Gpu;
 use nimbus_rpnn::Pyramid;
 use nimbus_rpnn::gpu_mlp::{NetOptions, Precision, Tiles};
 use nimbus_rpnn::gpu_sample::GpuSampler;
 use nimbus_rpnn::model::Rpnn;
+use nimbus_rpnn::ort_backend::{Cores, OrtModel};
 use nimbus_rpnn::render::{Backend, RpnnOptions, RpnnSums, SkySh, StageTimes};
 use nimbus_scene::volume::MajorantGrid;
 use nimbus_scene::{Cancel, Scene};
 
-use super::Engine;
-use crate::estimator::{Change, Rendered, RpnnSettings, Step};
-use crate::{NetBackend, rpnn_backend};
+use super::{Change, Engine, Rendered, Step};
+use crate::{GpuSource, Method, NetBackend};
+
+/// RPNN's settings.
+#[derive(Debug, Clone)]
+pub struct RpnnSettings {
+    /// The ONNX model (default: the shipped `models/rpnn-hg.onnx`).
+    pub model: Option<PathBuf>,
+    /// Where the network runs.
+    pub backend: NetBackend,
+    /// Sky directions per shading point and sample (network queries for sky light).
+    pub sky_dirs: u32,
+    /// Refuse, instead of warning, when the scene's phase function or albedo differs from the
+    /// model's training data.
+    pub strict: bool,
+    /// Spherical-harmonic degree (0 … 4) of the sky the sky head's transfer is contracted
+    /// with ([`Method::Rpnn`] with a sky and a model with a sky head).
+    pub sky_degree: usize,
+    /// With the network on the GPU: camera rays, tracking and direct light on the CPU anyway
+    /// (the hybrid path, for comparison); off: the whole sample on the GPU where the scene
+    /// allows it ([`nimbus_rpnn::gpu_sample`]).
+    pub cpu_shading: bool,
+    /// With the network on the GPU: how its weights and hidden activations are stored (f32,
+    /// or f16 with f32 accumulation).
+    pub precision: nimbus_rpnn::gpu_mlp::Precision,
+    /// With the network on the GPU: its kernel (the same products, tiled differently).
+    pub tiles: nimbus_rpnn::gpu_mlp::Tiles,
+    /// Bounces traced before the network is asked (0: the paper;
+    /// [`nimbus_rpnn::render::RpnnOptions::traced_bounces`]). More than 0 shades on the CPU.
+    pub traced_bounces: u32,
+    /// One sample in every `query_every` of a pixel asks the network (1: every sample, the
+    /// paper; [`nimbus_rpnn::render::RpnnOptions::query_every`]).
+    pub query_every: u32,
+}
+
+impl RpnnSettings {
+    /// Whether camera rays, tracking and direct light run on the CPU: asked for, or traced
+    /// bounces (the GPU sample asks the network at the first vertex).
+    pub fn shades_on_cpu(&self) -> bool {
+        self.cpu_shading || self.traced_bounces > 0
+    }
+
+    /// How the WGSL network is built.
+    pub fn net(&self) -> nimbus_rpnn::gpu_mlp::NetOptions {
+        nimbus_rpnn::gpu_mlp::NetOptions {
+            precision: self.precision,
+            tiles: self.tiles,
+        }
+    }
+}
+
+impl Default for RpnnSettings {
+    fn default() -> Self {
+        Self {
+            model: None,
+            backend: NetBackend::Auto,
+            sky_dirs: 4,
+            strict: false,
+            sky_degree: nimbus_rpnn::sky::SH_DEGREE,
+            cpu_shading: false,
+            precision: Default::default(),
+            tiles: Default::default(),
+            traced_bounces: 0,
+            query_every: 1,
+        }
+    }
+}
+
+/// The model `--method rpnn` / `rpnn-dirs` loads: `explicit` (`--model`) when given; under a
+/// sky with `rpnn` the shipped sky-head model for the phase function where it is there
+/// ([`nimbus_rpnn::model::sky_model_path_for`]); else the shipped model for the phase function
+/// ([`nimbus_rpnn::model::model_path_for`]). Without a sky never the sky head.
+pub fn rpnn_model_path(
+    explicit: Option<&std::path::Path>,
+    method: Method,
+    phase_desc: &str,
+    has_sky: bool,
+) -> PathBuf {
+    if let Some(p) = explicit {
+        return p.to_path_buf();
+    }
+    let sky = (method == Method::Rpnn && has_sky)
+        .then(|| nimbus_rpnn::model::sky_model_path_for(phase_desc))
+        .flatten();
+    sky.unwrap_or_else(|| nimbus_rpnn::model::model_path_for(phase_desc))
+}
+
+/// Prepares RPNN (Kallweit 2017 §4–5) on `scene`: the model (checked against the scene's
+/// medium: a warning, or an error with `strict`), the density pyramid, the sky head's
+/// projection of the sky and the network's runner. What the user should know goes to
+/// `warnings`. Returns the engine and where it runs.
+pub(crate) fn prepare<'g>(
+    scene: &Scene,
+    method: Method,
+    r: &RpnnSettings,
+    gpu: impl GpuSource<'g>,
+    label: &str,
+    warnings: &mut Vec<String>,
+) -> Result<(Box<dyn Engine + Send + 'g>, String)> {
+    if scene.sky.is_some() && !(1..=1024).contains(&r.sky_dirs) {
+        bail!(
+            "--sky-dirs must lie in 1..=1024 for a scene with a sky (0 would drop the sky's multiple scattering), got {}",
+            r.sky_dirs
+        );
+    }
+    // Before the model and the pyramid are made.
+    nimbus_rpnn::render::check_query_every(r.query_every)?;
+    let want_sky = method == Method::Rpnn && scene.sky.is_some();
+    let model_path = rpnn_model_path(
+        r.model.as_deref(),
+        method,
+        &scene.phase_desc,
+        scene.sky.is_some(),
+    );
+    let model = Rpnn::load(&model_path)?;
+    let mismatches = [
+        nimbus_rpnn::render::phase_mismatch(scene, &model.phase),
+        nimbus_rpnn::render::albedo_mismatch(scene, model.albedo),
+    ];
+    for w in mismatches.into_iter().flatten() {
+        if r.strict {
+            bail!(
+                "{}: {} (--strict)",
+                model_path.display(),
+                w.trim_start_matches("warning: ")
+            );
+        }
+        warnings.push(w);
+    }
+    // The pyramid's errors carry their cause in their message: formatted once.
+    let pyramid =
+        Pyramid::for_rendering(&scene.volume).map_err(|e| anyhow::anyhow!("{label}: {e}"))?;
+    let adapter = match r.backend {
+        NetBackend::Ort | NetBackend::OrtInt8 => None,
+        NetBackend::Wgpu => Some(gpu.get()?),
+        NetBackend::Auto => gpu.try_get(),
+    };
+    // The sky head runs on either backend (ONNX Runtime, or the WGSL network's sky
+    // layers).
+    let sky_sh = if want_sky && model.sky_coeffs() > 0 {
+        nimbus_rpnn::render::SkySh::of(scene, r.sky_degree, 64)
+    } else {
+        if want_sky && r.model.is_none() {
+            warnings.push(format!(
+                "warning: {}: no sky head; the sky is sampled in --sky-dirs directions",
+                model_path.display()
+            ));
+        }
+        None
+    };
+    let cpu_shading = r.shades_on_cpu();
+    let (runner, device, note) = runner(
+        r.backend,
+        cpu_shading,
+        r.net(),
+        adapter,
+        &model_path,
+        &model,
+        &pyramid,
+        scene,
+        sky_sh.as_ref(),
+        r.sky_dirs,
+        r.query_every,
+    )?;
+    if let Some(n) = note
+        && !cpu_shading
+    {
+        warnings.push(format!("note: {label}: {n}"));
+    }
+    // Settings of a path this render does not take, said instead of ignored.
+    let defaults = RpnnSettings::default();
+    if !runner.network_in_wgsl() {
+        let gpu_only: Vec<&str> = [
+            (r.cpu_shading, "--cpu-shading"),
+            (r.precision != defaults.precision, "--net-precision"),
+            (r.tiles != defaults.tiles, "--net-tiles"),
+        ]
+        .into_iter()
+        .filter_map(|(set, flag)| set.then_some(flag))
+        .collect();
+        if !gpu_only.is_empty() {
+            warnings.push(format!(
+                "warning: {label}: {} are settings of the WGSL network (--backend \
+                 wgpu); ignored: the network runs on {device}",
+                gpu_only.join(", ")
+            ));
+        }
+    }
+    if sky_sh.is_none() && r.sky_degree != defaults.sky_degree {
+        warnings.push(format!(
+            "warning: {label}: --sky-degree applies to a sky head's sky \
+             (--method rpnn, a model with one, a scene with a sky); ignored"
+        ));
+    }
+    Ok((
+        Box::new(RpnnEngine::new(
+            scene,
+            Network {
+                path: model_path,
+                model,
+                runner,
+                adapter,
+            },
+            pyramid,
+            r,
+            sky_sh,
+        )),
+        device,
+    ))
+}
+
+/// RPNN's network backend: WGSL on `adapter` or ONNX Runtime, as `choice` and the adapter
+/// say ([`NetBackend::uses_wgpu`]); returns it with a description of where it runs. The one
+/// place that makes this choice (the estimator and the viewer call it).
+pub fn rpnn_backend<'g>(
+    choice: NetBackend,
+    adapter: Option<&'g Gpu>,
+    model_path: &std::path::Path,
+    model: &Rpnn,
+    pyramid: &Pyramid,
+    net: nimbus_rpnn::gpu_mlp::NetOptions,
+) -> Result<(Backend<'g>, String)> {
+    if choice.uses_wgpu(adapter.map(Gpu::is_software)) {
+        let Some(g) = adapter else {
+            bail!(
+                "the RPNN network on wgpu needs a GPU adapter (--backend ort runs it on the CPU)"
+            );
+        };
+        match nimbus_rpnn::gpu_mlp::GpuRpnn::with_options(
+            g,
+            pyramid,
+            model,
+            nimbus_rpnn::gpu_mlp::DEFAULT_BATCH,
+            net,
+        ) {
+            Ok(b) => {
+                return Ok((
+                    Backend::Wgpu(Box::new(b)),
+                    format!("wgpu on {}", g.describe()),
+                ));
+            }
+            // A pyramid beyond the adapter's binding limit (a sparse cloud's level in a huge
+            // box): the automatic choice reads it on the CPU instead, and says so.
+            Err(e @ (nimbus_gpu::GpuError::TooLarge { .. } | nimbus_gpu::GpuError::Memory(_)))
+                if choice == NetBackend::Auto =>
+            {
+                let b = OrtModel::load(model_path, Cores::Workers(0))?;
+                let cpu = ort_cpu(&b);
+                return Ok((Backend::Ort(b), format!("ort ({cpu}; not the GPU: {e})")));
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
+    if choice == NetBackend::OrtInt8 {
+        let b = OrtModel::load_int8(model_path, Cores::Workers(0))?;
+        let cpu = ort_cpu(&b);
+        return Ok((Backend::Ort(b), format!("ort int8 ({cpu})")));
+    }
+    let b = OrtModel::load(model_path, Cores::Workers(0))?;
+    let cpu = ort_cpu(&b);
+    Ok((Backend::Ort(b), format!("ort ({cpu})")))
+}
+
+/// How ONNX Runtime runs, for the device line: `cpu: 2 sessions` (one single-threaded session
+/// per core, [`Cores::Workers`]). No comma: the line is a field of `report.csv`.
+fn ort_cpu(b: &OrtModel) -> String {
+    match b.workers() {
+        1 => "cpu: 1 session".to_string(),
+        n => format!("cpu: {n} sessions"),
+    }
+}
 
 /// Where a sample runs: shading on the CPU with a network backend, or all of it on the GPU.
 pub(crate) enum Runner<'g> {
