@@ -5,13 +5,15 @@
 //! - [`volume`]: `Volume` (numpy, files, generators);
 //! - [`scene`]: `Scene` and its parts, with the scene file's field names;
 //! - [`render`]: `render`, `Estimator`, `Image`;
-//! - [`eval`]: `compare`, `tau`, `compare_scene`, `datagen`;
+//! - [`eval`]: `compare`, `tau`, `compare_scene`;
+//! - [`datagen`]: `datagen` (RPNN training records);
 //! - [`call`]: long calls on a worker thread with the GIL released, Ctrl-C as cancellation,
 //!   errors and panics as Python exceptions.
 
 use pyo3::prelude::*;
 
 mod call;
+mod datagen;
 mod eval;
 mod render;
 mod scene;
@@ -98,5 +100,6 @@ fn _nimbus(m: &Bound<'_, PyModule>) -> PyResult<()> {
     scene::register(m)?;
     render::register(m)?;
     eval::register(m)?;
+    datagen::register(m)?;
     Ok(())
 }

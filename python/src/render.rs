@@ -204,7 +204,9 @@ fn warn(py: Python<'_>, warnings: &[String]) -> PyResult<()> {
 /// `seed` (default the scene's `render.seed`); the same seed gives the CLI's pixels. Other
 /// keywords are the CLI flags' names without dashes (`sky_dirs=8`, `backend="ort"`,
 /// `pm_variant="elek2012"`, …; `nimbus.settings()` lists them). The GIL is released while it
-/// renders; Ctrl-C stops it. `progress=True`: the path tracer's progress bar on stderr.
+/// renders; Ctrl-C stops it. `progress=True`: a tqdm bar when tqdm is installed (the
+/// progressive estimator stepped per sample, see `render_stepped`), else the estimator's own
+/// bar on stderr.
 #[pyfunction]
 #[pyo3(signature = (scene, method="pt", spp=None, seed=None, frames=None, progress=false, **settings))]
 #[allow(clippy::too_many_arguments)]
@@ -242,6 +244,12 @@ fn render(
             .map_err(|e| PyValueError::new_err(e.replace("setting `ring`", "field `frames`")))?;
     }
     let budget = nimbus_render::settings::budget(method, &opts, spp);
+    if progress && let Ok(tqdm) = py.import("tqdm") {
+        opts.progress = false;
+        let (r, warnings) = render_stepped(py, &tqdm, s, method, &opts, budget, seed)?;
+        warn(py, &warnings)?;
+        return Ok(Image::new(r, budget));
+    }
     let (r, warnings) = call::run(py, |cancel| {
         let mut est = nimbus_render::prepare(s, method, &opts, &GPU)?;
         let r = est.render_with(budget, seed, cancel)?;
@@ -249,6 +257,37 @@ fn render(
     })?;
     warn(py, &warnings)?;
     Ok(Image::new(r, budget))
+}
+
+/// `render(progress=True)` with tqdm installed: the progressive estimator (as `Estimator`:
+/// prepared, restarted from `seed`) stepped one sample (generation) at a time, a tqdm bar
+/// advanced after each. The path tracer's pixels equal `render`'s; the photon maps and RPNN
+/// draw their samples in the progressive order (`Estimator.accumulate`'s pixels).
+fn render_stepped(
+    py: Python<'_>,
+    tqdm: &Bound<'_, PyModule>,
+    s: &nimbus_scene::Scene,
+    method: Method,
+    opts: &Options,
+    budget: u32,
+    seed: u64,
+) -> PyResult<(Rendered, Vec<String>)> {
+    let bar = tqdm.getattr("tqdm")?.call1((budget,))?;
+    let result = (|| {
+        let mut est = call::run(py, |_| {
+            let mut e = nimbus_render::prepare(s, method, opts, &GPU)?;
+            e.restart(seed)?;
+            Ok(e)
+        })?;
+        for _ in 0..budget {
+            call::run(py, |c| est.accumulate_with(1, c))?;
+            bar.call_method1("update", (1,))?;
+        }
+        let r = call::run(py, |_| est.image())?;
+        Ok((r, est.warnings.clone()))
+    })();
+    bar.call_method0("close")?;
+    result
 }
 
 /// A prepared estimator, driven progressively (the viewer's interface): `accumulate(n)` adds

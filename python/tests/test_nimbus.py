@@ -336,3 +336,112 @@ def test_quickstart_example_runs(tmp_path):
     err = float(out.stdout.split("4x4 error ")[1].split(",")[0])
     # The shipped network on a ball it was not trained on, 4 spp against 64 spp of pt.
     assert err < 0.3, out.stdout
+
+
+@pytest.mark.skipif(not CLI.is_file(), reason=f"{CLI} not built (cargo build --release -p nimbus-cli)")
+@pytest.mark.parametrize("method,budget,flags", [
+    ("pt-gpu", {"spp": 4}, ["--spp", "4"]),
+    ("pm", {"spp": 2}, ["--spp", "2"]),
+    ("pm-march", {"frames": 4}, ["--ring", "4"]),
+])
+def test_gpu_methods_same_pixels_as_the_cli(tmp_path, method, budget, flags):
+    """pt-gpu, pm and pm-march (on lavapipe without a GPU) from Python and from `nimbus render`
+    of the same scene file, seed 5: identical pixels."""
+    scene = small_scene()
+    scene.save(tmp_path / "s.toml")
+    exr = tmp_path / "cli.exr"
+    subprocess.run([str(CLI), "render", str(tmp_path / "s.toml"), "--method", method, *flags,
+                    "--seed", "5", "-q", "-o", str(exr)], check=True, capture_output=True, cwd=ROOT)
+    cli = nimbus.Image.load(exr).rgb
+    py = nimbus.render(nimbus.Scene.load(tmp_path / "s.toml"), method, seed=5, **budget).rgb
+    assert py.shape == (24, 32, 3) and py.mean() > 0.0
+    assert np.array_equal(py, cli), (method, np.abs(py - cli).max())
+
+
+def test_compare_scene_table_and_pt_error_falls_with_budget(tmp_path):
+    """compare_scene runs `nimbus compare SCENE`: one row per budget with the report's columns;
+    the path tracer's 4x4-block error against the cached reference falls with spp (1 → 16 spp
+    divides Monte Carlo noise by ≈ 4; asserted: by more than 2)."""
+    rows = nimbus.compare_scene(small_scene(), "pt", out=tmp_path / "report",
+                                budgets={"pt": [1, 16]}, ref_spp=256, ref_noise=0.0,
+                                ref_time_cap=60.0, cache=None, seed=4)
+    assert [r["budget"] for r in rows] == [1, 16], rows
+    for key in ["method", "budget", "budget_unit", "time_s", "device", "rel_rmse",
+                "rel_rmse_4x4", "mean_ratio", "bias", "bias_floor", "nonfinite"]:
+        assert key in rows[0], rows[0].keys()
+    assert rows[0]["method"] == "pt" and rows[1]["nonfinite"] == 0
+    e1, e16 = rows[0]["rel_rmse_4x4"], rows[1]["rel_rmse_4x4"]
+    assert 0.0 < e16 < e1 / 2, (e1, e16)
+    assert (tmp_path / "report" / "report.csv").is_file()
+
+
+class _FakeTqdm:
+    """tqdm's interface as render(progress=True) uses it: tqdm(total), update(n), close()."""
+    made = []
+
+    def __init__(self, total):
+        self.total, self.n, self.closed = total, 0, False
+        _FakeTqdm.made.append(self)
+
+    def update(self, n):
+        self.n += n
+
+    def close(self):
+        self.closed = True
+
+
+def test_render_progress_steps_a_tqdm_bar(monkeypatch):
+    """With tqdm importable, render(progress=True) steps a bar once per sample to the budget and
+    (for pt) gives render's pixels; tqdm is not a pinned requirement, so a stand-in module."""
+    import types
+    fake = types.ModuleType("tqdm")
+    fake.tqdm = _FakeTqdm
+    monkeypatch.setitem(sys.modules, "tqdm", fake)
+    scene = small_scene()
+    img = nimbus.render(scene, "pt", spp=6, seed=2, progress=True)
+    bar = _FakeTqdm.made[-1]
+    assert (bar.total, bar.n, bar.closed) == (6, 6, True)
+    assert np.array_equal(img.rgb, nimbus.render(scene, "pt", spp=6, seed=2).rgb)
+
+
+DATAGEN = dict(clouds="gen:5", test_records=6, val_records=4, samples=64, eval_samples=64,
+               shard_size=10, seed=3, device="cpu")
+DATAGEN_FLAGS = ["--clouds", "gen:5", "--test-records", "6", "--val-records", "4", "--samples",
+                 "64", "--eval-samples", "64", "--shard-size", "10", "--seed", "3",
+                 "--device", "cpu", "-q"]
+
+
+@pytest.mark.skipif(not CLI.is_file(), reason=f"{CLI} not built (cargo build --release -p nimbus-cli)")
+def test_datagen_equals_the_cli_shards(tmp_path):
+    """The same settings and seed: the arrays datagen returns are the rows of the CLI's shards
+    (every split, every column, bit for bit), and datagen(out=) writes the same files."""
+    cli = tmp_path / "cli"
+    t = time.perf_counter()
+    subprocess.run([str(CLI), "datagen", "--records", "24", "-o", str(cli), *DATAGEN_FLAGS],
+                   check=True, capture_output=True)
+    cli_s = time.perf_counter() - t
+    d = nimbus.datagen(24, **DATAGEN)
+    for split, n in [("train", 24), ("val", 4), ("test", 6)]:
+        for k, shape in [("x", (n, 2251)), ("y", (n,)), ("meta", (n, 15))]:
+            ref = np.concatenate([np.load(f) for f in sorted(cli.glob(f"{split}_*_{k}.npy"))])
+            assert d[split][k].shape == shape and d[split][k].dtype == np.float32
+            assert np.array_equal(d[split][k], ref), (split, k)
+    assert d["records"] == 34 and len(d["meta_names"]) == 15
+    assert np.all(d["train"]["meta"][:, 10] == 64)  # samples column: exactly 64 each
+    s = nimbus.datagen(24, out=tmp_path / "py", **DATAGEN)
+    assert s["records"] == s["computed"] == 34
+    for f in sorted(cli.iterdir()):
+        if f.suffix in (".npy", ".sha256"):
+            assert (tmp_path / "py" / f.name).read_bytes() == f.read_bytes(), f.name
+    print(f"datagen 34 records: CLI process {34 / cli_s:.1f} records/s, "
+          f"Python in memory {d['records_per_second']:.1f}, Python to shards "
+          f"{s['records_per_second']:.1f}")
+
+
+def test_datagen_bad_settings():
+    with pytest.raises(ValueError, match="light"):
+        nimbus.datagen(4, light="cone")
+    with pytest.raises(ValueError, match="density_range"):
+        nimbus.datagen(4, density_range=(80.0, 10.0))
+    with pytest.raises(ValueError, match="shard"):
+        nimbus.datagen(4, shard="1/2")

@@ -203,3 +203,32 @@ pub fn build_volume(spec: &CloudSpec) -> Result<Volume, DatagenError> {
     Volume::new(grid, Aabb::new(lo, hi).unwrap(), spec.density_scale)
         .map_err(|e| err(e.to_string()))
 }
+
+/// The cloud set named by `--clouds`: `gen:N` (the [`DEFAULT_KINDS`] in turn), `gen:N:KIND,…`
+/// ([`generated_set_of`], density scales log-uniform in `density`), or a folder of
+/// `.vol`/`.npy`/`.vdb` files ([`folder_set`], σ_t = `density_scale` × grid value).
+pub fn cloud_set(
+    spec: &str,
+    seed: u64,
+    density: [f64; 2],
+    density_scale: f64,
+) -> Result<Vec<CloudSpec>, DatagenError> {
+    let Some(gen_spec) = spec.strip_prefix("gen:") else {
+        return folder_set(Path::new(spec), density_scale);
+    };
+    let (n, kinds) = match gen_spec.split_once(':') {
+        Some((n, kinds)) => (n, kinds.split(',').map(str::trim).collect()),
+        None => (gen_spec, DEFAULT_KINDS.to_vec()),
+    };
+    let err = |msg: String| DatagenError::Set {
+        what: format!("--clouds {spec}"),
+        msg,
+    };
+    let n: usize = n
+        .parse()
+        .map_err(|e| err(format!("expected gen:N or gen:N:KIND,… ({e})")))?;
+    if n == 0 {
+        return Err(err("gen:N needs N ≥ 1".into()));
+    }
+    generated_set_of(n, seed, density, &kinds)
+}

@@ -239,6 +239,9 @@ pub enum DatagenError {
     /// A data-set folder or file (`what` names it).
     #[error("{what}: {msg}")]
     Set { what: String, msg: String },
+    /// Stopped by its cancellation token ([`crate::data::dataset::run_cancellable`]).
+    #[error("cancelled")]
+    Cancelled(#[from] nimbus_scene::Cancelled),
 }
 
 /// A file error ([`nimbus_scene::fsio`]) as the error of the data-set file it names.

@@ -50,14 +50,14 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use nimbus_scene::{Medium, Phase};
+use nimbus_scene::{Cancel, Medium, Phase};
 use nimbus_trace::Pcg32;
 use nimbus_trace::rng::mix64;
 use rayon::prelude::*;
 use serde::Serialize;
 
 pub use crate::data::clouds::{
-    CloudSource, CloudSpec, DEFAULT_KINDS, build_volume, folder_set, generated_set,
+    CloudSource, CloudSpec, DEFAULT_KINDS, build_volume, cloud_set, folder_set, generated_set,
     generated_set_in, generated_set_of,
 };
 use crate::data::datagen::{CloudData, DatagenError, LightSampling, Record};
@@ -341,6 +341,326 @@ fn precise_gpu(
     Ok(out)
 }
 
+/// What one split's records are computed with: its clouds, label sample counts.
+struct SplitPlan {
+    /// The clouds of the split (indices into the set).
+    members: Vec<usize>,
+    /// Samples per label (fixed) or the cap of a converged one.
+    cap: u64,
+    fixed: bool,
+    /// Two-stage precise labels (validation and test only): pilot `cap`, then fresh samples.
+    precise: Option<f64>,
+}
+
+fn plan_split(
+    clouds: &[CloudSpec],
+    opts: &DatagenOptions,
+    split: &str,
+) -> Result<SplitPlan, &'static str> {
+    let n_samples = if split == "train" {
+        opts.samples
+    } else {
+        opts.eval_samples
+    };
+    let (cap, fixed) = if n_samples > 0 {
+        (n_samples, true)
+    } else {
+        (opts.max_samples, false)
+    };
+    let precise = (split != "train" && opts.eval_noise > 0.0).then_some(opts.eval_noise);
+    if precise.is_some() && n_samples == 0 {
+        return Err("precise labels (eval_noise) need a pilot count (eval_samples > 0)");
+    }
+    let members = (0..clouds.len())
+        .filter(|&i| clouds[i].split == split)
+        .collect();
+    Ok(SplitPlan {
+        members,
+        cap,
+        fixed,
+        precise,
+    })
+}
+
+/// The clouds of a split (volume + pyramid), built in parallel.
+fn build_clouds(
+    clouds: &[CloudSpec],
+    members: &[usize],
+    medium: &Medium,
+    opts: &DatagenOptions,
+) -> Result<Vec<CloudData>, DatagenError> {
+    members
+        .par_iter()
+        .map(|&i| {
+            CloudData::new(&clouds[i].name, build_volume(&clouds[i])?, medium.clone())
+                .map(|c| c.with_sky_transfer(opts.sky_transfer))
+        })
+        .collect()
+}
+
+/// Everything one shard's records depend on besides their range.
+struct ShardJob<'a> {
+    opts: &'a DatagenOptions,
+    data: &'a [CloudData],
+    members: &'a [usize],
+    gpu: Option<&'a nimbus_gpu::Gpu>,
+    split: &'a str,
+    cap: u64,
+    fixed: bool,
+    precise: Option<f64>,
+    /// What errors name (the output folder).
+    what: String,
+    cancel: &'a Cancel,
+}
+
+/// Records `lo..hi` of shard `k` of a split, each with the index of its cloud in the set:
+/// record r uses its own random stream (seed, split, r) on the CPU; on the GPU the shard's
+/// records of one cloud share a batch seeded by (seed, k, cloud).
+fn shard_records(
+    job: &ShardJob,
+    k: usize,
+    lo: usize,
+    hi: usize,
+    bar: &ProgressBar,
+) -> Result<Vec<(usize, Record)>, DatagenError> {
+    let ShardJob {
+        opts,
+        data,
+        members,
+        cap,
+        fixed,
+        precise,
+        cancel,
+        ..
+    } = *job;
+    let err = |msg: String| DatagenError::Set {
+        what: job.what.clone(),
+        msg,
+    };
+    // train 0 and test 1 as before the validation split existed (same records).
+    let split_id = match job.split {
+        "train" => 0u64,
+        "test" => 1,
+        _ => 2,
+    };
+    let rng_of = |r: usize| Pcg32::new(mix64(opts.seed ^ mix64(split_id)), mix64(r as u64));
+    Ok(match job.gpu {
+        None => (lo..hi)
+            .into_par_iter()
+            .map(|r| {
+                cancel.check()?;
+                let ci = r % data.len();
+                let rng = &mut rng_of(r);
+                let rec = match precise {
+                    Some(rel) => {
+                        data[ci].record_precise(opts.light, cap, rel, opts.max_samples, rng)?
+                    }
+                    None => data[ci].record(opts.light, cap, fixed, rng)?,
+                };
+                bar.inc(1);
+                Ok((members[ci], rec))
+            })
+            .collect::<Result<_, DatagenError>>()?,
+        Some(gpu) => {
+            let mut out: Vec<Option<(usize, Record)>> = vec![None; hi - lo];
+            for (ci, cloud) in data.iter().enumerate() {
+                cancel.check()?;
+                let rs: Vec<usize> = (lo..hi).filter(|r| r % data.len() == ci).collect();
+                if rs.is_empty() {
+                    continue;
+                }
+                let cfgs: Vec<_> = rs
+                    .par_iter()
+                    .map(|&r| cloud.sample_config_with(opts.light, &mut rng_of(r)))
+                    .collect::<Result<_, _>>()?;
+                let mut gpt = nimbus_trace::gpu::GpuPathTracer::new(gpu, &cloud.scene)
+                    .map_err(|e| err(e.to_string()))?;
+                let seed = mix64(opts.seed ^ (k as u64) ^ ((ci as u64) << 32));
+                let mut est = crate::data::datagen::estimate_gpu(
+                    &mut gpt,
+                    &cfgs,
+                    cap,
+                    if fixed { 0.0 } else { 0.02 },
+                    seed,
+                )
+                .map_err(|e| err(e.to_string()))?;
+                if let Some(rel) = precise {
+                    est = precise_gpu(&mut gpt, &cfgs, &est, rel, opts.max_samples, seed)
+                        .map_err(|e| err(e.to_string()))?;
+                }
+                for ((&r, c), e) in rs.iter().zip(&cfgs).zip(est) {
+                    out[r - lo] = Some((members[ci], cloud.finish(c.0, c.1, c.2, e, opts.light)?));
+                    bar.inc(1);
+                }
+            }
+            out.into_iter()
+                .map(|o| o.expect("every record assigned"))
+                .collect()
+        }
+    })
+}
+
+/// A shard's records as the rows of its three files: descriptors `[n, DESCRIPTOR_LEN]`, labels
+/// `[n]`, metadata `[n, width]` ([`META_NAMES`], then the sky's transfer when labelled).
+pub struct ShardArrays {
+    pub x: Vec<f32>,
+    pub y: Vec<f32>,
+    pub meta: Vec<f32>,
+    /// Columns of `meta` ([`meta_width`]).
+    pub width: usize,
+    /// Records whose label converged.
+    pub converged: usize,
+}
+
+fn shard_arrays(records: &[(usize, Record)], sky: bool) -> Result<ShardArrays, &'static str> {
+    let width = meta_width(sky);
+    let mut xs = Vec::with_capacity(records.len() * DESCRIPTOR_LEN);
+    let mut ys = Vec::with_capacity(records.len());
+    let mut ms = Vec::with_capacity(records.len() * width);
+    let mut conv = 0;
+    for (ci, r) in records {
+        xs.extend_from_slice(&r.descriptor);
+        ys.push(r.target);
+        ms.push(*ci as f32);
+        ms.extend_from_slice(&r.x.to_array());
+        ms.extend_from_slice(&r.view.to_array());
+        ms.extend_from_slice(&r.to_light.to_array());
+        ms.extend_from_slice(&[
+            r.samples as f32,
+            r.converged as u8 as f32,
+            r.rel_ci,
+            r.var_mean,
+            r.light_weight,
+        ]);
+        if sky {
+            let Some(t) = r.sky else {
+                return Err("a record has no sky transfer");
+            };
+            ms.extend_from_slice(&t);
+        }
+        conv += r.converged as usize;
+    }
+    Ok(ShardArrays {
+        x: xs,
+        y: ys,
+        meta: ms,
+        width,
+        converged: conv,
+    })
+}
+
+/// One split of a set held in memory ([`in_memory`]): the rows its shards would hold, in order.
+pub struct SplitArrays {
+    pub split: &'static str,
+    pub records: usize,
+    pub arrays: ShardArrays,
+}
+
+/// The records [`run`] writes for `clouds` and `opts` (every split, every shard in order: the
+/// rows of `{split}_*_x.npy` etc. concatenated, float32 descriptors whatever
+/// `f16_descriptors` says), computed in memory with nothing written; `cancel` stops it at the
+/// next record ([`DatagenError::Cancelled`]). `opts.part` must be `None`.
+pub fn in_memory(
+    clouds: &[CloudSpec],
+    opts: &DatagenOptions,
+    cancel: &Cancel,
+) -> Result<(Vec<SplitArrays>, RunSummary), DatagenError> {
+    let err = |msg: String| DatagenError::Set {
+        what: "datagen".into(),
+        msg,
+    };
+    if opts.shard_size == 0 {
+        return Err(err("shard size must be at least 1".into()));
+    }
+    if opts.part.is_some() {
+        return Err(err(
+            "a part of a set (shard K/N) is written to a folder, not held in memory".into(),
+        ));
+    }
+    if opts.sky_transfer && opts.gpu {
+        return Err(err(
+            "sky transfer needs the CPU path tracer (device cpu)".into()
+        ));
+    }
+    let counts = [opts.records, opts.val_records, opts.test_records];
+    for (split, &count) in SPLITS.iter().zip(&counts) {
+        if count > 0 && !clouds.iter().any(|c| c.split == *split) {
+            return Err(err(format!(
+                "{count} {split} records requested but the set has no {split} clouds"
+            )));
+        }
+    }
+    let medium = medium(opts)?;
+    let gpu = if opts.gpu {
+        Some(nimbus_gpu::Gpu::new().map_err(|e| err(e.to_string()))?)
+    } else {
+        None
+    };
+    let start = Instant::now();
+    let (mut total, mut converged) = (0usize, 0usize);
+    let mut splits = Vec::new();
+    for (split, count) in SPLITS.into_iter().zip(counts) {
+        let plan = plan_split(clouds, opts, split).map_err(|m| err(m.into()))?;
+        let mut all = ShardArrays {
+            x: Vec::new(),
+            y: Vec::new(),
+            meta: Vec::new(),
+            width: meta_width(opts.sky_transfer),
+            converged: 0,
+        };
+        if count > 0 {
+            // The whole split is held at once.
+            check_memory(clouds, &plan.members, count, split)?;
+            let data = build_clouds(clouds, &plan.members, &medium, opts)?;
+            let bar = if opts.progress {
+                ProgressBar::with_draw_target(Some(count as u64), ProgressDrawTarget::stderr())
+            } else {
+                ProgressBar::hidden()
+            };
+            bar.set_prefix(split);
+            let job = ShardJob {
+                opts,
+                data: &data,
+                members: &plan.members,
+                gpu: gpu.as_ref(),
+                split,
+                cap: plan.cap,
+                fixed: plan.fixed,
+                precise: plan.precise,
+                what: "datagen".into(),
+                cancel,
+            };
+            for k in 0..count.div_ceil(opts.shard_size) {
+                let lo = k * opts.shard_size;
+                let hi = ((k + 1) * opts.shard_size).min(count);
+                let records = shard_records(&job, k, lo, hi, &bar)?;
+                let a = shard_arrays(&records, opts.sky_transfer).map_err(|m| err(m.into()))?;
+                all.x.extend_from_slice(&a.x);
+                all.y.extend_from_slice(&a.y);
+                all.meta.extend_from_slice(&a.meta);
+                all.converged += a.converged;
+            }
+            bar.finish_and_clear();
+        }
+        total += count;
+        converged += all.converged;
+        splits.push(SplitArrays {
+            split,
+            records: count,
+            arrays: all,
+        });
+    }
+    Ok((
+        splits,
+        RunSummary {
+            records: total,
+            computed: total,
+            converged,
+            seconds: start.elapsed().as_secs_f64(),
+        },
+    ))
+}
+
 /// Whether `datagen` estimates labels on the GPU: `choice` when given (`--device`), else the
 /// GPU when the phase function is HG (the WGSL tracer's) and the adapter is real hardware
 /// (on lavapipe the CPU path tracer is faster).
@@ -354,6 +674,17 @@ pub fn run(
     clouds: &[CloudSpec],
     opts: &DatagenOptions,
     out: &Path,
+) -> Result<RunSummary, DatagenError> {
+    run_cancellable(clouds, opts, out, &Cancel::never())
+}
+
+/// [`run`], stopping with [`DatagenError::Cancelled`] at the next record once `cancel` is set
+/// (the shards finished until then are kept, so a rerun resumes).
+pub fn run_cancellable(
+    clouds: &[CloudSpec],
+    opts: &DatagenOptions,
+    out: &Path,
+    cancel: &Cancel,
 ) -> Result<RunSummary, DatagenError> {
     let err = |msg: String| DatagenError::Set {
         what: out.display().to_string(),
@@ -458,38 +789,17 @@ pub fn run(
         let shard0 = first_shard;
         first_shard += n_shards;
         let owned: Vec<usize> = (0..n_shards).filter(|k| part.owns(shard0 + k)).collect();
-        let n_samples = if split == "train" {
-            opts.samples
-        } else {
-            opts.eval_samples
-        };
-        let (cap, fixed) = if n_samples > 0 {
-            (n_samples, true)
-        } else {
-            (opts.max_samples, false)
-        };
-        // Two-stage precise labels (validation and test only): pilot `cap`, then fresh samples.
-        let precise = (split != "train" && opts.eval_noise > 0.0).then_some(opts.eval_noise);
-        if precise.is_some() && n_samples == 0 {
-            return Err(err(
-                "precise labels (eval_noise) need a pilot count (eval_samples > 0)".into(),
-            ));
-        }
-        let members: Vec<usize> = (0..clouds.len())
-            .filter(|&i| clouds[i].split == split)
-            .collect();
+        let SplitPlan {
+            members,
+            cap,
+            fixed,
+            precise,
+        } = plan_split(clouds, opts, split).map_err(|m| err(m.into()))?;
         if owned.is_empty() {
             continue;
         }
         check_memory(clouds, &members, opts.shard_size.min(count), split)?;
-        // Build the clouds of this split (volume + pyramid), in parallel.
-        let data: Vec<CloudData> = members
-            .par_iter()
-            .map(|&i| {
-                CloudData::new(&clouds[i].name, build_volume(&clouds[i])?, medium.clone())
-                    .map(|c| c.with_sky_transfer(opts.sky_transfer))
-            })
-            .collect::<Result<_, _>>()?;
+        let data = build_clouds(clouds, &members, &medium, opts)?;
         let owned_records: usize = owned
             .iter()
             .map(|k| ((k + 1) * opts.shard_size).min(count) - k * opts.shard_size)
@@ -553,97 +863,26 @@ pub fn run(
                     eprintln!("{split} shard {k}: {why}; recomputing it");
                 }),
             }
-            // train 0 and test 1 as before the validation split existed (same records).
-            let split_id = match split {
-                "train" => 0u64,
-                "test" => 1,
-                _ => 2,
+            let job = ShardJob {
+                opts,
+                data: &data,
+                members: &members,
+                gpu: gpu.as_ref(),
+                split,
+                cap,
+                fixed,
+                precise,
+                what: out.display().to_string(),
+                cancel,
             };
-            let rng_of = |r: usize| Pcg32::new(mix64(opts.seed ^ mix64(split_id)), mix64(r as u64));
-            let records: Vec<(usize, Record)> = match &gpu {
-                None => (lo..hi)
-                    .into_par_iter()
-                    .map(|r| {
-                        let ci = r % data.len();
-                        let rng = &mut rng_of(r);
-                        let rec = match precise {
-                            Some(rel) => data[ci].record_precise(
-                                opts.light,
-                                cap,
-                                rel,
-                                opts.max_samples,
-                                rng,
-                            )?,
-                            None => data[ci].record(opts.light, cap, fixed, rng)?,
-                        };
-                        bar.inc(1);
-                        Ok((members[ci], rec))
-                    })
-                    .collect::<Result<_, DatagenError>>()?,
-                Some(gpu) => {
-                    let mut out: Vec<Option<(usize, Record)>> = vec![None; hi - lo];
-                    for (ci, cloud) in data.iter().enumerate() {
-                        let rs: Vec<usize> = (lo..hi).filter(|r| r % data.len() == ci).collect();
-                        if rs.is_empty() {
-                            continue;
-                        }
-                        let cfgs: Vec<_> = rs
-                            .par_iter()
-                            .map(|&r| cloud.sample_config_with(opts.light, &mut rng_of(r)))
-                            .collect::<Result<_, _>>()?;
-                        let mut gpt = nimbus_trace::gpu::GpuPathTracer::new(gpu, &cloud.scene)
-                            .map_err(|e| err(e.to_string()))?;
-                        let seed = mix64(opts.seed ^ (k as u64) ^ ((ci as u64) << 32));
-                        let mut est = crate::data::datagen::estimate_gpu(
-                            &mut gpt,
-                            &cfgs,
-                            cap,
-                            if fixed { 0.0 } else { 0.02 },
-                            seed,
-                        )
-                        .map_err(|e| err(e.to_string()))?;
-                        if let Some(rel) = precise {
-                            est = precise_gpu(&mut gpt, &cfgs, &est, rel, opts.max_samples, seed)
-                                .map_err(|e| err(e.to_string()))?;
-                        }
-                        for ((&r, c), e) in rs.iter().zip(&cfgs).zip(est) {
-                            out[r - lo] =
-                                Some((members[ci], cloud.finish(c.0, c.1, c.2, e, opts.light)?));
-                            bar.inc(1);
-                        }
-                    }
-                    out.into_iter()
-                        .map(|o| o.expect("every record assigned"))
-                        .collect()
-                }
-            };
-            let mut xs = Vec::with_capacity(records.len() * DESCRIPTOR_LEN);
-            let mut ys = Vec::with_capacity(records.len());
-            let width = meta_width(opts.sky_transfer);
-            let mut ms = Vec::with_capacity(records.len() * width);
-            let mut conv = 0;
-            for (ci, r) in &records {
-                xs.extend_from_slice(&r.descriptor);
-                ys.push(r.target);
-                ms.push(*ci as f32);
-                ms.extend_from_slice(&r.x.to_array());
-                ms.extend_from_slice(&r.view.to_array());
-                ms.extend_from_slice(&r.to_light.to_array());
-                ms.extend_from_slice(&[
-                    r.samples as f32,
-                    r.converged as u8 as f32,
-                    r.rel_ci,
-                    r.var_mean,
-                    r.light_weight,
-                ]);
-                if opts.sky_transfer {
-                    let Some(t) = r.sky else {
-                        return Err(err("a record has no sky transfer".into()));
-                    };
-                    ms.extend_from_slice(&t);
-                }
-                conv += r.converged as usize;
-            }
+            let records = shard_records(&job, k, lo, hi, &bar)?;
+            let ShardArrays {
+                x: xs,
+                y: ys,
+                meta: ms,
+                converged: conv,
+                width,
+            } = shard_arrays(&records, opts.sky_transfer).map_err(|m| err(m.into()))?;
             let _ = std::fs::remove_file(&sidecar);
             if opts.f16_descriptors {
                 write_npy_f16(&px, &[n, DESCRIPTOR_LEN as u64], &xs)?;
