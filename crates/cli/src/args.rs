@@ -1,42 +1,37 @@
 //! Argument types and checks shared by several commands: the photon-mapping flags and value
 //! parsers that give flags the same checks as scene keys.
 
+use std::str::FromStr;
+
 use anyhow::Result;
 use clap::ValueEnum;
+use clap::builder::{PossibleValuesParser, TypedValueParser};
+use nimbus_photon::mapper::LobeAxis;
+use nimbus_photon::{PmVariant, SunShadow, Terminal};
 
-#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub(crate) enum PmVariantArg {
-    Exact,
-    Elek2012,
+/// A library enum parsed by its own `FromStr`; `all` and `name` (its `ALL` and `name()`) give
+/// the names clap lists in `--help` and in its error for any other value.
+pub(crate) fn one_of<T, const N: usize>(
+    all: [T; N],
+    name: fn(T) -> &'static str,
+) -> impl TypedValueParser<Value = T>
+where
+    T: FromStr<Err = String> + Clone + Send + Sync + 'static,
+{
+    PossibleValuesParser::new(all.map(name)).try_map(|s| s.parse::<T>())
 }
 
+/// `render --device`, `bench-suite --device`, `datagen --device`.
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub(crate) enum LobeAxisArg {
-    Sun,
-    Flux,
+pub(crate) enum Device {
+    Cpu,
+    Gpu,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub(crate) enum UpsampleLambdaArg {
     Difference,
     Mean,
-}
-
-#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub(crate) enum ShadowArg {
-    Auto,
-    Volume,
-    Rays,
-}
-
-impl From<ShadowArg> for nimbus_photon::SunShadow {
-    fn from(a: ShadowArg) -> Self {
-        match a {
-            ShadowArg::Auto => nimbus_photon::SunShadow::Auto,
-            ShadowArg::Volume => nimbus_photon::SunShadow::Volume,
-            ShadowArg::Rays => nimbus_photon::SunShadow::Rays,
-        }
-    }
 }
 
 /// The final gathering's flags (`render`, `compare`, `bench-suite`, `view`).
@@ -52,13 +47,13 @@ pub(crate) struct GatherArgs {
     /// sun-transmittance volume (`volume`: its single scattering ray marched) or by a
     /// ratio-tracked shadow ray (`rays`); `auto`: the volume where the light volumes have the
     /// grid's resolution, else rays.
-    #[arg(long, value_enum, default_value = "auto")]
-    pub(crate) pm_shadow: ShadowArg,
+    #[arg(long, default_value = "auto", value_parser = one_of(SunShadow::ALL, SunShadow::name))]
+    pub(crate) pm_shadow: SunShadow,
     /// Photon mapping with final gathering: what a gather path reads where it ends: `view`
     /// (view-dependent words with the phase function HG(g^(1 + k c)) towards the camera, c of
     /// `--gather-spread`) or `lobes` (each cell's two flux lobes towards the previous vertex).
-    #[arg(long, value_enum, default_value = "view")]
-    pub(crate) gather_terminal: TerminalArg,
+    #[arg(long, default_value = "view", value_parser = one_of(Terminal::ALL, Terminal::name))]
+    pub(crate) gather_terminal: Terminal,
     /// Photon mapping with final gathering, `view` terminal: the share c ∈ [0, 1] of the
     /// bounces' angular spread the view-dependent words average over (phase function
     /// HG(g^(1 + k c)); 1: end point and direction independent).
@@ -69,12 +64,6 @@ pub(crate) struct GatherArgs {
     /// stays as built, its noise fixed at any sample count).
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=1_000_000))]
     pub(crate) ring_refresh: u32,
-}
-
-#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub(crate) enum TerminalArg {
-    View,
-    Lobes,
 }
 
 impl GatherArgs {
@@ -91,11 +80,8 @@ impl GatherArgs {
             bounces: self.gather_bounces,
             spread: self.gather_spread,
             ring_refresh: self.ring_refresh,
-            shadow: self.pm_shadow.into(),
-            terminal: match self.gather_terminal {
-                TerminalArg::View => nimbus_photon::Terminal::View,
-                TerminalArg::Lobes => nimbus_photon::Terminal::Lobes,
-            },
+            shadow: self.pm_shadow,
+            terminal: self.gather_terminal,
         }
     }
 }
@@ -117,8 +103,8 @@ pub(crate) struct PmArgs {
     /// volume, the cache for scattered light only, similarity σ(1−g), per-cell flux axes) or
     /// `elek2012` (the paper: one cache for all scattering orders, similarity σ√(1−g), lobes
     /// along the sun); see BENCHMARKS.md.
-    #[arg(long, value_enum, default_value = "exact")]
-    pm_variant: PmVariantArg,
+    #[arg(long, default_value = "exact", value_parser = one_of(PmVariant::ALL, PmVariant::name))]
+    pm_variant: PmVariant,
     /// Photon mapping: density-weighted deposits (cells hold the fluence where the medium is,
     /// ⟨σφ⟩/⟨σ⟩, instead of the cell-volume average; experimental, see BENCHMARKS.md).
     #[arg(long)]
@@ -126,8 +112,8 @@ pub(crate) struct PmArgs {
     /// Photon mapping: axis of each cache cell's HG lobe: `sun` (the paper: cosines to the sun
     /// direction) or `flux` (the cell's mean sun-flux direction, Elek Appendix C). Default:
     /// the variant's (exact: flux, elek2012: sun).
-    #[arg(long, value_enum)]
-    pm_lobe_axis: Option<LobeAxisArg>,
+    #[arg(long, value_parser = one_of(LobeAxis::ALL, LobeAxis::name))]
+    pm_lobe_axis: Option<LobeAxis>,
     /// Photon mapping with flux axes: sun light scattered K or more times gets a lobe of its
     /// own, so forward-peaked low orders and diffuse high orders are not forced into one HG
     /// lobe (0 = one lobe per cell; default 4).
@@ -179,15 +165,9 @@ pub(crate) struct PmArgs {
 impl PmArgs {
     pub(crate) fn settings(&self, seed: u32) -> Result<nimbus_photon::PmSettings> {
         Ok(nimbus_photon::PmSettings {
-            variant: match self.pm_variant {
-                PmVariantArg::Exact => nimbus_photon::PmVariant::Exact,
-                PmVariantArg::Elek2012 => nimbus_photon::PmVariant::Elek2012,
-            },
+            variant: self.pm_variant,
             density_weighted: Some(self.pm_density_weighted),
-            lobe_axis: self.pm_lobe_axis.map(|a| match a {
-                LobeAxisArg::Sun => nimbus_photon::mapper::LobeAxis::Sun,
-                LobeAxisArg::Flux => nimbus_photon::mapper::LobeAxis::Flux,
-            }),
+            lobe_axis: self.pm_lobe_axis,
             lobe_split: self.pm_lobe_split,
             view_dependent: self.pm_in_scatter.map(|a| a == InScatterArg::View),
             upsample_mean: self.pm_upsample_lambda == UpsampleLambdaArg::Mean,
@@ -327,4 +307,41 @@ pub(crate) fn flags_for_other_methods(cmd: &clap::Command, m: &clap::ArgMatches)
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every name a library enum's flag lists parses back to its variant (the names clap shows
+    /// and the library's `FromStr` agree).
+    #[test]
+    fn library_enum_names_parse() {
+        fn check<T: FromStr<Err = String> + PartialEq + std::fmt::Debug + Copy, const N: usize>(
+            all: [T; N],
+            name: fn(T) -> &'static str,
+        ) {
+            for v in all {
+                assert_eq!(name(v).parse::<T>(), Ok(v));
+            }
+            assert!("bogus".parse::<T>().unwrap_err().contains(name(all[0])));
+        }
+        check(PmVariant::ALL, PmVariant::name);
+        check(LobeAxis::ALL, LobeAxis::name);
+        check(SunShadow::ALL, SunShadow::name);
+        check(Terminal::ALL, Terminal::name);
+        check(
+            nimbus_render::NetBackend::ALL,
+            nimbus_render::NetBackend::name,
+        );
+        check(
+            nimbus_rpnn::gpu_mlp::Precision::ALL,
+            nimbus_rpnn::gpu_mlp::Precision::name,
+        );
+        check(
+            nimbus_rpnn::gpu_mlp::Tiles::ALL,
+            nimbus_rpnn::gpu_mlp::Tiles::name,
+        );
+        check(nimbus_eval::RefDevice::ALL, nimbus_eval::RefDevice::name);
+    }
 }

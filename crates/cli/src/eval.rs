@@ -1,22 +1,15 @@
-//! `compare scene.toml`, `bench-suite` and `stress`: argument parsing over `nimbus-eval`.
+//! The evaluation's arguments, shared by `compare scene.toml` and `bench-suite`: the methods,
+//! their budgets and settings, and the reference; checked before the first render.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
-use clap::ValueEnum;
-use nimbus_eval::{CompareOptions, GpuSlot, RefDevice, ReferenceSettings, RunSettings};
+use nimbus_eval::{CompareOptions, RefDevice, ReferenceSettings, RunSettings};
 use nimbus_render::Method;
 
+use crate::args::{Device, one_of};
 use crate::rpnn::RpnnArgs;
-
-#[derive(Clone, Copy, ValueEnum)]
-pub(crate) enum RefDeviceArg {
-    /// The GPU path tracer on a hardware GPU when it supports the scene, else the CPU one.
-    Auto,
-    Cpu,
-    Gpu,
-}
 
 /// Settings of the method runs and the reference, shared by `compare` and `bench-suite`.
 #[derive(clap::Args)]
@@ -45,9 +38,10 @@ pub(crate) struct EvalArgs {
     /// there).
     #[arg(long, default_value_t = 600.0, value_parser = crate::flags::f64_in(0.0, 1e9))]
     ref_time_cap: f64,
-    /// Which path tracer renders the reference.
-    #[arg(long, value_enum, default_value = "auto")]
-    ref_device: RefDeviceArg,
+    /// Which path tracer renders the reference: `auto` (the GPU path tracer on a hardware GPU
+    /// when it supports the scene, else the CPU one), `cpu` or `gpu`.
+    #[arg(long, default_value = "auto", value_parser = one_of(RefDevice::ALL, RefDevice::name))]
+    ref_device: RefDevice,
     /// Reference cache folder (keyed by a hash of scene content and settings).
     #[arg(long, default_value = "out/cache/reference")]
     cache: PathBuf,
@@ -85,7 +79,12 @@ impl EvalArgs {
     /// `pt-gpu` and the network runs in WGSL unless `--methods` and `--backend` say otherwise.
     /// Without `--methods`, a sky (`sky`: some run has one) adds `rpnn-dirs`, the paper's sky
     /// directions, beside `rpnn`'s sky head; without a sky the two are one estimator.
-    fn options_on(&self, scene_seed: u64, device: Device, sky: bool) -> Result<CompareOptions> {
+    pub(crate) fn options_on(
+        &self,
+        scene_seed: u64,
+        device: Device,
+        sky: bool,
+    ) -> Result<CompareOptions> {
         let default = match (device, sky) {
             (Device::Cpu, false) => "pt,pm,rpnn",
             (Device::Cpu, true) => "pt,pm,rpnn,rpnn-dirs",
@@ -112,14 +111,16 @@ impl EvalArgs {
                 pm_gather: self.gather.settings(self.ring, self.beams),
                 model: self.rpnn.model.clone(),
                 rpnn_backend: match (device, self.rpnn.backend) {
-                    (Device::Gpu, crate::rpnn::NetBackend::Auto) => nimbus_render::NetBackend::Wgpu,
-                    (_, b) => b.into(),
+                    (Device::Gpu, nimbus_render::NetBackend::Auto) => {
+                        nimbus_render::NetBackend::Wgpu
+                    }
+                    (_, b) => b,
                 },
                 sky_dirs: self.rpnn.sky_dirs,
                 sky_degree: self.rpnn.sky_degree as usize,
                 cpu_shading: self.rpnn.cpu_shading,
-                rpnn_precision: self.rpnn.net_precision.into(),
-                rpnn_tiles: self.rpnn.net_tiles.into(),
+                rpnn_precision: self.rpnn.net_precision,
+                rpnn_tiles: self.rpnn.net_tiles,
                 traced_bounces: self.rpnn.traced_bounces,
                 query_every: self.rpnn.query_every,
             },
@@ -128,11 +129,7 @@ impl EvalArgs {
                 target_rel_noise: self.ref_noise,
                 time_cap_s: self.ref_time_cap,
                 seed: CompareOptions::reference_seed(seed),
-                device: match self.ref_device {
-                    RefDeviceArg::Auto => RefDevice::Auto,
-                    RefDeviceArg::Cpu => RefDevice::Cpu,
-                    RefDeviceArg::Gpu => RefDevice::Gpu,
-                },
+                device: self.ref_device,
                 cache_dir: (!self.no_cache).then(|| self.cache.clone()),
                 cached_only: self.ref_cached_only,
             },
@@ -140,7 +137,8 @@ impl EvalArgs {
     }
 }
 
-fn log(line: String) {
+/// Prints one line of the evaluation's progress.
+pub(crate) fn log(line: String) {
     say!("{line}");
 }
 
@@ -148,7 +146,7 @@ fn log(line: String) {
 /// and the runs can take an hour): `--out` (and `--cache`) can be written, and every RPNN model
 /// the runs will load (`models(method)`: the paths for `rpnn` or `rpnn-dirs`) reads, so a
 /// missing or malformed model is named at once, not after the references.
-fn preflight(
+pub(crate) fn preflight(
     opts: &CompareOptions,
     out: &Path,
     models: impl Fn(Method) -> Result<Vec<PathBuf>>,
@@ -185,194 +183,6 @@ fn preflight(
         if opts.run.rpnn_backend == nimbus_render::NetBackend::OrtInt8 {
             nimbus_rpnn::ort_backend::OrtModel::load_int8(p, 1)?;
         }
-    }
-    Ok(())
-}
-
-/// `nimbus compare scene.toml --methods … --out DIR`.
-pub(crate) fn compare_scene(scene: &Path, args: &EvalArgs, out: &Path) -> Result<()> {
-    let s = nimbus_scene::Scene::load(scene)?;
-    let opts = args.options(s.render.seed, s.sky.is_some())?;
-    let name = scene
-        .file_stem()
-        .unwrap_or_default()
-        .to_string_lossy()
-        .into_owned();
-    preflight(&opts, out, |m| {
-        Ok(vec![nimbus_render::rpnn_model_path(
-            opts.run.model.as_deref(),
-            m,
-            &s.phase_desc,
-            s.sky.is_some(),
-        )])
-    })?;
-    let mut gpu = GpuSlot::default();
-    let c = nimbus_eval::compare_scene(&s, &name, &opts, out, &mut gpu, &mut log)?;
-    say!(
-        "{}",
-        nimbus_eval::report::markdown_table(&c.report.rows, false)
-    );
-    for f in &c.files {
-        say!("wrote {}", f.display());
-    }
-    Ok(())
-}
-
-/// `nimbus bench-suite`.
-#[derive(clap::Args)]
-pub(crate) struct SuiteArgs {
-    /// Held-out clouds (1..=8: the test split of the 40-cloud training set).
-    #[arg(long, default_value_t = 3, value_parser = crate::flags::int_in(1usize, 8))]
-    clouds: usize,
-    /// Sun placements: front (behind the camera), side, back (behind the cloud).
-    #[arg(long, default_value = "front,side,back")]
-    lights: String,
-    /// Lighting conditions: sun (sun only), sun+sky (a constant sky), sun+env (an environment
-    /// map: a clear sky with a ground; photon mapping cannot take one and is left out of it).
-    #[arg(long, default_value = "sun,sun+sky")]
-    skies: String,
-    /// Image size WxH, each side 4..=4096 (a 4×4 block of cloud pixels at least).
-    #[arg(long, default_value = "128x72", value_parser = crate::flags::image_size(4, 4096))]
-    size: (usize, usize),
-    /// Writes OUT/results.md and OUT/results/ (per-scene reports, figure).
-    #[arg(long, short, default_value = "docs")]
-    out: PathBuf,
-    /// Folder for the held-out clouds and the generated scene files.
-    #[arg(long, default_value = "out/bench-suite")]
-    work: PathBuf,
-    /// Where the estimators run: `gpu` compares pt-gpu, pm and rpnn with the WGSL network
-    /// (the whole sample on the GPU), with pt-gpu as the speed-ups' baseline: the table for
-    /// choosing an estimator on a GPU.
-    #[arg(long, value_enum, default_value = "cpu")]
-    device: Device,
-    #[command(flatten)]
-    eval: EvalArgs,
-}
-
-/// `bench-suite --device`.
-#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub(crate) enum Device {
-    Cpu,
-    Gpu,
-}
-
-pub(crate) fn bench_suite(args: &SuiteArgs) -> Result<()> {
-    use nimbus_eval::suite::{Lighting, SkyCondition, SuiteOptions, run};
-    let (width, height) = args.size;
-    let lightings = args
-        .lights
-        .split(',')
-        .map(Lighting::parse)
-        .collect::<Result<Vec<_>>>()?;
-    let skies = args
-        .skies
-        .split(',')
-        .map(SkyCondition::parse)
-        .collect::<Result<Vec<_>>>()?;
-    let twice = |names: Vec<&str>| (1..names.len()).any(|i| names[..i].contains(&names[i]));
-    if twice(lightings.iter().map(|l| l.name()).collect()) {
-        bail!("--lights names a condition twice (each runs once)");
-    }
-    if twice(args.skies.split(',').map(str::trim).collect()) {
-        bail!("--skies names a condition twice (each runs once)");
-    }
-    let any_sky = skies.iter().any(|&c| c != SkyCondition::Sun);
-    let opts = SuiteOptions {
-        clouds: args.clouds,
-        lightings,
-        skies,
-        width,
-        height,
-        compare: args.eval.options_on(1, args.device, any_sky)?,
-        work_dir: args.work.clone(),
-    };
-    // The suite's clouds scatter with the shipped HG phase function. `rpnn` under a sky
-    // reads the sky head's model: without it the runs would fall back to the paper's sky
-    // directions and the table's `rpnn` rows would be `rpnn-dirs` under another name.
-    let explicit = opts.compare.run.model.as_deref();
-    preflight(&opts.compare, &args.out, |m| {
-        let mut v = Vec::new();
-        for &sky in &opts.skies {
-            let has_sky = sky != SkyCondition::Sun;
-            if m == Method::Rpnn
-                && has_sky
-                && explicit.is_none()
-                && nimbus_rpnn::model::sky_model_path_for("hg").is_none()
-            {
-                bail!(
-                    "--skies {}: `rpnn` under a sky needs the shipped sky-head model models/rpnn-hg-sky.onnx, which is not beside the working directory or the executable (`--methods rpnn-dirs` runs the paper's sky directions without it)",
-                    sky.name()
-                );
-            }
-            v.push(nimbus_render::rpnn_model_path(explicit, m, "hg", has_sky));
-        }
-        Ok(v)
-    })?;
-    let rows = run(&opts, &args.out, &mut log)?;
-    say!("{} runs", rows.len());
-    Ok(())
-}
-
-/// `nimbus stress`.
-#[derive(clap::Args)]
-pub(crate) struct StressArgs {
-    /// Methods: pt, pt-gpu, pm, pm-march, pm-elek2012 (the paper's photon mapping), rpnn,
-    /// rpnn-dirs (comma-separated).
-    #[arg(long, default_value = "pt,pt-gpu,pm,rpnn")]
-    methods: String,
-    /// `all`, `subset` (the one stiffest case per axis that the tests run), or case ids.
-    #[arg(long, default_value = "all")]
-    cases: String,
-    /// Seconds one method may take on one case before it counts as a hang, 1..=86400.
-    #[arg(long, default_value_t = 120, value_parser = crate::flags::int_in(1u64, 86_400))]
-    time_limit: u64,
-    /// Writes OUT/stability.md and the case scenes to OUT/stability/cases/.
-    #[arg(long, short, default_value = "docs")]
-    out: PathBuf,
-}
-
-pub(crate) fn stress(args: &StressArgs) -> Result<()> {
-    use nimbus_eval::stress;
-    let methods = nimbus_eval::method::parse_methods(&args.methods)?;
-    let cases = match args.cases.as_str() {
-        "all" => stress::cases(),
-        "subset" => stress::subset(),
-        list => {
-            let all = stress::cases();
-            list.split(',')
-                .map(|id| {
-                    all.iter()
-                        .find(|c| c.id == id.trim())
-                        .cloned()
-                        .ok_or_else(|| anyhow::anyhow!("--cases: no case `{id}`"))
-                })
-                .collect::<Result<Vec<_>>>()?
-        }
-    };
-    let exe = std::env::current_exe()?;
-    let limit = std::time::Duration::from_secs(args.time_limit);
-    let dir = args.out.join("stability").join("cases");
-    let outcomes = stress::run_matrix(&exe, &cases, &methods, &dir, limit, &mut |o| {
-        say!(
-            "{:38} {:7} {} {} ({:.1} s) {}",
-            o.case,
-            o.method.name(),
-            if o.pass { "pass" } else { "FAIL" },
-            o.verdict,
-            o.time_s,
-            o.detail.lines().next().unwrap_or("")
-        )
-    })?;
-    let p = stress::write_markdown(&outcomes, &methods, limit, &args.out)?;
-    let fails = outcomes.iter().filter(|o| !o.pass).count();
-    say!(
-        "{} of {} runs pass -> {}",
-        outcomes.len() - fails,
-        outcomes.len(),
-        p.display()
-    );
-    if fails > 0 {
-        bail!("{fails} stress runs failed (see {})", p.display());
     }
     Ok(())
 }

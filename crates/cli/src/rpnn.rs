@@ -2,34 +2,10 @@
 
 use std::path::PathBuf;
 
-use clap::ValueEnum;
+use nimbus_render::NetBackend;
+use nimbus_rpnn::gpu_mlp::{Precision, Tiles};
 
-/// `--backend` (see [`nimbus_render::NetBackend`]).
-#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub(crate) enum NetBackend {
-    /// wgpu on a hardware GPU, ort when the only adapter is a software rasteriser (lavapipe
-    /// runs the network ≈ 30× slower than ONNX Runtime on the same CPU).
-    Auto,
-    /// Descriptors and network in WGSL compute shaders (any GPU or lavapipe).
-    Wgpu,
-    /// Descriptors on the CPU, network in ONNX Runtime (PyPI onnxruntime, found at run time).
-    Ort,
-    /// ONNX Runtime with the model's int8 copy `<model>.int8.onnx` (made by
-    /// `training/quantize.py`; beyond the paper: weights int8, activations u8 per batch, the
-    /// heads f32; about half the network's time on a CPU with AVX-512 VNNI).
-    OrtInt8,
-}
-
-impl From<NetBackend> for nimbus_render::NetBackend {
-    fn from(b: NetBackend) -> Self {
-        match b {
-            NetBackend::Auto => Self::Auto,
-            NetBackend::Wgpu => Self::Wgpu,
-            NetBackend::Ort => Self::Ort,
-            NetBackend::OrtInt8 => Self::OrtInt8,
-        }
-    }
-}
+use crate::args::one_of;
 
 /// RPNN settings of `render --method rpnn`.
 #[derive(clap::Args)]
@@ -39,8 +15,15 @@ pub(crate) struct RpnnArgs {
     /// models/rpnn-mie.onnx).
     #[arg(long)]
     pub(crate) model: Option<PathBuf>,
-    /// RPNN: where the network runs.
-    #[arg(long, value_enum, default_value = "auto")]
+    /// RPNN: where the network runs: `auto` (wgpu on a hardware GPU, ort when the only adapter
+    /// is a software rasteriser: lavapipe runs the network ≈ 30× slower than ONNX Runtime on
+    /// the same CPU), `wgpu` (descriptors and network in WGSL compute shaders, any GPU or
+    /// lavapipe), `ort` (descriptors on the CPU, network in ONNX Runtime: PyPI onnxruntime,
+    /// found at run time) or `ort-int8` (ONNX Runtime with the model's int8 copy
+    /// `<model>.int8.onnx`, made by `training/quantize.py`; beyond the paper: weights int8,
+    /// activations u8 per batch, the heads f32; about half the network's time on a CPU with
+    /// AVX-512 VNNI).
+    #[arg(long, default_value = "auto", value_parser = one_of(NetBackend::ALL, NetBackend::name))]
     pub(crate) backend: NetBackend,
     /// RPNN: sky directions per shading point and sample (network queries for sky light) of
     /// the paper's sky (`rpnn-dirs`, or a model without a sky head), 1..=1024.
@@ -59,13 +42,15 @@ pub(crate) struct RpnnArgs {
     #[arg(long)]
     pub(crate) cpu_shading: bool,
     /// RPNN with the network on the GPU: how its weights and hidden activations are stored;
-    /// f16 halves their memory traffic, the products accumulate in f32 either way.
-    #[arg(long, value_enum, default_value = "f32")]
-    pub(crate) net_precision: NetPrecision,
+    /// f16 (IEEE half floats) halves their memory traffic, the products accumulate in f32
+    /// either way.
+    #[arg(long, default_value = "f32", value_parser = one_of(Precision::ALL, Precision::name))]
+    pub(crate) net_precision: Precision,
     /// RPNN with the network on the GPU: its kernel's tiles, queries × outputs per workgroup
-    /// (the same products; which is faster depends on the GPU).
-    #[arg(long, value_enum, default_value = "64x128")]
-    pub(crate) net_tiles: NetTiles,
+    /// (the same products; which is faster depends on the GPU): `64x64` (4 × 4 per thread) or
+    /// `64x128` (8 × 8 per thread, slices loaded along the inputs).
+    #[arg(long, default_value = "64x128", value_parser = one_of(Tiles::ALL, Tiles::name))]
+    pub(crate) net_tiles: Tiles,
     /// RPNN: bounces traced before the network is asked (0: the paper). Lowers the error on
     /// thin clouds (cirrus), adds noise on thick ones; shades on the CPU.
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=nimbus_rpnn::render::MAX_TRACED_BOUNCES as i64))]
@@ -79,55 +64,18 @@ pub(crate) struct RpnnArgs {
     pub(crate) query_every: u32,
 }
 
-/// `--net-tiles` (see [`nimbus_rpnn::gpu_mlp::Tiles`]).
-#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub(crate) enum NetTiles {
-    /// 4 × 4 per thread.
-    #[value(name = "64x64")]
-    Square,
-    /// 8 × 8 per thread, slices loaded along the inputs.
-    #[value(name = "64x128")]
-    Wide,
-}
-
-impl From<NetTiles> for nimbus_rpnn::gpu_mlp::Tiles {
-    fn from(t: NetTiles) -> Self {
-        match t {
-            NetTiles::Square => Self::Square,
-            NetTiles::Wide => Self::Wide,
-        }
-    }
-}
-
-/// `--net-precision` (see [`nimbus_rpnn::gpu_mlp::Precision`]).
-#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub(crate) enum NetPrecision {
-    F32,
-    /// IEEE half floats (f32 accumulation).
-    F16,
-}
-
-impl From<NetPrecision> for nimbus_rpnn::gpu_mlp::Precision {
-    fn from(p: NetPrecision) -> Self {
-        match p {
-            NetPrecision::F32 => Self::F32,
-            NetPrecision::F16 => Self::F16,
-        }
-    }
-}
-
 impl RpnnArgs {
     /// The estimator's RPNN settings.
     pub(crate) fn settings(&self) -> nimbus_render::RpnnSettings {
         nimbus_render::RpnnSettings {
             model: self.model.clone(),
-            backend: self.backend.into(),
+            backend: self.backend,
             sky_dirs: self.sky_dirs,
             strict: self.strict,
             sky_degree: self.sky_degree as usize,
             cpu_shading: self.cpu_shading,
-            precision: self.net_precision.into(),
-            tiles: self.net_tiles.into(),
+            precision: self.net_precision,
+            tiles: self.net_tiles,
             traced_bounces: self.traced_bounces,
             query_every: self.query_every,
         }

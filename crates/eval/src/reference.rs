@@ -44,6 +44,29 @@ pub enum RefDevice {
     Gpu,
 }
 
+impl RefDevice {
+    pub const ALL: [RefDevice; 3] = [RefDevice::Auto, RefDevice::Cpu, RefDevice::Gpu];
+
+    /// The name on the command line (`--ref-device`).
+    pub fn name(self) -> &'static str {
+        match self {
+            RefDevice::Auto => "auto",
+            RefDevice::Cpu => "cpu",
+            RefDevice::Gpu => "gpu",
+        }
+    }
+}
+
+impl std::str::FromStr for RefDevice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::ALL
+            .into_iter()
+            .find(|d| d.name() == s)
+            .ok_or_else(|| format!("unknown reference device `{s}` (expected auto, cpu or gpu)"))
+    }
+}
+
 /// How the reference is made.
 #[derive(Debug, Clone)]
 pub struct ReferenceSettings {

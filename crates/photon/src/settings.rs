@@ -27,11 +27,26 @@ pub enum PmVariant {
 }
 
 impl PmVariant {
+    pub const ALL: [PmVariant; 2] = [PmVariant::Exact, PmVariant::Elek2012];
+
+    /// The name on the command line (`--pm-variant`) and in settings by name.
     pub fn name(self) -> &'static str {
         match self {
             PmVariant::Exact => "exact",
             PmVariant::Elek2012 => "elek2012",
         }
+    }
+}
+
+impl std::str::FromStr for PmVariant {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::ALL
+            .into_iter()
+            .find(|v| v.name() == s)
+            .ok_or_else(|| {
+                format!("unknown photon-mapping variant `{s}` (expected exact or elek2012)")
+            })
     }
 }
 
@@ -49,11 +64,24 @@ pub enum LobeAxis {
 }
 
 impl LobeAxis {
+    pub const ALL: [LobeAxis; 2] = [LobeAxis::Sun, LobeAxis::Flux];
+
+    /// The name on the command line (`--pm-lobe-axis`).
     pub fn name(self) -> &'static str {
         match self {
             LobeAxis::Sun => "sun",
             LobeAxis::Flux => "flux",
         }
+    }
+}
+
+impl std::str::FromStr for LobeAxis {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::ALL
+            .into_iter()
+            .find(|v| v.name() == s)
+            .ok_or_else(|| format!("unknown lobe axis `{s}` (expected sun or flux)"))
     }
 }
 

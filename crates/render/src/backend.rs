@@ -26,6 +26,23 @@ pub enum NetBackend {
 }
 
 impl NetBackend {
+    pub const ALL: [NetBackend; 4] = [
+        NetBackend::Auto,
+        NetBackend::Wgpu,
+        NetBackend::Ort,
+        NetBackend::OrtInt8,
+    ];
+
+    /// The name on the command line (`--backend`).
+    pub fn name(self) -> &'static str {
+        match self {
+            NetBackend::Auto => "auto",
+            NetBackend::Wgpu => "wgpu",
+            NetBackend::Ort => "ort",
+            NetBackend::OrtInt8 => "ort-int8",
+        }
+    }
+
     /// Whether the network runs in WGSL, given the adapter `Auto` would use (`None`: no
     /// adapter).
     pub fn uses_wgpu(self, adapter_is_software: Option<bool>) -> bool {
@@ -34,6 +51,18 @@ impl NetBackend {
             NetBackend::Ort | NetBackend::OrtInt8 => false,
             NetBackend::Auto => adapter_is_software == Some(false),
         }
+    }
+}
+
+impl std::str::FromStr for NetBackend {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::ALL
+            .into_iter()
+            .find(|b| b.name() == s)
+            .ok_or_else(|| {
+                format!("unknown network backend `{s}` (expected auto, wgpu, ort or ort-int8)")
+            })
     }
 }
 

@@ -72,7 +72,39 @@ pub enum Tiles {
     Wide,
 }
 
+impl Precision {
+    pub const ALL: [Precision; 2] = [Precision::F32, Precision::F16];
+
+    /// The name on the command line (`--net-precision`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::F32 => "f32",
+            Precision::F16 => "f16",
+        }
+    }
+}
+
+impl std::str::FromStr for Precision {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::ALL
+            .into_iter()
+            .find(|p| p.name() == s)
+            .ok_or_else(|| format!("unknown network precision `{s}` (expected f32 or f16)"))
+    }
+}
+
 impl Tiles {
+    pub const ALL: [Tiles; 2] = [Tiles::Square, Tiles::Wide];
+
+    /// The name on the command line (`--net-tiles`): queries × outputs per workgroup.
+    pub fn name(self) -> &'static str {
+        match self {
+            Tiles::Square => "64x64",
+            Tiles::Wide => "64x128",
+        }
+    }
+
     /// Outputs per workgroup.
     pub fn outputs(self) -> u32 {
         match self {
@@ -86,6 +118,16 @@ impl Tiles {
             Tiles::Square => "dense",
             Tiles::Wide => "dense_wide",
         }
+    }
+}
+
+impl std::str::FromStr for Tiles {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::ALL
+            .into_iter()
+            .find(|t| t.name() == s)
+            .ok_or_else(|| format!("unknown network tiles `{s}` (expected 64x64 or 64x128)"))
     }
 }
 

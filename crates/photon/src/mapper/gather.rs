@@ -69,6 +69,9 @@ pub enum SunShadow {
 }
 
 impl SunShadow {
+    pub const ALL: [SunShadow; 3] = [SunShadow::Auto, SunShadow::Volume, SunShadow::Rays];
+
+    /// The name on the command line (`--pm-shadow`).
     pub fn name(self) -> &'static str {
         match self {
             SunShadow::Auto => "auto",
@@ -99,11 +102,34 @@ pub enum Terminal {
 }
 
 impl Terminal {
+    pub const ALL: [Terminal; 2] = [Terminal::View, Terminal::Lobes];
+
+    /// The name on the command line (`--gather-terminal`).
     pub fn name(self) -> &'static str {
         match self {
             Terminal::View => "view",
             Terminal::Lobes => "lobes",
         }
+    }
+}
+
+impl std::str::FromStr for SunShadow {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::ALL
+            .into_iter()
+            .find(|v| v.name() == s)
+            .ok_or_else(|| format!("unknown sun shadow `{s}` (expected auto, volume or rays)"))
+    }
+}
+
+impl std::str::FromStr for Terminal {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::ALL
+            .into_iter()
+            .find(|v| v.name() == s)
+            .ok_or_else(|| format!("unknown gather terminal `{s}` (expected view or lobes)"))
     }
 }
 

@@ -8,11 +8,11 @@ use clap::{Args, Subcommand};
 use nimbus_rpnn::data::datagen::LightSampling;
 use nimbus_rpnn::data::dataset::{self, Part};
 
-use crate::Device;
+use crate::args::Device;
 
 #[derive(Args)]
 #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
-pub struct DatagenArgs {
+pub(crate) struct DatagenArgs {
     #[command(subcommand)]
     action: Option<DatagenAction>,
     /// `gen:N` for N generated clouds (kinds cumulus, stratus, cirrus, mixture in turn),
@@ -105,7 +105,7 @@ enum DatagenAction {
     },
 }
 
-pub fn datagen(a: DatagenArgs) -> Result<()> {
+pub(crate) fn run(a: DatagenArgs) -> Result<()> {
     if let Some(DatagenAction::Merge { parts, out, quiet }) = a.action {
         let m = nimbus_rpnn::data::shards::merge(&parts, &out)?;
         if !quiet {

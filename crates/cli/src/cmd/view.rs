@@ -3,10 +3,12 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
+use nimbus_render::NetBackend;
 use nimbus_scene::Scene;
 
+use super::animate::density_sequence;
+use crate::args::{PmArgs, one_of};
 use crate::flags;
-use crate::{PmArgs, density_sequence};
 
 /// Arguments of `nimbus view`.
 #[derive(clap::Args)]
@@ -35,10 +37,10 @@ pub(crate) struct ViewArgs {
     /// with a sky models/rpnn-hg-sky.onnx).
     #[arg(long)]
     model: Option<PathBuf>,
-    /// RPNN mode: where the network runs (with wgpu the whole sample runs on the GPU where the
-    /// scene allows it).
-    #[arg(long, value_enum, default_value = "auto")]
-    backend: crate::rpnn::NetBackend,
+    /// RPNN mode: where the network runs, as `render --backend` (with wgpu the whole sample runs
+    /// on the GPU where the scene allows it).
+    #[arg(long, default_value = "auto", value_parser = one_of(NetBackend::ALL, NetBackend::name))]
+    backend: NetBackend,
     /// Start with the sun moving.
     #[arg(long)]
     play_sun: bool,
@@ -87,7 +89,7 @@ impl ViewArgs {
 }
 
 /// `nimbus view`.
-pub(crate) fn view(args: ViewArgs) -> Result<()> {
+pub(crate) fn run(args: ViewArgs) -> Result<()> {
     let ViewArgs {
         scene,
         headless,
@@ -166,7 +168,7 @@ pub(crate) fn view(args: ViewArgs) -> Result<()> {
         method,
         exposure,
         rpnn_model: model,
-        rpnn_backend: backend.into(),
+        rpnn_backend: backend,
     };
     // Asked for on the command line, RPNN without a usable model is an error here (the key's
     // switch in a running viewer only leaves a note and keeps the method).
