@@ -104,7 +104,9 @@ class Image:
 def render(scene: Scene, method: str = "pt", spp: Optional[int] = None,
            seed: Optional[int] = None, frames: Optional[int] = None, progress: bool = False,
            **settings: _Setting) -> Image:
-    """Renders as `nimbus render` does; settings are the CLI flags' names (nimbus.settings())."""
+    """Renders as `nimbus render` does; settings are the CLI flags' names (nimbus.settings()).
+    progress=True: a tqdm bar (the progressive estimator stepped per sample) when tqdm is
+    installed, else the estimator's bar on stderr."""
 
 class Estimator:
     method: str
@@ -135,3 +137,17 @@ def threads() -> int: ...
 def max_memory(size: Optional[Union[int, str]] = None) -> int: ...
 def methods() -> List[str]: ...
 def settings() -> List[Tuple[str, str]]: ...
+
+def datagen(records: int, out: Optional[_Path] = None, clouds: str = "gen:40",
+            test_records: Optional[int] = None, val_records: Optional[int] = None,
+            samples: Optional[int] = None, eval_samples: Optional[int] = None,
+            eval_noise: Optional[float] = None, light: str = "sphere",
+            density_range: Tuple[float, float] = (10.0, 80.0), phase: str = "hg",
+            seed: int = 0, shard_size: int = 1000, shard: Optional[str] = None,
+            f16: bool = False, sky_transfer: bool = False, max_samples: int = 1 << 18,
+            density_scale: float = 30.0, device: Optional[str] = None,
+            progress: bool = False) -> Dict[str, Any]:
+    """`nimbus datagen` (keywords: its flags' names). Without `out`: {"train"|"val"|"test":
+    {"x": (n, 2251), "y": (n,), "meta": (n, 15)}, "meta_names", "records", "converged",
+    "seconds", "records_per_second"} — the rows of the CLI's shards for the same settings and
+    seed. With `out`: writes (or resumes) the CLI's checksummed shards; returns the summary."""
