@@ -285,3 +285,40 @@ fn no_crate_has_an_import_circle_between_its_modules() {
         found.join("\n")
     );
 }
+
+/// The crates a web page runs (`std::time::Instant::now` panics on wasm32) take time from
+/// `nimbus_scene::clock` only.
+#[test]
+fn the_page_crates_take_time_from_the_wasm_safe_clock() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();
+    let mut stray = Vec::new();
+    let mut scanned = 0;
+    for krate in ["scene", "gpu", "trace", "photon", "render"] {
+        let mut files = Vec::new();
+        rs_files(&root.join("crates").join(krate).join("src"), &mut files);
+        for f in files {
+            if f.ends_with("clock.rs") {
+                continue;
+            }
+            scanned += 1;
+            let text = std::fs::read_to_string(&f).unwrap();
+            // Tests run natively: their own timing is not the page's.
+            let code = match text.find("#[cfg(test)]").or(text.find("#[cfg(all(test")) {
+                Some(i) => &text[..i],
+                None => &text,
+            };
+            for (i, line) in code.lines().enumerate() {
+                let l = line.split("//").next().unwrap_or("");
+                if l.contains("time::Instant") || l.contains("time::{") && l.contains("Instant") {
+                    stray.push(format!("{}:{}: {}", f.display(), i + 1, line.trim()));
+                }
+            }
+        }
+    }
+    assert!(scanned >= 60, "only {scanned} files scanned");
+    assert!(
+        stray.is_empty(),
+        "use nimbus_scene::clock::Instant (wasm-safe):\n{}",
+        stray.join("\n")
+    );
+}

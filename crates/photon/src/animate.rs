@@ -174,7 +174,7 @@ pub fn animate(
     let mut last_image: Option<nimbus_scene::Image> = None;
     let mut prev_density: Option<Vec<f32>> = None;
     for f in 0..opts.frames {
-        let t0 = std::time::Instant::now();
+        let t0 = nimbus_scene::clock::Instant::now();
         let angle = opts.sun_speed_deg_s * f as f64 / opts.fps;
         let mut changed = false;
         if let Some(d0) = sun0

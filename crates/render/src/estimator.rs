@@ -4,7 +4,7 @@
 //! again, [`Estimator::image`] reads it. The command line, the evaluation and the viewer all go
 //! through this one dispatch; each estimator is one `engine/` module.
 
-use std::time::Instant;
+use nimbus_scene::clock::Instant;
 
 use anyhow::{Context, Result, bail};
 use nimbus_scene::{Cancel, Cancelled, Scene};

@@ -24,6 +24,7 @@ pub mod brick;
 pub mod build;
 pub mod camera;
 pub mod cancel;
+pub mod clock;
 pub mod compare;
 pub mod contain;
 pub mod downsample;

@@ -2,7 +2,7 @@
 //! stream ([`Pcg32::for_sample`]) so the image depends only on the seed, never on the thread
 //! count; a progress bar; mean RGB and the variance of each pixel's mean luminance.
 
-use std::time::Instant;
+use nimbus_scene::clock::Instant;
 
 use nimbus_scene::{Cancel, Cancelled, Image, Scene};
 use rayon::prelude::*;

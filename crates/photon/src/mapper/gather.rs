@@ -273,7 +273,7 @@ impl PhotonMapper<'_> {
             self.gather(camera, settings, n)?;
             left -= n;
             if left > 0 {
-                let t = std::time::Instant::now();
+                let t = nimbus_scene::clock::Instant::now();
                 self.trace_frame(None);
                 self.check_overflow()?;
                 self.upsample();

@@ -171,7 +171,7 @@ pub(crate) trait Engine: Send {
 }
 
 /// Milliseconds since `t`.
-pub(crate) fn ms_since(t: std::time::Instant) -> f64 {
+pub(crate) fn ms_since(t: nimbus_scene::clock::Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
 

@@ -5,7 +5,7 @@
 //! ring keeps following the sun and the density one generation per frame while each frame
 //! adds one sample to the image, which starts again whenever J or the camera changes.
 
-use std::time::Instant;
+use nimbus_scene::clock::Instant;
 
 use anyhow::{Context, Result, bail};
 use nimbus_gpu::Gpu;

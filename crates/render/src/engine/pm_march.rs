@@ -8,7 +8,7 @@
 //! in-scattering) belong to a camera position: after the camera moved beyond the impostor
 //! tolerance the ring is retraced for it, the lobes showing meanwhile.
 
-use std::time::Instant;
+use nimbus_scene::clock::Instant;
 
 use anyhow::{Context, Result};
 use nimbus_gpu::Gpu;

@@ -77,7 +77,7 @@ impl Engine for PtEngine {
     }
 
     fn accumulate(&mut self, scene: &Scene, n: u32, cancel: &Cancel) -> Result<Step> {
-        let t = std::time::Instant::now();
+        let t = nimbus_scene::clock::Instant::now();
         self.add(scene, n, cancel)?;
         Ok(Step {
             stages: vec![("path tracing (CPU)", ms_since(t))],

@@ -1,7 +1,7 @@
 //! The path tracer on the GPU (`nimbus_trace::gpu`, `shaders/pt.wgsl`): running sums on the
 //! device, a new camera or sun without a new upload, a new density with one.
 
-use std::time::Instant;
+use nimbus_scene::clock::Instant;
 
 use anyhow::{Context, Result};
 use nimbus_gpu::Gpu;
