@@ -441,3 +441,35 @@ fn vdb_grids_are_chosen_by_name() {
         "{e}"
     );
 }
+
+/// Bytes held in memory (a file dropped onto a page) parse to the grid the file reads to, in
+/// every format; a name's extension chooses the reader and labels the errors.
+#[test]
+fn grids_parse_from_bytes_as_from_files() {
+    let refs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/refs/volumes");
+    let files = [
+        refs.join("cube.vol"),
+        data("cloud_dense.npy"),
+        data("cloud_blosc.vdb"),
+        data("cloud_fp8.nvdb"),
+    ];
+    for f in files {
+        let from_file = io::read_grid(&f).unwrap();
+        let bytes = std::fs::read(&f).unwrap();
+        let name = Path::new(f.file_name().unwrap());
+        let from_bytes = io::parse_grid_named(&bytes, name, None).unwrap();
+        assert_eq!(from_bytes.grid, from_file.grid, "{}", f.display());
+        assert_eq!(from_bytes.bounds, from_file.bounds, "{}", f.display());
+        let e = io::parse_grid_named(&bytes[..bytes.len() / 2], name, None)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(&*name.to_string_lossy()), "{e}");
+    }
+    let e = io::parse_grid_named(b"x", Path::new("cloud.txt"), None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("cloud.txt") && e.contains("unknown volume format"),
+        "{e}"
+    );
+}

@@ -65,6 +65,34 @@ pub fn read_grid_named(path: impl AsRef<Path>, grid: Option<&str>) -> Result<Gri
     }
 }
 
+/// Parses a grid held in memory — a file dropped onto a web page, a download — choosing the
+/// format from `name`'s extension as [`read_grid_named`] does; `name` labels every error. The
+/// readers are the same: every check of a file applies to the bytes (the caller bounds their
+/// size, e.g. by the page's memory).
+pub fn parse_grid_named(bytes: &[u8], name: &Path, grid: Option<&str>) -> Result<GridFile> {
+    let ext = name
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase());
+    if grid.is_some() && !matches!(ext.as_deref(), Some("vdb" | "nvdb")) {
+        return Err(Error::invalid(
+            name,
+            "grid",
+            "only .vdb and .nvdb files hold named grids",
+        ));
+    }
+    match ext.as_deref() {
+        Some("vol") => vol::parse(bytes, name),
+        Some("npy") => npy::parse(bytes, name).map(|grid| GridFile { grid, bounds: None }),
+        Some("vdb") => vdb::parse_named(bytes, name, grid.unwrap_or(vdb::GRID_NAME)),
+        Some("nvdb") => nvdb::parse_named(bytes, name, grid.unwrap_or(nvdb::GRID_NAME)),
+        _ => Err(Error::parse(
+            name,
+            "unknown volume format: expected a .vol, .npy, .vdb or .nvdb file",
+        )),
+    }
+}
+
 /// Writes `path` whole or not at all: [`crate::fsio::write_atomically`].
 pub fn write_atomically(
     path: impl AsRef<Path>,
