@@ -103,8 +103,7 @@ pub fn read_to_string_if_exists(path: &Path) -> Result<Option<String>> {
     match read_to_string(path) {
         // Gone since, or a link to nothing (said as a dangling link by `io_error`).
         Err(_)
-            if std::fs::metadata(path)
-                .is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound) =>
+            if std::fs::metadata(path).is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound) =>
         {
             Ok(None)
         }
@@ -223,12 +222,14 @@ pub fn write_atomically(path: &Path, write: impl FnOnce(&Path) -> Result<()>) ->
             Error::io(path, e)
         })?;
     // An error of `write` that names the temporary names `path`: the file the user asked for.
-    let result = write(&tmp).map_err(|e| renamed(e, &tmp, path)).and_then(|()| {
-        File::open(&tmp)
-            .and_then(|f| f.sync_all())
-            .and_then(|()| std::fs::rename(&tmp, path))
-            .map_err(|e| Error::io(path, e))
-    });
+    let result = write(&tmp)
+        .map_err(|e| renamed(e, &tmp, path))
+        .and_then(|()| {
+            File::open(&tmp)
+                .and_then(|f| f.sync_all())
+                .and_then(|()| std::fs::rename(&tmp, path))
+                .map_err(|e| Error::io(path, e))
+        });
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
     } else {
@@ -328,7 +329,11 @@ pub fn remove_dead_partials(dir: &Path) -> usize {
 /// `create` makes it when missing.
 fn open_no_follow(path: &Path, create: bool) -> std::io::Result<File> {
     let mut options = std::fs::OpenOptions::new();
-    options.read(true).write(true).create(create).truncate(false);
+    options
+        .read(true)
+        .write(true)
+        .create(create)
+        .truncate(false);
     #[cfg(unix)]
     {
         use std::os::unix::fs::OpenOptionsExt;
