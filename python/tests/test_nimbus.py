@@ -445,3 +445,35 @@ def test_datagen_bad_settings():
         nimbus.datagen(4, density_range=(80.0, 10.0))
     with pytest.raises(ValueError, match="shard"):
         nimbus.datagen(4, shard="1/2")
+
+
+DATAGEN_CTRL_C_CHILD = r"""
+import time
+import nimbus
+print("ready", flush=True)
+try:
+    # 10^5 records of 65 536 samples each: hours on two cores.
+    nimbus.datagen(100000, clouds="gen:2", test_records=0, val_records=0, samples=65536,
+                   device="cpu", seed=1)
+    print("finished", flush=True)
+except KeyboardInterrupt:
+    print("interrupted", time.time(), flush=True)
+d = nimbus.datagen(2, clouds="gen:5", test_records=0, val_records=0, samples=16, device="cpu")
+print("usable", d["train"]["x"].shape, flush=True)
+"""
+
+
+def test_ctrl_c_stops_datagen():
+    """SIGINT during datagen raises KeyboardInterrupt within 2 s (a cancel check between
+    records) and the interpreter makes records again."""
+    p = subprocess.Popen([sys.executable, "-c", DATAGEN_CTRL_C_CHILD], stdout=subprocess.PIPE,
+                         text=True, cwd=ROOT)
+    assert p.stdout.readline().strip() == "ready"
+    time.sleep(2.0)  # clouds built, records under way
+    sent = time.time()
+    os.kill(p.pid, signal.SIGINT)
+    out, _ = p.communicate(timeout=120)
+    lines = out.splitlines()
+    assert lines[0].startswith("interrupted"), out
+    assert float(lines[0].split()[1]) - sent < 2.0, out
+    assert lines[1] == "usable (2, 2251)", out
