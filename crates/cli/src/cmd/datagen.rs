@@ -124,26 +124,8 @@ pub(crate) fn run(a: DatagenArgs) -> Result<()> {
     let (Some(records), Some(out)) = (a.records, a.out) else {
         bail!("datagen needs --records and --out");
     };
-    let set = match a.clouds.strip_prefix("gen:") {
-        Some(spec) => {
-            let (n, kinds) = match spec.split_once(':') {
-                Some((n, kinds)) => (n, kinds.split(',').map(str::trim).collect()),
-                None => (spec, dataset::DEFAULT_KINDS.to_vec()),
-            };
-            let n: usize = n.parse().map_err(|e| {
-                anyhow::anyhow!(
-                    "--clouds {}: expected gen:N or gen:N:KIND,… ({e})",
-                    a.clouds
-                )
-            })?;
-            if n == 0 {
-                bail!("--clouds gen:N needs N ≥ 1");
-            }
-            let (lo, hi) = a.density_range;
-            dataset::generated_set_of(n, a.seed, [lo, hi], &kinds)?
-        }
-        None => dataset::folder_set(std::path::Path::new(&a.clouds), a.density_scale)?,
-    };
+    let (lo, hi) = a.density_range;
+    let set = dataset::cloud_set(&a.clouds, a.seed, [lo, hi], a.density_scale)?;
     let light = match a.light.as_str() {
         "sphere" => LightSampling::Sphere,
         "uniform-gamma" => LightSampling::UniformGamma,
