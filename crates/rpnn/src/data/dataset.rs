@@ -61,6 +61,7 @@ pub use crate::data::clouds::{
     generated_set_in, generated_set_of,
 };
 use crate::data::datagen::{CloudData, DatagenError, LightSampling, Record};
+pub use crate::data::in_memory::{SplitArrays, in_memory};
 pub(crate) use crate::data::manifest::Manifest;
 pub use crate::data::manifest::{
     DESCRIPTOR_LAYOUT, FORMAT, META_NAMES, Part, SKY_META_NAMES, ShardInfo, meta_width,
@@ -83,7 +84,7 @@ const RECORD_BYTES: u128 = (2 * DESCRIPTOR_LEN * 4 + 256) as u128;
 /// 2.5 × the grid; a file cloud is estimated from its size on disk) and one shard of records.
 /// Over the budget the error names the setting to change (`--shard-size`, the cloud set's
 /// resolutions or `--max-memory`).
-fn check_memory(
+pub(crate) fn check_memory(
     clouds: &[CloudSpec],
     members: &[usize],
     shard: usize,
@@ -179,7 +180,7 @@ pub struct RunSummary {
     pub seconds: f64,
 }
 
-fn medium(opts: &DatagenOptions) -> Result<Medium, DatagenError> {
+pub(crate) fn medium(opts: &DatagenOptions) -> Result<Medium, DatagenError> {
     let err = |msg: String| DatagenError::Set {
         what: "phase".into(),
         msg,
@@ -342,17 +343,17 @@ fn precise_gpu(
 }
 
 /// What one split's records are computed with: its clouds, label sample counts.
-struct SplitPlan {
+pub(crate) struct SplitPlan {
     /// The clouds of the split (indices into the set).
-    members: Vec<usize>,
+    pub(crate) members: Vec<usize>,
     /// Samples per label (fixed) or the cap of a converged one.
-    cap: u64,
-    fixed: bool,
+    pub(crate) cap: u64,
+    pub(crate) fixed: bool,
     /// Two-stage precise labels (validation and test only): pilot `cap`, then fresh samples.
-    precise: Option<f64>,
+    pub(crate) precise: Option<f64>,
 }
 
-fn plan_split(
+pub(crate) fn plan_split(
     clouds: &[CloudSpec],
     opts: &DatagenOptions,
     split: &str,
@@ -383,7 +384,7 @@ fn plan_split(
 }
 
 /// The clouds of a split (volume + pyramid), built in parallel.
-fn build_clouds(
+pub(crate) fn build_clouds(
     clouds: &[CloudSpec],
     members: &[usize],
     medium: &Medium,
@@ -399,24 +400,24 @@ fn build_clouds(
 }
 
 /// Everything one shard's records depend on besides their range.
-struct ShardJob<'a> {
-    opts: &'a DatagenOptions,
-    data: &'a [CloudData],
-    members: &'a [usize],
-    gpu: Option<&'a nimbus_gpu::Gpu>,
-    split: &'a str,
-    cap: u64,
-    fixed: bool,
-    precise: Option<f64>,
+pub(crate) struct ShardJob<'a> {
+    pub(crate) opts: &'a DatagenOptions,
+    pub(crate) data: &'a [CloudData],
+    pub(crate) members: &'a [usize],
+    pub(crate) gpu: Option<&'a nimbus_gpu::Gpu>,
+    pub(crate) split: &'a str,
+    pub(crate) cap: u64,
+    pub(crate) fixed: bool,
+    pub(crate) precise: Option<f64>,
     /// What errors name (the output folder).
-    what: String,
-    cancel: &'a Cancel,
+    pub(crate) what: String,
+    pub(crate) cancel: &'a Cancel,
 }
 
 /// Records `lo..hi` of shard `k` of a split, each with the index of its cloud in the set:
 /// record r uses its own random stream (seed, split, r) on the CPU; on the GPU the shard's
 /// records of one cloud share a batch seeded by (seed, k, cloud).
-fn shard_records(
+pub(crate) fn shard_records(
     job: &ShardJob,
     k: usize,
     lo: usize,
@@ -512,7 +513,10 @@ pub struct ShardArrays {
     pub converged: usize,
 }
 
-fn shard_arrays(records: &[(usize, Record)], sky: bool) -> Result<ShardArrays, &'static str> {
+pub(crate) fn shard_arrays(
+    records: &[(usize, Record)],
+    sky: bool,
+) -> Result<ShardArrays, &'static str> {
     let width = meta_width(sky);
     let mut xs = Vec::with_capacity(records.len() * DESCRIPTOR_LEN);
     let mut ys = Vec::with_capacity(records.len());
@@ -547,118 +551,6 @@ fn shard_arrays(records: &[(usize, Record)], sky: bool) -> Result<ShardArrays, &
         width,
         converged: conv,
     })
-}
-
-/// One split of a set held in memory ([`in_memory`]): the rows its shards would hold, in order.
-pub struct SplitArrays {
-    pub split: &'static str,
-    pub records: usize,
-    pub arrays: ShardArrays,
-}
-
-/// The records [`run`] writes for `clouds` and `opts` (every split, every shard in order: the
-/// rows of `{split}_*_x.npy` etc. concatenated, float32 descriptors whatever
-/// `f16_descriptors` says), computed in memory with nothing written; `cancel` stops it at the
-/// next record ([`DatagenError::Cancelled`]). `opts.part` must be `None`.
-pub fn in_memory(
-    clouds: &[CloudSpec],
-    opts: &DatagenOptions,
-    cancel: &Cancel,
-) -> Result<(Vec<SplitArrays>, RunSummary), DatagenError> {
-    let err = |msg: String| DatagenError::Set {
-        what: "datagen".into(),
-        msg,
-    };
-    if opts.shard_size == 0 {
-        return Err(err("shard size must be at least 1".into()));
-    }
-    if opts.part.is_some() {
-        return Err(err(
-            "a part of a set (shard K/N) is written to a folder, not held in memory".into(),
-        ));
-    }
-    if opts.sky_transfer && opts.gpu {
-        return Err(err(
-            "sky transfer needs the CPU path tracer (device cpu)".into()
-        ));
-    }
-    let counts = [opts.records, opts.val_records, opts.test_records];
-    for (split, &count) in SPLITS.iter().zip(&counts) {
-        if count > 0 && !clouds.iter().any(|c| c.split == *split) {
-            return Err(err(format!(
-                "{count} {split} records requested but the set has no {split} clouds"
-            )));
-        }
-    }
-    let medium = medium(opts)?;
-    let gpu = if opts.gpu {
-        Some(nimbus_gpu::Gpu::new().map_err(|e| err(e.to_string()))?)
-    } else {
-        None
-    };
-    let start = Instant::now();
-    let (mut total, mut converged) = (0usize, 0usize);
-    let mut splits = Vec::new();
-    for (split, count) in SPLITS.into_iter().zip(counts) {
-        let plan = plan_split(clouds, opts, split).map_err(|m| err(m.into()))?;
-        let mut all = ShardArrays {
-            x: Vec::new(),
-            y: Vec::new(),
-            meta: Vec::new(),
-            width: meta_width(opts.sky_transfer),
-            converged: 0,
-        };
-        if count > 0 {
-            // The whole split is held at once.
-            check_memory(clouds, &plan.members, count, split)?;
-            let data = build_clouds(clouds, &plan.members, &medium, opts)?;
-            let bar = if opts.progress {
-                ProgressBar::with_draw_target(Some(count as u64), ProgressDrawTarget::stderr())
-            } else {
-                ProgressBar::hidden()
-            };
-            bar.set_prefix(split);
-            let job = ShardJob {
-                opts,
-                data: &data,
-                members: &plan.members,
-                gpu: gpu.as_ref(),
-                split,
-                cap: plan.cap,
-                fixed: plan.fixed,
-                precise: plan.precise,
-                what: "datagen".into(),
-                cancel,
-            };
-            for k in 0..count.div_ceil(opts.shard_size) {
-                let lo = k * opts.shard_size;
-                let hi = ((k + 1) * opts.shard_size).min(count);
-                let records = shard_records(&job, k, lo, hi, &bar)?;
-                let a = shard_arrays(&records, opts.sky_transfer).map_err(|m| err(m.into()))?;
-                all.x.extend_from_slice(&a.x);
-                all.y.extend_from_slice(&a.y);
-                all.meta.extend_from_slice(&a.meta);
-                all.converged += a.converged;
-            }
-            bar.finish_and_clear();
-        }
-        total += count;
-        converged += all.converged;
-        splits.push(SplitArrays {
-            split,
-            records: count,
-            arrays: all,
-        });
-    }
-    Ok((
-        splits,
-        RunSummary {
-            records: total,
-            computed: total,
-            converged,
-            seconds: start.elapsed().as_secs_f64(),
-        },
-    ))
 }
 
 /// Whether `datagen` estimates labels on the GPU: `choice` when given (`--device`), else the

@@ -14,6 +14,7 @@
 pub mod clouds;
 pub mod datagen;
 pub mod dataset;
+mod in_memory;
 pub mod manifest;
 mod shard_files;
 pub(crate) use shard_files::sha256_file;
