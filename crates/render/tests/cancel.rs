@@ -4,42 +4,15 @@
 //! returns within a second with an error `is_cancelled` recognises, and the estimator renders
 //! correctly afterwards.
 
-use std::path::Path;
+mod common;
+
 use std::time::{Duration, Instant};
 
-use glam::DVec3;
-use nimbus_render::{
-    Cancel, Estimator, GpuSlot, Method, NetBackend, Options, RpnnSettings, is_cancelled, prepare,
-};
-use nimbus_scene::Scene;
-use nimbus_scene::build::{self, SceneBuilder};
+use common::{options, scene};
+use nimbus_render::{Cancel, Estimator, GpuSlot, Method, is_cancelled, prepare};
 
 /// One device for the test binary, as a Python process has one.
 static GPU: GpuSlot = GpuSlot::new();
-
-fn scene() -> Scene {
-    SceneBuilder::new(
-        build::generated(nimbus_scene::CloudKind::Cumulus, 3, [24, 18, 24], 20.0).unwrap(),
-    )
-    .sun(DVec3::new(1.0, 0.6, 0.3), DVec3::new(1.0, 0.9, 0.8))
-    .sky(DVec3::new(0.1, 0.15, 0.3))
-    .look(DVec3::new(0.3, 0.3, 3.0), DVec3::ZERO, 40.0, 24, 16)
-    .build()
-    .unwrap()
-}
-
-fn options() -> Options {
-    Options {
-        rpnn: RpnnSettings {
-            model: Some(
-                Path::new(env!("CARGO_MANIFEST_DIR")).join("../rpnn/tests/data/rpnn-tiny.onnx"),
-            ),
-            backend: NetBackend::Ort,
-            ..Default::default()
-        },
-        ..Default::default()
-    }
-}
 
 /// The methods of a build with a GPU adapter (all), or without one (the CPU's).
 fn methods() -> Vec<Method> {

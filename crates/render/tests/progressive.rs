@@ -2,36 +2,13 @@
 //! `image`): samples added in steps give the image one render of the same budget gives, bit
 //! for bit; a change restarts the image with independent samples.
 
+mod common;
+
 use std::path::Path;
 
+use common::{options, scene};
 use glam::DVec3;
-use nimbus_render::{Change, GpuSlot, Method, NetBackend, Options, RpnnSettings, prepare};
-use nimbus_scene::Scene;
-use nimbus_scene::build::{self, SceneBuilder};
-
-fn scene() -> Scene {
-    SceneBuilder::new(
-        build::generated(nimbus_scene::CloudKind::Cumulus, 3, [24, 18, 24], 20.0).unwrap(),
-    )
-    .sun(DVec3::new(1.0, 0.6, 0.3), DVec3::new(1.0, 0.9, 0.8))
-    .sky(DVec3::new(0.1, 0.15, 0.3))
-    .look(DVec3::new(0.3, 0.3, 3.0), DVec3::ZERO, 40.0, 24, 16)
-    .build()
-    .unwrap()
-}
-
-fn options() -> Options {
-    Options {
-        rpnn: RpnnSettings {
-            model: Some(
-                Path::new(env!("CARGO_MANIFEST_DIR")).join("../rpnn/tests/data/rpnn-tiny.onnx"),
-            ),
-            backend: NetBackend::Ort,
-            ..Default::default()
-        },
-        ..Default::default()
-    }
-}
+use nimbus_render::{Change, GpuSlot, Method, NetBackend, Options, prepare};
 
 /// An environment map that is not 2:1 is read as latitude–longitude anyway, with a warning
 /// naming its size; a 2:1 map gets none.
