@@ -20,8 +20,8 @@ pub enum NetBackend {
     Ort,
     /// As [`NetBackend::Ort`], with the model's int8 copy (`<model>.int8.onnx`, made by
     /// `training/quantize.py`; [`nimbus_rpnn::ort_backend::OrtModel::load_int8`]): beyond the
-    /// paper, about half the network's time on a CPU with AVX-512 VNNI (BENCHMARKS.md, "The
-    /// int8 network").
+    /// paper, about half the network's time on a CPU with AVX-512 VNNI
+    /// (`docs/experiments/2026-12-07-rpnn-sample-rounds.md`, "The int8 network").
     OrtInt8,
 }
 

@@ -1,5 +1,5 @@
 //! Descriptors and ONNX Runtime per query against the piece size and the use of the cores
-//! (BENCHMARKS.md, "The CPU sample, third round"): 65 536 configurations of the demo cumulus
+//! (docs/experiments/2026-12-07-rpnn-sample-rounds.md, "The CPU sample, third round"): 65 536 configurations of the demo cumulus
 //! (`scenes/bench/rpnn_720p.toml`, as `cargo bench -p nimbus-rpnn --bench network`), run
 //! through `OrtModel::predict_rows` in pieces of 65 536 (a third of a 1280×720 sample at a
 //! time) down to 128 queries, once with one session on ONNX Runtime's threads (`Cores::Pool`) and

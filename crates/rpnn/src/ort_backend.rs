@@ -145,7 +145,7 @@ fn metadata(session: &ort::session::Session, key: &str) -> Result<Option<String>
 /// session whose intra-op threads meet at each operator, with the descriptors written by rayon's
 /// threads. On 2 cores, pieces of 1 024 queries: 10.7–11.1 against 13.8–14.3 µs per query for
 /// descriptors and network (`cargo run --release -p nimbus-rpnn --example ort_cores`;
-/// BENCHMARKS.md, "The CPU sample, third round").
+/// docs/experiments/2026-12-07-rpnn-sample-rounds.md, "The CPU sample, third round").
 ///
 /// With an f32 model the outputs do not depend on the split: equal to the bit with one session
 /// or any number of workers and pieces (tested). An int8 copy ([`OrtModel::load_int8`]) scales
@@ -178,7 +178,7 @@ impl From<usize> for Cores {
 /// in the caches and the kept buffers stay small. A whole 1280×720 frame in
 /// one run (≈ 195 000 queries, 1.75 GB of descriptors) took 6.6 µs per query for the
 /// descriptors and 15–27 for the network; in pieces of 1 024 on two workers, 3.5 and 7.2–7.6
-/// (BENCHMARKS.md, "The CPU sample, third round"). Between 128 and 2 048 the time hardly
+/// (docs/experiments/2026-12-07-rpnn-sample-rounds.md, "The CPU sample, third round"). Between 128 and 2 048 the time hardly
 /// changes.
 pub const ROWS_PER_RUN: usize = 1024;
 
@@ -231,7 +231,7 @@ fn session(
     // network with descriptors and shading on the same cores, and threads spinning after
     // the run take them from rayon's. On 2 cores a 32-spp render at 128×72 took 29 ms per
     // spp so, 37 ms with spinning left on and 38 ms with it off (the network ≈ 40 % slower
-    // then): BENCHMARKS.md, "The CPU sample".
+    // then): docs/experiments/2026-12-07-rpnn-sample-rounds.md, "The CPU sample".
     b = b
         .with_config_entry("session.force_spinning_stop", "1")
         .map_err(|e| e.to_string())?;
@@ -317,7 +317,7 @@ impl OrtModel {
     /// `training/quantize.py`: weights int8 per output channel, the blocks' input activations
     /// u8 with one scale per run of a session (at most [`INT8_ROWS_PER_RUN`] queries, cut by the
     /// batch's size alone, see [`Cores`]), the heads f32; beyond the paper, see
-    /// BENCHMARKS.md "The int8 network"). A missing copy, or a copy of another model (its metadata
+    /// docs/experiments/2026-12-07-rpnn-sample-rounds.md, "The int8 network"). A missing copy, or a copy of another model (its metadata
     /// `nimbus.rpnn.int8_of` is not the sha256 of `f32_path`), is an error naming the file and
     /// the command that makes it.
     pub fn load_int8(f32_path: &Path, cores: impl Into<Cores>) -> Result<Self, OrtError> {

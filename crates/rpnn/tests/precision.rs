@@ -207,7 +207,7 @@ fn f16_network_on_held_out_records() {
 /// slightly, by less than the bounds below; the pieces are cut by the number of queries alone,
 /// so one session or any number of workers give the same answers, to the bit).
 /// On 3 000 test records quantize.py measured the sun output's difference at 0.6 % median,
-/// 3.9 % at the 95th percentile and a mean ratio of 1.0007 (BENCHMARKS.md, "The int8
+/// 3.9 % at the 95th percentile and a mean ratio of 1.0007 (docs/experiments/2026-12-07-rpnn-sample-rounds.md, "The int8
 /// network"); the bounds below are those with room for 210 rows: median ≤ 2 %, mean ratio
 /// within 1 %. A copy of the wrong model, a file that is no copy, and a missing copy are
 /// refused, naming the file and the command that makes it.
