@@ -36,7 +36,7 @@
 # as the CPU table's) from SUITE_REFS (default out/device_refs), and only from there: a
 # missing one stops the step before anything renders. `--prepare-refs --steps 9,10` renders
 # them on this machine instead (the 27 of the full size: 72 minutes on the 2-core machine,
-# BENCHMARKS.md "Device benchmark"), to be carried to the GPU's; `--check-refs` only says whether they are all there
+# docs/experiments/2026-12-07-device-run-prepared.md), to be carried to the GPU's; `--check-refs` only says whether they are all there
 # for this machine's scenes (seconds). With --small and no SUITE_REFS the steps render their
 # own references into DIR/suite_cache. SUITE_REF replaces the reference flags (e.g.
 # "--ref-device gpu --ref-time-cap 30" with SUITE_CACHED_ONLY=0 renders them on the GPU).

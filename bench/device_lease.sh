@@ -30,7 +30,7 @@
 # Exit status: device.sh's (124: the limit, the rows before it in device.csv; 1: a step
 # failed), else 1 (no binary), 2 (bad arguments), 3 (no hardware GPU).
 #
-# Which steps in which call, for 15 minutes of device time: BENCHMARKS.md, "Device benchmark".
+# Which steps in which call, for 15 minutes of device time: docs/experiments/2026-12-07-device-run-prepared.md.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 steps=
